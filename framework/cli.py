@@ -1,0 +1,104 @@
+"""The ``rigslim`` command line.
+
+``rigslim run PIPELINE.yaml [--metrics FILE.json] [--set STEP.PARAM=VALUE]``
+runs a pipeline; ``rigslim plugins [--json]`` lists loaded plugins. Errors a
+user can cause print one line and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from rigslim.errors import RigslimError
+
+EXIT_USER_ERROR = 2
+
+
+def _cmd_run(args) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from rigslim.pipeline import run_pipeline
+
+    console = Console(stderr=True, quiet=args.quiet)
+    result = run_pipeline(args.pipeline, overrides=args.set or [], metrics_path=args.metrics, console=console)
+    out = Console()
+    for ev in result.evaluations:
+        table = Table(title=f"{ev['name']}  ({len(result.document['frames']['test'])} test frames)"
+                      if result.document.get("frames") else ev["name"])
+        table.add_column("metric")
+        table.add_column("mean", justify="right")
+        table.add_column("max", justify="right")
+        for key, value in ev["metrics"].items():
+            if isinstance(value, dict):
+                table.add_row(key, f"{value['mean']:.6g}", f"{value['max']:.6g}")
+            else:
+                table.add_row(key, f"{value:.6g}" if isinstance(value, float) else str(value), "")
+        out.print(table)
+    steps = Table(title="steps")
+    for col in ("stage", "plugin", "seconds"):
+        steps.add_column(col, justify="right" if col == "seconds" else "left")
+    for s in result.document["steps"]:
+        steps.add_row(s["stage"], str(s.get("plugin", "")), f"{s['seconds']:.3f}")
+    out.print(steps)
+    if args.metrics:
+        out.print(f"metrics written to {args.metrics}")
+    return 0
+
+
+def _cmd_plugins(args) -> int:
+    from rigslim.host import get_host
+
+    infos = sorted(get_host().infos(), key=lambda i: (i.stage, i.name))
+    if args.json:
+        print(json.dumps([i.as_dict() for i in infos], indent=2))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title="rigslim plugins")
+    for col in ("stage", "name", "package", "version", "summary"):
+        table.add_column(col, overflow="fold")
+    for i in infos:
+        table.add_row(i.stage, i.name, i.package, i.version, i.summary)
+    Console().print(table)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    import rigslim
+
+    parser = argparse.ArgumentParser(prog="rigslim", description="Reduce skin weights and cage coordinates "
+                                     "to k per vertex, and simplify articulated meshes.")
+    parser.add_argument("--version", action="version", version=f"rigslim {rigslim.__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="run a YAML pipeline")
+    run.add_argument("pipeline", help="pipeline YAML file")
+    run.add_argument("--metrics", metavar="FILE.json", help="write the metrics document here")
+    run.add_argument("--set", action="append", metavar="STEP.PARAM=VALUE",
+                     help="override a step parameter (STEP: step name, stage key, plugin or 1-based index)")
+    run.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    run.set_defaults(func=_cmd_run)
+    plugins = sub.add_parser("plugins", help="list loaded plugins")
+    plugins.add_argument("--json", action="store_true", help="machine-readable output")
+    plugins.set_defaults(func=_cmd_plugins)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except RigslimError as e:
+        print(f"rigslim: error: {e.one_line()}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print("rigslim: interrupted; no output was written partially", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

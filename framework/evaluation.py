@@ -1,0 +1,75 @@
+"""Evaluation of a reduction on test poses: full against reduced deformation.
+
+An :class:`Evaluation` is handed to every metric. It deforms the rest mesh
+to each test pose twice, with the full input weights (the reference, always
+the numpy deformer) and with the reduced weights (through the asset's chosen
+deformer), and caches positions and normals so that several metrics share
+the work.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+
+import numpy as np
+
+from rigslim.blend import linear_blend, per_vertex_normals
+
+
+class Evaluation:
+    """Per-test-frame deformations of one asset.
+
+    Parameters
+    ----------
+    asset : rigslim.asset.Asset
+        Needs mesh, weights, poses, split and reduced weights.
+    host : rigslim.host.PluginHost
+        To find the asset's deformer and normal estimator.
+    """
+
+    def __init__(self, asset, host):
+        asset.require("mesh", "weights", "poses", "split", "reduced", step="evaluate")
+        self.asset = asset
+        self.host = host
+        self.mesh = asset.mesh
+        self.poses = asset.test_poses()
+        self.frames = [int(f) for f in self.poses.frames]
+        self._cache: dict = {}
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    @cached_property
+    def _reduced_deform(self):
+        deformer = self.host.get("deformer", self.asset.deformer)
+        params = deformer.parse_params(self.asset.deformer_params)
+        return deformer.bind(self.mesh, self.asset.reduced, params)
+
+    @cached_property
+    def _normal_estimator(self):
+        est = self.host.get("normal-estimator", self.asset.normal_estimator)
+        return est, est.parse_params(self.asset.normal_params)
+
+    def _cached(self, key, j, compute):
+        if (key, j) not in self._cache:
+            self._cache[(key, j)] = compute()
+        return self._cache[(key, j)]
+
+    def full_positions(self, j: int) -> np.ndarray:
+        """(m, 3) positions of test pose j with the full input weights."""
+        return self._cached("full", j, lambda: linear_blend(self.mesh.V, self.asset.weights, self.poses.T[j]))
+
+    def reduced_positions(self, j: int) -> np.ndarray:
+        """(m, 3) positions of test pose j with the reduced weights."""
+        return self._cached("reduced", j, lambda: np.asarray(self._reduced_deform(self.poses.T[j]),
+                                                             dtype=np.float64))
+
+    def full_normals(self, j: int) -> np.ndarray:
+        """Area-weighted normals recomputed on the full deformation (the reference)."""
+        return self._cached("full_n", j, lambda: per_vertex_normals(self.full_positions(j), self.mesh.F))
+
+    def reduced_normals(self, j: int) -> np.ndarray:
+        """Normals of the reduced deformation from the asset's normal estimator."""
+        est, params = self._normal_estimator
+        return self._cached("reduced_n", j, lambda: est.estimate(
+            self.mesh, self.asset.reduced, self.asset.handles, self.poses.T[j], self.reduced_positions(j), params))

@@ -1,0 +1,86 @@
+"""Triangle meshes from OBJ/OFF/PLY/STL (libigl) and the surface of MEDIT tetrahedral meshes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from rigslim.errors import InputError
+from rigslim.mesh import Mesh
+
+MESH_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".mesh")
+
+
+def _check_file(path: Path) -> None:
+    if not path.is_file():
+        raise InputError("file not found" if not path.exists() else "not a file", source=path, field="path",
+                         fix="check the path (relative paths are relative to the pipeline file)")
+
+
+def read_mesh(path) -> Mesh:
+    """Read a triangle mesh; ``.mesh`` (MEDIT) gives the boundary surface of its tetrahedra.
+
+    Faces that are not triangles are rejected (libigl triangulates OBJ polygons
+    on read for some writers, not all).
+    """
+    path = Path(path)
+    _check_file(path)
+    suffix = path.suffix.lower()
+    if suffix == ".mesh":
+        V, F, _ = read_medit_surface(path)
+        return Mesh(V, F, source=str(path))
+    if suffix not in MESH_SUFFIXES:
+        raise InputError(f"unknown mesh format '{suffix}'", source=path, field="suffix",
+                         fix="use one of " + ", ".join(MESH_SUFFIXES))
+    import igl
+
+    try:
+        V, F = igl.read_triangle_mesh(str(path))
+    except Exception as e:  # libigl raises RuntimeError/ValueError with its own text
+        raise InputError(f"libigl could not read it ({e})", source=path, field="contents",
+                         fix="check that it is a valid triangle mesh") from None
+    if V.size == 0 or F.size == 0:
+        raise InputError("no vertices or no triangles", source=path, field="contents",
+                         fix="check that it is a valid, non-empty triangle mesh")
+    return Mesh(V, F, source=str(path))
+
+
+def read_medit_surface(path):
+    """Read a MEDIT ``.mesh`` tetrahedral mesh and extract its boundary surface.
+
+    Returns
+    -------
+    V : (m, 3) array
+        Vertices used by the boundary surface (re-indexed).
+    F : (f, 3) int64 array
+        Boundary triangles, oriented outward.
+    volume : dict
+        ``{"V": all vertices, "T": tetrahedra, "surface_vertices": index of each
+        surface vertex in the volume mesh}``, e.g. for bounded biharmonic weights.
+    """
+    path = Path(path)
+    _check_file(path)
+    import igl
+
+    try:
+        VV, T, _ = igl.readMESH(str(path))
+    except Exception as e:
+        raise InputError(f"libigl could not read it ({e})", source=path, field="contents",
+                         fix="give a MEDIT .mesh file with Vertices and Tetrahedra") from None
+    if T.size == 0:
+        raise InputError("no tetrahedra", source=path, field="Tetrahedra",
+                         fix="give a tetrahedral MEDIT mesh")
+    Fb, _, _ = igl.boundary_facets(T)
+    # libigl's boundary facets of tets face inward for positively oriented tets: make them outward.
+    Fb = _orient_outward(VV, Fb)
+    used, inverse = np.unique(Fb, return_inverse=True)
+    F = inverse.reshape(Fb.shape).astype(np.int64)
+    return VV[used], F, {"V": VV, "T": T, "surface_vertices": used}
+
+
+def _orient_outward(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Flip all faces if the enclosed signed volume is negative."""
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    signed_volume = np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0
+    return F[:, ::-1].copy() if signed_volume < 0 else F

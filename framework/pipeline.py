@@ -1,0 +1,428 @@
+"""YAML pipelines: validated documents, step by step execution, the metrics JSON.
+
+A pipeline names inputs (paths relative to the YAML file), the example/test
+frame split, and a list of steps. Each step is a mapping with exactly one
+stage key (``generate``, ``select``, ``solve``, ``decimate``, ``deform``,
+``normals``, ``evaluate``, ``write``) whose value names the plugin; the other
+keys are the plugin's parameters (plus an optional ``name``). See
+docs/pipelines.md.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import yaml
+from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
+
+import rigslim
+from rigslim.asset import Asset
+from rigslim.errors import PipelineError, RigslimError, StepError, closest
+from rigslim.errors import PluginNotFoundError as PluginNotFound
+from rigslim.evaluation import Evaluation
+from rigslim.host import PluginHost, get_host
+from rigslim.io.atomic import atomic_path
+from rigslim.plugin import STEP_STAGES, StepContext
+from rigslim.poses import FrameSplit
+
+#: Order in which input roles are read (others follow, in file order).
+ROLE_ORDER = ["mesh", "skeleton", "cage", "weights", "animation"]
+
+
+class PoseSpec(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    examples: str | int | list[str | int]
+    test: str | int | list[str | int]
+
+
+class PipelineDoc(BaseModel):
+    """The validated YAML document."""
+
+    model_config = ConfigDict(extra="forbid")
+    name: str | None = None
+    description: str | None = None
+    inputs: dict[str, Any] = {}
+    poses: PoseSpec | None = None
+    steps: list[dict[str, Any]]
+
+    @field_validator("steps")
+    @classmethod
+    def _nonempty(cls, v):
+        if not v:
+            raise ValueError("a pipeline needs at least one step")
+        return v
+
+
+@dataclass
+class Step:
+    """One parsed step."""
+
+    index: int           # 1-based
+    key: str             # stage key in YAML ("solve")
+    stage: str           # stage name ("weight-solver")
+    plugin: Any          # plugin name, or for evaluate a list of (name, params)
+    params: dict
+    name: str
+
+    @property
+    def label(self) -> str:
+        return self.name
+
+
+@dataclass
+class RunResult:
+    """What :func:`run_pipeline` returns: the final asset and the metrics document."""
+
+    asset: Asset
+    document: dict
+    evaluations: list = field(default_factory=list)
+
+
+def _format_validation(err: ValidationError) -> tuple[str, str]:
+    e = err.errors()[0]
+    loc = ".".join(str(x) for x in e["loc"])
+    return loc, e["msg"]
+
+
+def load_pipeline(path, overrides: list[str] = (), host: PluginHost | None = None) -> tuple[PipelineDoc, list[Step]]:
+    """Read, validate and parse a pipeline file.
+
+    Parameters
+    ----------
+    path : path to the YAML file
+    overrides : list of "STEP.PARAM=VALUE"
+        STEP is a step's ``name``, its stage key, its plugin name or its
+        1-based index; VALUE is parsed as YAML.
+    """
+    host = host or get_host()
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise PipelineError(f"cannot read pipeline ({e.strerror})", source=path, field="path",
+                            fix="check the path") from None
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "YAML"
+        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
+        raise PipelineError(f"malformed YAML ({problem})", source=path, field=where,
+                            fix="fix the YAML syntax (indentation, colons, quotes)") from None
+    if not isinstance(raw, dict):
+        raise PipelineError("the document is not a mapping", source=path, field="top level",
+                            fix="start with 'inputs:', 'poses:' and 'steps:'")
+    try:
+        doc = PipelineDoc(**raw)
+    except ValidationError as err:
+        loc, msg = _format_validation(err)
+        top = loc.split(".")[0]
+        fix = closest(top, PipelineDoc.model_fields) if "extra" in err.errors()[0]["type"] else \
+            "see docs/pipelines.md"
+        raise PipelineError(msg, source=path, field=loc, fix=fix) from None
+    steps = [_parse_step(i, s, path, host) for i, s in enumerate(doc.steps, 1)]
+    for item in overrides:
+        _apply_override(item, steps, path, host)
+    return doc, steps
+
+
+def _parse_step(index: int, raw: dict, path: Path, host: PluginHost) -> Step:
+    if not isinstance(raw, dict):
+        raise PipelineError(f"step {index} is not a mapping", source=path, field=f"steps[{index}]",
+                            fix="write each step as '- solve: poisson' with its parameters below")
+    keys = [k for k in raw if k in STEP_STAGES]
+    if len(keys) != 1:
+        unknown = [k for k in raw if k not in STEP_STAGES and k != "name"]
+        hint = closest(unknown[0], STEP_STAGES) if unknown and not keys else \
+            "give exactly one of " + ", ".join(STEP_STAGES)
+        what = f"unknown stage '{unknown[0]}'" if unknown and not keys else \
+            f"step has {len(keys)} stage keys ({', '.join(keys) or 'none'})"
+        raise PipelineError(what, source=path, field=f"steps[{index}]", fix=hint)
+    key = keys[0]
+    stage = STEP_STAGES[key]
+    params = {k: v for k, v in raw.items() if k not in (key, "name")}
+    value = raw[key]
+    if key == "evaluate":
+        plugin = _parse_metrics(value, index, path, host)
+        name = raw.get("name") or f"evaluate{index}"
+    elif key == "write":
+        if not isinstance(value, str):
+            raise PipelineError("write needs an output path", source=path, field=f"steps[{index}].write",
+                                fix="write e.g. 'write: out/weights.npz'")
+        plugin = value
+        name = raw.get("name") or f"write{index}"
+    else:
+        if not isinstance(value, str):
+            raise PipelineError(f"'{key}' needs a plugin name", source=path, field=f"steps[{index}].{key}",
+                                fix=closest("", host.plugins(stage)))
+        try:
+            plugin_obj = host.get(stage, value)
+        except PluginNotFound as e:
+            raise PipelineError(e.problem, source=path, field=f"steps[{index}].{key}", fix=e.fix) from None
+        _check_params(plugin_obj, params, path, f"steps[{index}]")
+        plugin = value
+        name = raw.get("name") or value
+    return Step(index, key, stage, plugin, params, str(name))
+
+
+def _parse_metrics(value, index, path, host) -> list[tuple[str, dict]]:
+    if isinstance(value, str):
+        items = [(value, {})]
+    elif isinstance(value, list):
+        items = []
+        for v in value:
+            if isinstance(v, str):
+                items.append((v, {}))
+            elif isinstance(v, dict) and len(v) == 1:
+                (n, p), = v.items()
+                items.append((n, p or {}))
+            else:
+                raise PipelineError(f"cannot read metric entry {v!r}", source=path,
+                                    field=f"steps[{index}].evaluate", fix="list metric names")
+    elif isinstance(value, dict):
+        items = [(n, p or {}) for n, p in value.items()]
+    else:
+        raise PipelineError("evaluate needs metric names", source=path, field=f"steps[{index}].evaluate",
+                            fix="write e.g. 'evaluate: [position-rms, normal-deviation]'")
+    for n, p in items:
+        try:
+            metric = host.get("metric", n)
+        except PluginNotFound as e:
+            raise PipelineError(e.problem, source=path, field=f"steps[{index}].evaluate", fix=e.fix) from None
+        _check_params(metric, p, path, f"steps[{index}].evaluate.{n}")
+    return items
+
+
+def _check_params(plugin, params: dict, path, where: str):
+    try:
+        return plugin.parse_params(params)
+    except ValidationError as err:
+        e = err.errors()[0]
+        loc = ".".join(str(x) for x in e["loc"])
+        if e["type"] == "extra_forbidden":
+            fields = plugin.Params.model_fields
+            fix = closest(loc, fields) if fields else f"'{plugin.name}' takes no parameters"
+            raise PipelineError(f"unknown parameter '{loc}' for {plugin.stage} '{plugin.name}'", source=path,
+                                field=f"{where}.{loc}", fix=fix) from None
+        raise PipelineError(f"{e['msg']}", source=path, field=f"{where}.{loc}",
+                            fix=f"see 'rigslim plugins' for {plugin.name}'s parameters") from None
+
+
+def _apply_override(item: str, steps: list[Step], path: Path, host: PluginHost) -> None:
+    if "=" not in item or "." not in item.split("=", 1)[0]:
+        raise PipelineError(f"--set '{item}' is not STEP.PARAM=VALUE", source=path, field="--set",
+                            fix="write e.g. --set select.k=6")
+    lhs, value = item.split("=", 1)
+    target, param = lhs.rsplit(".", 1)
+    matches = [s for s in steps if target in (s.name, s.key, str(s.index)) or
+               (isinstance(s.plugin, str) and s.plugin == target)]
+    if not matches:
+        names = [s.name for s in steps] + [s.key for s in steps]
+        raise PipelineError(f"--set names no step '{target}'", source=path, field="--set", fix=closest(target, names))
+    try:
+        parsed = yaml.safe_load(value)
+    except yaml.YAMLError:
+        parsed = value
+    for step in matches:
+        if step.key == "evaluate":
+            raise PipelineError("--set cannot change evaluate steps", source=path, field="--set",
+                                fix="edit the pipeline file")
+        if param == step.key:
+            step.plugin = parsed
+            if step.key != "write":
+                try:
+                    plugin = host.get(step.stage, parsed)
+                except PluginNotFound as e:
+                    raise PipelineError(e.problem, source=path, field="--set", fix=e.fix) from None
+                _check_params(plugin, step.params, path, f"steps[{step.index}]")
+            continue
+        step.params[param] = parsed
+        if step.key != "write":
+            _check_params(host.get(step.stage, step.plugin), step.params, path, f"steps[{step.index}]")
+
+
+def read_inputs(doc: PipelineDoc, base: Path, host: PluginHost, ctx: StepContext, source) -> Asset:
+    """Fill an :class:`Asset` from the ``inputs`` section, each role by its reader."""
+    asset = Asset()
+    inputs = dict(doc.inputs)
+    normalize = inputs.pop("normalize", None)
+    readers = host.plugins("reader")
+    specs = {}
+    for role, spec in inputs.items():
+        if isinstance(spec, str):
+            spec = {"path": spec}
+        if not isinstance(spec, dict) or "path" not in spec:
+            raise PipelineError(f"input '{role}' needs a path", source=source, field=f"inputs.{role}",
+                                fix=f"write '{role}: path/to/file'")
+        spec = dict(spec)
+        if role == "weights" and normalize is not None:
+            spec.setdefault("normalize", normalize)
+        specs[role] = spec
+    roles_known = sorted({r.role for r in readers.values()})
+    order = sorted(specs, key=lambda r: ROLE_ORDER.index(r) if r in ROLE_ORDER else len(ROLE_ORDER))
+    for role in order:
+        spec = dict(specs[role])
+        file = Path(spec.pop("path"))
+        file = file if file.is_absolute() else base / file
+        name = spec.pop("reader", None)
+        if name is not None:
+            try:
+                reader = host.get("reader", name)
+            except PluginNotFound as e:
+                raise PipelineError(e.problem, source=source, field=f"inputs.{role}.reader", fix=e.fix) from None
+        else:
+            cands = [r for r in readers.values() if r.role == role]
+            if not cands:
+                raise PipelineError(f"unknown input '{role}'", source=source, field=f"inputs.{role}",
+                                    fix=closest(role, roles_known))
+            fitting = [r for r in cands if file.suffix.lower() in r.suffixes]
+            if not fitting:
+                sufs = sorted({s for r in cands for s in r.suffixes})
+                raise PipelineError(f"no reader for '{file.suffix}' files as {role}", source=source,
+                                    field=f"inputs.{role}", fix="use one of " + ", ".join(sufs))
+            reader = fitting[0]
+        if not file.exists():
+            raise PipelineError("input file not found", source=file, field=f"inputs.{role}",
+                                fix="check the path (relative paths are relative to the pipeline file)")
+        params = _check_params(reader, spec, source, f"inputs.{role}")
+        reader.read(file, asset, params, ctx)
+        asset.provenance.setdefault("inputs", {})[role] = str(file)
+    if asset.poses is None and asset.handles is not None:
+        asset.provenance["poses"] = "rest pose only"
+    if doc.poses is not None:
+        if asset.poses is None:
+            raise PipelineError("a 'poses' split is given but no animation", source=source,
+                                field="inputs.animation", fix="add 'animation:' under inputs")
+        asset.split = FrameSplit.from_specs(doc.poses.examples, doc.poses.test, len(asset.poses), source=source)
+    return asset
+
+
+def run_pipeline(path, *, overrides: list[str] = (), metrics_path=None, host: PluginHost | None = None,
+                 console=None, on_evaluation: Callable | None = None) -> RunResult:
+    """Run a pipeline file and return the asset and the metrics document.
+
+    The metrics JSON (if asked for) is written atomically at the end, so a
+    failed run writes none.
+    """
+    from rigslim.progress import Reporter
+
+    host = host or get_host()
+    path = Path(path)
+    doc, steps = load_pipeline(path, overrides, host)
+    base = path.parent.resolve()
+    reporter = Reporter(console)
+    t0 = time.perf_counter()
+    with reporter.status("reading inputs"):
+        asset = read_inputs(doc, base, host, reporter.context(base), path)
+    document = {
+        "rigslim_version": rigslim.__version__,
+        "pipeline": str(path),
+        "name": doc.name or path.stem,
+        "inputs": asset.provenance.get("inputs", {}),
+        "mesh": ({"vertices": asset.mesh.n_vertices, "faces": asset.mesh.n_faces,
+                  "bbox_diagonal": asset.mesh.bbox_diagonal} if asset.mesh is not None else None),
+        "handles": ({"kind": asset.handles.kind, "count": asset.handles.n} if asset.handles else None),
+        "frames": ({"examples": asset.split.examples, "test": asset.split.test,
+                    "dropped_from_test": asset.split.dropped} if asset.split else None),
+        "steps": [{"stage": "read", "plugin": "inputs", "seconds": time.perf_counter() - t0}],
+        "evaluations": [],
+    }
+    if asset.split and asset.split.dropped:
+        reporter.note(f"test frames {asset.split.dropped} are also example frames: dropped from the test set")
+    for step in steps:
+        ctx = reporter.context(base)
+        t = time.perf_counter()
+        with reporter.status(f"step {step.index}: {step.key} {step.plugin if isinstance(step.plugin, str) else ''}"):
+            try:
+                entry = _run_step(step, asset, host, ctx, base, path, document)
+            except RigslimError as e:
+                if not e.source:
+                    e.source = f"{path} steps[{step.index}] ({step.key})"
+                    e.args = (e.one_line(),)
+                raise
+        entry.update({"seconds": time.perf_counter() - t})
+        if ctx.report:
+            entry.setdefault("report", ctx.report)
+            if step.key == "solve":
+                entry["solver"] = ctx.report
+        document["steps"].append(entry)
+        if step.key == "evaluate" and on_evaluation:
+            on_evaluation(document["evaluations"][-1])
+    document["seconds"] = time.perf_counter() - t0
+    if metrics_path is not None:
+        write_metrics(metrics_path, document)
+    return RunResult(asset, document, document["evaluations"])
+
+
+def _run_step(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base: Path, source: Path, document):
+    entry = {"stage": step.key, "plugin": step.plugin if isinstance(step.plugin, str) else "metrics",
+             "name": step.name}
+    if step.key == "evaluate":
+        evaluation = Evaluation(asset, host)
+        metrics = {}
+        for name, p in step.plugin:
+            metric = host.get("metric", name)
+            metrics.update(metric.compute(evaluation, metric.parse_params(p)))
+        label = step.name if step.name != f"evaluate{step.index}" else _default_label(document, asset)
+        document["evaluations"].append({"name": label, "step": step.index, "metrics": metrics})
+        entry["plugin"] = ",".join(n for n, _ in step.plugin)
+        return entry
+    if step.key == "write":
+        out = Path(step.plugin)
+        out = out if out.is_absolute() else base / out
+        params = dict(step.params)
+        name = params.pop("writer", None)
+        writers = host.plugins("writer")
+        if name is None:
+            fitting = [w for w in writers.values() if out.suffix.lower() in w.suffixes]
+            if not fitting:
+                sufs = sorted({s for w in writers.values() for s in w.suffixes})
+                raise PipelineError(f"no writer for '{out.suffix}' files", source=source,
+                                    field=f"steps[{step.index}].write", fix="use one of " + ", ".join(sufs))
+            writer = fitting[0]
+        else:
+            writer = host.get("writer", name)
+        writer.write(out, asset, _check_params(writer, params, source, f"steps[{step.index}]"), ctx)
+        entry.update({"plugin": writer.name, "path": str(out)})
+        return entry
+    plugin = host.get(step.stage, step.plugin)
+    params = plugin.parse_params(step.params)
+    if step.key == "generate":
+        asset.require("mesh", "handles", step=f"generate: {plugin.name}")
+        from rigslim.weights import validate_weights
+        W = plugin.generate(asset, params, ctx)
+        asset.weights = validate_weights(W, asset.mesh.n_vertices, n_handles=asset.handles.n,
+                                         source=f"generate: {plugin.name}")
+    elif step.key == "select":
+        asset.influences = plugin.select(asset, params, ctx)
+        asset.reduced = None
+        entry["k"] = asset.influences.k
+    elif step.key == "solve":
+        asset.reduced = plugin.solve(asset, params, ctx)
+        entry["k"] = asset.reduced.k
+        asset.provenance["solver"] = plugin.name
+    elif step.key == "decimate":
+        plugin.decimate(asset, params, ctx)
+    elif step.key == "deform":
+        asset.deformer, asset.deformer_params = plugin.name, dict(step.params)
+    elif step.key == "normals":
+        asset.normal_estimator, asset.normal_params = plugin.name, dict(step.params)
+    else:  # pragma: no cover - STEP_STAGES and this function change together
+        raise StepError(f"stage key '{step.key}' has no runner", field="steps")
+    return entry
+
+
+def _default_label(document, asset) -> str:
+    solver = asset.provenance.get("solver", "input")
+    k = asset.reduced.k if asset.reduced is not None else None
+    return f"{solver}-k{k}" if k else solver
+
+
+def write_metrics(path, document: dict) -> None:
+    """Write the metrics JSON atomically."""
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(json.dumps(document, indent=2) + "\n")

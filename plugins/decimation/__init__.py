@@ -1,0 +1,1 @@
+"""Articulated decimation plugins ([S09] quartic and the baselines register here)."""

@@ -1,0 +1,9 @@
+"""Deformer plugins: linear blending of handle transforms on a back end."""
+
+from rigslim import hookimpl
+from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
+
+
+@hookimpl
+def rigslim_deformers():
+    return [NumpyDeformer()]

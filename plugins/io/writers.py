@@ -1,0 +1,40 @@
+"""Writer plugins for reduced weights."""
+
+from __future__ import annotations
+
+from rigslim.errors import StepError
+from rigslim.io import write_dmat, write_reduced_npz
+from rigslim.plugin import Params, Writer
+
+
+def _reduced(asset):
+    asset.require("reduced", step="write")
+    return asset.reduced
+
+
+class NPZWriter(Writer):
+    name = "npz"
+    summary = "reduced weights as fixed-k indices (int32) and values in a compressed .npz"
+    suffixes = (".npz",)
+
+    def write(self, path, asset, params, ctx):
+        write_reduced_npz(path, _reduced(asset))
+
+
+class DMATWriter(Writer):
+    name = "dmat"
+    summary = "reduced weights as a dense m x n DMAT (binary or ASCII), as libigl reads them"
+    suffixes = (".dmat",)
+
+    class Params(Params):
+        binary: bool = True
+
+    def write(self, path, asset, params, ctx):
+        reduced = _reduced(asset)
+        if reduced.n_vertices * reduced.n_handles > 2e8:
+            raise StepError("the dense matrix would exceed 200M entries", field="write",
+                            fix="write an .npz instead")
+        write_dmat(path, reduced.to_sparse().toarray(), binary=params.binary)
+
+
+WRITERS = [NPZWriter, DMATWriter]

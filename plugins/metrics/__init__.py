@@ -1,0 +1,11 @@
+"""Metric plugins: quality of a reduction on test poses."""
+
+from rigslim import hookimpl
+from rigslim.plugins.metrics.influences import MaxInfluences
+from rigslim.plugins.metrics.normal_deviation import NormalDeviation
+from rigslim.plugins.metrics.position_rms import PositionRMS
+
+
+@hookimpl
+def rigslim_metrics():
+    return [PositionRMS(), NormalDeviation(), MaxInfluences()]

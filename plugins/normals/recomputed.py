@@ -1,0 +1,14 @@
+"""Recomputed normals: area-weighted vertex normals of the deformed mesh (libigl)."""
+
+from __future__ import annotations
+
+from rigslim.blend import per_vertex_normals
+from rigslim.plugin import NormalEstimator
+
+
+class RecomputedNormals(NormalEstimator):
+    name = "recomputed"
+    summary = "area-weighted vertex normals of the deformed mesh (igl.per_vertex_normals)"
+
+    def estimate(self, mesh, weights, handles, T, positions, params):
+        return per_vertex_normals(positions, mesh.F)

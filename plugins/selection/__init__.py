@@ -1,0 +1,9 @@
+"""Influence selection plugins."""
+
+from rigslim import hookimpl
+from rigslim.plugins.selection.k_largest import KLargestSelector
+
+
+@hookimpl
+def rigslim_influence_selectors():
+    return [KLargestSelector()]

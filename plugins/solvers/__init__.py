@@ -1,0 +1,9 @@
+"""Weight solver plugins: the values of the reduced weights on chosen influence sets."""
+
+from rigslim import hookimpl
+from rigslim.plugins.solvers.k_largest import KLargestSolver
+
+
+@hookimpl
+def rigslim_weight_solvers():
+    return [KLargestSolver()]

@@ -1,0 +1,48 @@
+"""The k-largest solver: keep the selected input weights and renormalise ([P10] section 3)."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from rigslim.errors import StepError
+from rigslim.plugin import WeightSolver
+from rigslim.weights import InfluenceSets, ReducedWeights
+
+
+def gather(A: sp.csr_matrix, influences: InfluenceSets) -> np.ndarray:
+    """(m, k) input weights ``A[v, i_l]`` on the influence sets (0 on padding slots)."""
+    A = sp.csr_matrix(A)
+    m, k = influences.indices.shape
+    rows = np.repeat(np.arange(m), k)
+    vals = np.asarray(A[rows, influences.indices.ravel()]).reshape(m, k)
+    return np.where(influences.valid, vals, 0.0)
+
+
+def k_largest_weights(A: sp.csr_matrix, influences: InfluenceSets) -> ReducedWeights:
+    """Input weights restricted to the influence sets and renormalised.
+
+    ``alpha_{v,l} = a_{v,i_l} / sum_l' a_{v,i_l'}``
+
+    Raises
+    ------
+    StepError
+        If a vertex's kept weights sum to zero (nothing to renormalise).
+    """
+    vals = gather(A, influences)
+    sums = vals.sum(axis=1, keepdims=True)
+    bad = np.abs(sums[:, 0]) < 1e-12
+    if bad.any():
+        v = int(np.flatnonzero(bad)[0])
+        raise StepError(f"vertex {v}'s selected weights sum to zero; they cannot be renormalised",
+                        field="solve", fix="select larger influence sets or use another solver")
+    return ReducedWeights.from_influences(influences, vals / sums, A.shape[1])
+
+
+class KLargestSolver(WeightSolver):
+    name = "k-largest"
+    summary = "keep the selected input weights and divide by their sum"
+
+    def solve(self, asset, params, ctx):
+        asset.require("weights", "influences", step="solve: k-largest")
+        return k_largest_weights(asset.weights, asset.influences)
