@@ -1,0 +1,37 @@
+# The two commands of the README. Both work on a fresh machine with nothing but Python 3.11+.
+PYTHON ?= python3
+VENV   ?= .venv
+PY      = $(VENV)/bin/python
+PIP     = $(PY) -m pip
+
+.PHONY: demo test install install-test test-tools clean
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PIP) install --quiet --upgrade pip
+	$(PIP) install --quiet -e '.[all]'
+	touch $@
+
+$(VENV)/.installed-test: $(VENV)/.installed
+	$(PIP) install --quiet -e '.[test]'
+	$(PIP) install --quiet -e examples/rigslim-absweights
+	touch $@
+
+install: $(VENV)/.installed
+
+install-test: $(VENV)/.installed-test
+
+## demo: create .venv, install rigslim, reduce the elephant to 4 weights and print the errors
+demo: install
+	$(VENV)/bin/rigslim run examples/elephant-k4.yaml --metrics examples/out/elephant-k4.json
+
+## test-tools: system tools some tests drive (each tools/setup-*.sh installs one, idempotently)
+test-tools:
+	@for script in tools/setup-*.sh; do [ -f "$$script" ] && bash "$$script" || exit 1; done
+
+## test: create .venv, install rigslim with test extras and the tools tests need, run pytest
+test: install-test test-tools
+	$(PY) -m pytest -q $(PYTEST_ARGS)
+
+clean:
+	rm -rf $(VENV) examples/out build *.egg-info
