@@ -201,15 +201,18 @@ def _check_params(plugin, params: dict, path, where: str):
     try:
         return plugin.parse_params(params)
     except ValidationError as err:
-        e = err.errors()[0]
+        # An unknown name usually explains a "missing" one too (a typo): report it first.
+        e = sorted(err.errors(), key=lambda x: x["type"] != "extra_forbidden")[0]
         loc = ".".join(str(x) for x in e["loc"])
         if e["type"] == "extra_forbidden":
             fields = plugin.Params.model_fields
             fix = closest(loc, fields) if fields else f"'{plugin.name}' takes no parameters"
             raise PipelineError(f"unknown parameter '{loc}' for {plugin.stage} '{plugin.name}'", source=path,
                                 field=f"{where}.{loc}", fix=fix) from None
-        raise PipelineError(f"{e['msg']}", source=path, field=f"{where}.{loc}",
-                            fix=f"see 'rigslim plugins' for {plugin.name}'s parameters") from None
+        fields = ", ".join(plugin.Params.model_fields) or "none"
+        raise PipelineError(f"{e['msg'].lower()} (got {e.get('input')!r})" if e["type"] != "missing"
+                            else "required parameter is missing", source=path, field=f"{where}.{loc}",
+                            fix=f"{plugin.stage} '{plugin.name}' takes: {fields}") from None
 
 
 def _apply_override(item: str, steps: list[Step], path: Path, host: PluginHost) -> None:
