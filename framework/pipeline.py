@@ -3,7 +3,7 @@
 A pipeline names inputs (paths relative to the YAML file), the example/test
 frame split, and a list of steps. Each step is a mapping with exactly one
 stage key (``generate``, ``select``, ``solve``, ``decimate``, ``deform``,
-``normals``, ``evaluate``, ``write``) whose value names the plugin; the other
+``normals``, ``evaluate``, ``write``, ``report``) whose value names the plugin; the other
 keys are the plugin's parameters (plus an optional ``name``). See
 docs/pipelines.md.
 """
@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
 
@@ -149,12 +150,12 @@ def _parse_step(index: int, raw: dict, path: Path, host: PluginHost) -> Step:
     if key == "evaluate":
         plugin = _parse_metrics(value, index, path, host)
         name = raw.get("name") or f"evaluate{index}"
-    elif key == "write":
+    elif key in ("write", "report"):
         if not isinstance(value, str):
-            raise PipelineError("write needs an output path", source=path, field=f"steps[{index}].write",
-                                fix="write e.g. 'write: out/weights.npz'")
+            raise PipelineError(f"{key} needs an output path", source=path, field=f"steps[{index}].{key}",
+                                fix="write e.g. 'write: out/weights.npz' or 'report: out/report.html'")
         plugin = value
-        name = raw.get("name") or f"write{index}"
+        name = raw.get("name") or f"{key}{index}"
     else:
         if not isinstance(value, str):
             raise PipelineError(f"'{key}' needs a plugin name", source=path, field=f"steps[{index}].{key}",
@@ -236,7 +237,7 @@ def _apply_override(item: str, steps: list[Step], path: Path, host: PluginHost) 
                                 fix="edit the pipeline file")
         if param == step.key:
             step.plugin = parsed
-            if step.key != "write":
+            if step.key not in ("write", "report"):
                 try:
                     plugin = host.get(step.stage, parsed)
                 except PluginNotFound as e:
@@ -244,7 +245,7 @@ def _apply_override(item: str, steps: list[Step], path: Path, host: PluginHost) 
                 _check_params(plugin, step.params, path, f"steps[{step.index}]")
             continue
         step.params[param] = parsed
-        if step.key != "write":
+        if step.key not in ("write", "report"):
             _check_params(host.get(step.stage, step.plugin), step.params, path, f"steps[{step.index}]")
 
 
@@ -371,14 +372,25 @@ def _run_step(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base
             metric = host.get("metric", name)
             metrics.update(metric.compute(evaluation, metric.parse_params(p)))
         label = step.name if step.name != f"evaluate{step.index}" else _default_label(document, asset)
-        document["evaluations"].append({"name": label, "step": step.index, "metrics": metrics})
+        from rigslim.weights import influence_counts
+
+        evaluation_entry = {"name": label, "step": step.index, "metrics": metrics}
+        if asset.weights is not None and asset.reduced is not None:
+            # how many vertices have 0, 1, 2... non-zero weights before and after (report histograms)
+            evaluation_entry["influence_histogram"] = {
+                "input": np.bincount(influence_counts(asset.weights)).tolist(),
+                "reduced": np.bincount(asset.reduced.influence_counts()).tolist()}
+            # the weights this evaluation measured, for report steps that render several evaluations
+            asset.extras.setdefault("evaluated_reduced", {})[step.index] = asset.reduced
+        document["evaluations"].append(evaluation_entry)
         entry["plugin"] = ",".join(n for n, _ in step.plugin)
         return entry
-    if step.key == "write":
+    if step.key in ("write", "report"):
         out = Path(step.plugin)
         out = out if out.is_absolute() else base / out
         params = dict(step.params)
-        name = params.pop("writer", None)
+        name = params.pop("writer", "report" if step.key == "report" else None)
+        ctx.document = document
         writers = host.plugins("writer")
         if name is None:
             fitting = [w for w in writers.values() if out.suffix.lower() in w.suffixes]

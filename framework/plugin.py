@@ -59,12 +59,16 @@ class StepContext:
         rich progress bar (or passes it through when quiet).
     log : callable
         ``log(message)`` prints a note under the step.
+    document : dict or None
+        The metrics document as it stands before this step (set for
+        ``write``/``report`` steps, so that report writers see the evaluations).
     """
 
     report: dict = field(default_factory=dict)
     base_dir: Path = field(default_factory=Path.cwd)
     progress: Callable = field(default=lambda it, total=None, description="": it)
     log: Callable[[str], None] = field(default=lambda msg: None)
+    document: dict | None = None
 
 
 class Plugin:
@@ -179,6 +183,7 @@ STEP_STAGES = {
     "normals": "normal-estimator",
     "evaluate": "metric",
     "write": "writer",
+    "report": "writer",
 }
 
 #: Hook name of each stage.
