@@ -1,5 +1,13 @@
 """Weight generator plugins: dense input weights from a mesh and its handles.
 
-(Mean value and harmonic coordinates, bone heat and bounded biharmonic
-weights register here.)
+``mean-value`` and ``harmonic`` (cage coordinates), ``bone-heat`` and
+``bbw`` (skeletal weights). See docs/generators.md.
 """
+
+from rigslim import hookimpl
+from rigslim.plugins.generators.mean_value import MeanValueGenerator
+
+
+@hookimpl
+def rigslim_weight_generators():
+    return [MeanValueGenerator()]

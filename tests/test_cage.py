@@ -1,0 +1,64 @@
+"""Automatic cages, weight transfer and skinned cage poses (rigslim.cage)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from rigslim.cage import build_cage, enclosure, skinned_cage_poses, transfer_weights
+from rigslim.errors import StepError
+from rigslim.mesh import Mesh
+from rigslim.poses import Poses
+
+
+def test_build_cage_encloses_the_elephant(elephant):
+    cage = build_cage(elephant.mesh, 60, resolution=40)
+    assert abs(cage.n_vertices - 60) <= 6
+    enc = enclosure(cage, elephant.mesh.V)
+    assert not enc.outside.any()
+    assert enc.winding.min() > 0.99
+    assert enc.clearance.min() > 0
+    # closed and consistently oriented: every edge is shared by exactly two faces in opposite directions
+    E = np.concatenate([cage.F[:, [0, 1]], cage.F[:, [1, 2]], cage.F[:, [2, 0]]])
+    directed = {tuple(e) for e in E}
+    assert len(directed) == len(E)
+    assert all((b, a) in directed for a, b in E)
+
+
+def test_enclosure_flags_outside_points():
+    tet = Mesh(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]),
+               np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+    enc = enclosure(tet, np.array([[0.1, 0.1, 0.1], [1.0, 1.0, 1.0], [0.01, 0.2, 0.2]]), min_clearance=0.05)
+    assert enc.outside.tolist() == [False, True, True]
+    assert enc.winding[0] == pytest.approx(1.0)
+    assert enc.winding[1] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_build_cage_rejects_degenerate_requests(elephant):
+    with pytest.raises(StepError):
+        build_cage(elephant.mesh, 3)
+
+
+def test_transfer_weights_at_mesh_vertices_is_identity(elephant):
+    idx = np.arange(0, elephant.mesh.n_vertices, 97)
+    Wt = transfer_weights(elephant.mesh, elephant.weights, elephant.mesh.V[idx])
+    assert abs(Wt - elephant.weights[idx]).max() < 1e-12
+    assert np.allclose(np.asarray(Wt.sum(axis=1)).ravel(), 1.0)
+
+
+def test_skinned_cage_poses_follow_rigid_motion():
+    cage = Mesh(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]),
+                np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+    W = sp.csr_matrix(np.array([[1.0, 0], [0.5, 0.5], [0, 1.0], [0.25, 0.75]]))
+    c, s = np.cos(0.4), np.sin(0.4)
+    R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    T = np.zeros((2, 2, 3, 4))
+    T[:, :, :, :3] = np.eye(3)
+    T[1, :, :, :3] = R            # pose 1: both bones rotate alike, then translate
+    T[1, :, :, 3] = [1.0, 2.0, 3.0]
+    out = skinned_cage_poses(cage, W, Poses(T))
+    assert out.T.shape == (2, 4, 3, 4)
+    assert np.allclose(out.T[0, :, :, 3], cage.V)
+    assert np.allclose(out.T[1, :, :, 3], cage.V @ R.T + [1, 2, 3])
+    assert np.all(out.T[..., :3] == 0)
