@@ -31,7 +31,7 @@ from rigslim.plugin import STEP_STAGES, StepContext
 from rigslim.poses import FrameSplit
 
 #: Order in which input roles are read (others follow, in file order).
-ROLE_ORDER = ["mesh", "skeleton", "cage", "weights", "animation"]
+ROLE_ORDER = ["gltf", "mesh", "skeleton", "cage", "weights", "animation"]
 
 
 class PoseSpec(BaseModel):
@@ -249,11 +249,28 @@ def _apply_override(item: str, steps: list[Step], path: Path, host: PluginHost) 
             _check_params(host.get(step.stage, step.plugin), step.params, path, f"steps[{step.index}]")
 
 
+def _gltf_inputs(inputs: dict) -> dict:
+    """Beside ``gltf:``, ``animation:`` (a clip name or index, not a file) and ``fps:`` are the glTF reader's."""
+    inputs = dict(inputs)
+    spec = inputs["gltf"]
+    spec = {"path": spec} if isinstance(spec, str) else dict(spec) if isinstance(spec, dict) else spec
+    if isinstance(spec, dict):
+        for key in ("animation", "fps"):
+            value = inputs.get(key)
+            if value is not None and not isinstance(value, dict) and not (
+                    isinstance(value, str) and Path(value).suffix.lower() == ".dmat"):
+                spec.setdefault(key, inputs.pop(key))
+        inputs["gltf"] = spec
+    return inputs
+
+
 def read_inputs(doc: PipelineDoc, base: Path, host: PluginHost, ctx: StepContext, source) -> Asset:
     """Fill an :class:`Asset` from the ``inputs`` section, each role by its reader."""
     asset = Asset()
     inputs = dict(doc.inputs)
     normalize = inputs.pop("normalize", None)
+    if "gltf" in inputs:
+        inputs = _gltf_inputs(inputs)
     readers = host.plugins("reader")
     specs = {}
     for role, spec in inputs.items():

@@ -3,18 +3,20 @@
 Readers: OBJ/OFF/PLY/STL and MEDIT ``.mesh`` (libigl), DMAT weights, TGF
 skeletons, libigl's stacked-transform DMAT animation, a closed cage mesh.
 Writers: DMAT (dense reduced weights) and ``.npz`` (fixed-k reduced weights).
+glTF 2.0 reader and writer: :mod:`rigslim.plugins.io.gltf`.
 """
 
 from rigslim import hookimpl
 from rigslim.plugins.io.readers import READERS
 from rigslim.plugins.io.writers import WRITERS
+from rigslim.plugins.io.gltf import READERS as GLTF_READERS, WRITERS as GLTF_WRITERS
 
 
 @hookimpl
 def rigslim_readers():
-    return [cls() for cls in READERS]
+    return [cls() for cls in READERS + GLTF_READERS]
 
 
 @hookimpl
 def rigslim_writers():
-    return [cls() for cls in WRITERS]
+    return [cls() for cls in WRITERS + GLTF_WRITERS]

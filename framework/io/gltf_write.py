@@ -1,0 +1,658 @@
+"""Writing glTF 2.0: reduced skin weights into an existing document, or a new skinned document.
+
+:func:`write_gltf` keeps the source document and replaces only the skinning
+attributes (``JOINTS_n``/``WEIGHTS_n``) of the primitives that were read;
+materials, textures, UVs, morph targets, animations, extras and extensions
+stay as they were (their accessor data is copied byte for byte). Simplified
+levels (``asset.extras["levels"]``) become meshes of their own, optionally
+linked with the ``MSFT_lod`` extension.
+
+:func:`export_skinned` builds a skinned document from libigl-style data (a
+mesh, a TGF skeleton, dense weights and a stacked bone animation).
+"""
+
+from __future__ import annotations
+
+import base64
+import copy
+import json
+import struct
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+from rigslim.errors import InputError, StepError
+from rigslim.io.atomic import atomic_path
+from rigslim.io.gltf import CHUNK_BIN, CHUNK_JSON, GLB_MAGIC, GltfSkin, skinning_sets
+
+#: Weight encodings: name -> (numpy dtype, componentType, normalized, scale).
+QUANTIZATIONS = {
+    "float": (np.float32, 5126, False, None),
+    "ushort": (np.uint16, 5123, True, 65535),
+    "ubyte": (np.uint8, 5121, True, 255),
+}
+ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
+
+
+# --------------------------------------------------------------------------- quantisation
+
+
+def quantize_weights(values: np.ndarray, kind: str = "float") -> np.ndarray:
+    """Encode rows of weights so that each row sums exactly to one after decoding.
+
+    Parameters
+    ----------
+    values : (m, c) array
+        Non-negative weights, rows summing to one (within round-off).
+    kind : {"float", "ushort", "ubyte"}
+        float32, or unsigned normalized 16/8-bit integers.
+
+    Returns
+    -------
+    (m, c) array of the encoding's dtype
+
+    Notes
+    -----
+    For integers with scale ``S`` (255 or 65535): ``q_c = round(S w_c)`` for
+    every slot but each row's largest, which gets ``q_max = S - sum_{c != max} q_c``,
+    so ``sum_c q_c / S = 1`` exactly. ``q_max >= S/c - (c-1)/2 > 0`` for
+    ``c <= 8``, so it never goes negative. For float32 the largest weight is
+    set to ``1 - sum_{c != max} w_c`` evaluated in float32, which leaves a
+    row sum within one float32 ulp of one.
+    """
+    if kind not in QUANTIZATIONS:
+        raise StepError(f"unknown weight encoding '{kind}'", field="quantize", fix="use float, ushort or ubyte")
+    W = np.asarray(values, dtype=np.float64)
+    if W.size and W.min() < -1e-9:
+        v = int(np.argmin(W.min(axis=1)))
+        raise StepError(f"vertex {v} has a negative weight ({W[v].min():.3g}); glTF skin weights are non-negative",
+                        field="weights", fix="solve with 'nonnegative: true'")
+    W = np.clip(W, 0.0, None)
+    sums = W.sum(axis=1, keepdims=True)
+    if (sums <= 0).any():
+        v = int(np.flatnonzero(sums[:, 0] <= 0)[0])
+        raise StepError(f"vertex {v} has no weight", field="weights", fix="give every vertex an influence")
+    W = W / sums
+    dtype, _, _, scale = QUANTIZATIONS[kind]
+    rows = np.arange(len(W))
+    top = np.argmax(W, axis=1)
+    if scale is None:
+        Q = W.astype(np.float32)
+        Q[rows, top] = 0
+        Q[rows, top] = np.float32(1) - Q.sum(axis=1, dtype=np.float32)
+        return Q
+    Q = np.rint(W * scale).astype(np.int64)
+    Q[rows, top] = 0
+    Q[rows, top] = scale - Q.sum(axis=1)
+    return Q.astype(dtype)
+
+
+def skinning_sets_arrays(indices: np.ndarray, values: np.ndarray, kind: str = "float",
+                         n_sets: int | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Split fixed-width weights into glTF ``(JOINTS_n, WEIGHTS_n)`` sets of four.
+
+    Parameters
+    ----------
+    indices, values : (m, k) arrays
+        Handle (= skin joint) index and weight of each slot.
+    kind : {"float", "ushort", "ubyte"}
+    n_sets : int, optional
+        Number of sets (default ``ceil(k / 4)``: k <= 4 gives one set, 5..8 two).
+
+    Returns
+    -------
+    list of (joints (m, 4) int, weights (m, 4) encoded)
+        Slots sorted by decreasing weight; empty slots hold joint 0, weight 0.
+    """
+    indices = np.asarray(indices, dtype=np.int64)
+    values = np.asarray(values, dtype=np.float64)
+    m, k = values.shape
+    n_sets = n_sets or max(1, -(-k // 4))
+    if k > 4 * n_sets:
+        raise StepError(f"{k} weights per vertex do not fit in {n_sets} sets of four", field="k",
+                        fix="reduce to k <= 8")
+    order = np.argsort(-values, axis=1, kind="stable")
+    I = np.take_along_axis(indices, order, 1)
+    W = np.take_along_axis(values, order, 1)
+    width = 4 * n_sets
+    I = np.pad(I, ((0, 0), (0, width - k)))
+    W = np.pad(W, ((0, 0), (0, width - k)))
+    Q = quantize_weights(W, kind)
+    I = np.where(Q != 0, I, 0)
+    return [(I[:, 4 * s:4 * s + 4], Q[:, 4 * s:4 * s + 4]) for s in range(n_sets)]
+
+
+# --------------------------------------------------------------------------- binary assembly
+
+
+class _Blob:
+    """Accumulates bufferViews into one new binary buffer (4-byte aligned)."""
+
+    def __init__(self, js: dict):
+        self.js = js
+        self.parts: list[bytes] = []
+        self.size = 0
+
+    def add_view(self, data: bytes, *, target: int | None = None, stride: int | None = None,
+                 template: dict | None = None) -> dict:
+        pad = (-self.size) % 4
+        if pad:
+            self.parts.append(b"\0" * pad)
+            self.size += pad
+        view = dict(template or {})
+        view.pop("byteOffset", None)
+        view.update({"buffer": 0, "byteOffset": self.size, "byteLength": len(data)})
+        if target is not None:
+            view["target"] = target
+        if stride is not None:
+            view["byteStride"] = stride
+        self.parts.append(bytes(data))
+        self.size += len(data)
+        return view
+
+    def new_accessor(self, array: np.ndarray, component: int, type_: str, *, normalized=False, target=ARRAY_BUFFER,
+                     minmax=False) -> int:
+        js = self.js
+        views = js.setdefault("bufferViews", [])
+        views.append(self.add_view(np.ascontiguousarray(array).astype(array.dtype.newbyteorder("<")).tobytes(),
+                                   target=target))
+        acc = {"bufferView": len(views) - 1, "componentType": component, "count": int(len(array)), "type": type_}
+        if normalized:
+            acc["normalized"] = True
+        if minmax:
+            a = array.reshape(len(array), -1)
+            cast = float if component == 5126 else int
+            acc["min"] = [cast(x) for x in a.min(axis=0)]
+            acc["max"] = [cast(x) for x in a.max(axis=0)]
+        js.setdefault("accessors", []).append(acc)
+        return len(js["accessors"]) - 1
+
+    def bytes(self) -> bytes:
+        pad = (-self.size) % 4
+        return b"".join(self.parts) + b"\0" * pad
+
+
+def _accessor_refs(js: dict):
+    """Yield (container, key) for every place that holds an accessor index."""
+    for mesh in js.get("meshes", []):
+        for prim in mesh.get("primitives", []):
+            for key in list(prim.get("attributes", {})):
+                yield prim["attributes"], key
+            if "indices" in prim:
+                yield prim, "indices"
+            for target in prim.get("targets", []):
+                for key in list(target):
+                    yield target, key
+    for skin in js.get("skins", []):
+        if "inverseBindMatrices" in skin:
+            yield skin, "inverseBindMatrices"
+    for anim in js.get("animations", []):
+        for s in anim.get("samplers", []):
+            yield s, "input"
+            yield s, "output"
+    for node in js.get("nodes", []):
+        inst = node.get("extensions", {}).get("EXT_mesh_gpu_instancing")
+        if inst:
+            for key in list(inst.get("attributes", {})):
+                yield inst["attributes"], key
+
+
+def _view_refs(js: dict):
+    """Yield (container, key) for every place that holds a bufferView index."""
+    for acc in js.get("accessors", []):
+        if "bufferView" in acc:
+            yield acc, "bufferView"
+        sparse = acc.get("sparse")
+        if sparse:
+            yield sparse["indices"], "bufferView"
+            yield sparse["values"], "bufferView"
+    for img in js.get("images", []):
+        if "bufferView" in img:
+            yield img, "bufferView"
+    for mesh in js.get("meshes", []):
+        for prim in mesh.get("primitives", []):
+            draco = prim.get("extensions", {}).get("KHR_draco_mesh_compression")
+            if draco and "bufferView" in draco:
+                yield draco, "bufferView"
+
+
+def _drop(js: dict, kind: str, drop: set[int], refs) -> None:
+    """Remove array entries ``js[kind][i]`` for i in drop and renumber every reference."""
+    if not drop:
+        return
+    keep = [i for i in range(len(js[kind])) if i not in drop]
+    new = {old: new for new, old in enumerate(keep)}
+    for container, key in refs(js):
+        container[key] = new[container[key]]
+    js[kind] = [js[kind][i] for i in keep]
+
+
+def _mime(data: bytes, uri: str) -> str:
+    if data[:8] == b"\x89PNG\r\n\x1a\n":
+        return "image/png"
+    if data[:3] == b"\xff\xd8\xff":
+        return "image/jpeg"
+    if data[:4] == b"RIFF" and data[8:12] == b"WEBP":
+        return "image/webp"
+    ext = uri.rsplit(".", 1)[-1].lower()
+    return {"png": "image/png", "jpg": "image/jpeg", "jpeg": "image/jpeg", "webp": "image/webp",
+            "ktx2": "image/ktx2"}.get(ext, "application/octet-stream")
+
+
+# --------------------------------------------------------------------------- document writer
+
+
+def _level_primitive(blob: _Blob, level, n_joints: int, kind: str, n_sets: int | None, material=None) -> dict:
+    from rigslim.blend import per_vertex_normals
+
+    mesh = level.mesh
+    V = np.asarray(mesh.V, np.float32)
+    F = np.asarray(mesh.F)
+    attrs = {"POSITION": blob.new_accessor(V, 5126, "VEC3", minmax=True)}
+    if len(F):
+        N = per_vertex_normals(mesh.V, mesh.F).astype(np.float32)
+        N[~np.isfinite(N).all(axis=1)] = [0, 0, 1]
+        attrs["NORMAL"] = blob.new_accessor(N, 5126, "VEC3")
+    _put_sets(blob, attrs, level.weights.indices, level.weights.values, n_joints, kind, n_sets)
+    idx_dtype, idx_ct = (np.uint16, 5123) if len(V) < 65535 else (np.uint32, 5125)
+    prim = {"attributes": attrs, "mode": 4,
+            "indices": blob.new_accessor(F.reshape(-1).astype(idx_dtype), idx_ct, "SCALAR",
+                                         target=ELEMENT_ARRAY_BUFFER)}
+    if material is not None:
+        prim["material"] = material
+    return prim
+
+
+def _put_sets(blob: _Blob, attrs: dict, indices, values, n_joints: int, kind: str, n_sets: int | None) -> None:
+    jdt, jct = (np.uint8, 5121) if n_joints <= 256 else (np.uint16, 5123)
+    _, wct, wnorm, _ = QUANTIZATIONS[kind]
+    for s, (J, W) in enumerate(skinning_sets_arrays(indices, values, kind, n_sets)):
+        attrs[f"JOINTS_{s}"] = blob.new_accessor(J.astype(jdt), jct, "VEC4")
+        attrs[f"WEIGHTS_{s}"] = blob.new_accessor(W, wct, "VEC4", normalized=wnorm)
+
+
+def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float", sets: int | None = None,
+               levels=None, lod: bool = False, embed: bool = False) -> None:
+    """Write the source document with new skin weights (and simplified levels).
+
+    Parameters
+    ----------
+    path : path-like
+        ``.glb`` (one binary chunk) or ``.gltf`` (JSON plus ``<stem>.bin``
+        beside it, or one base64 data URI when ``embed``).
+    source : GltfSkin
+        What :func:`rigslim.io.gltf.read_gltf_skin` returned.
+    reduced : ReducedWeights, optional
+        Weights of the merged mesh (rows in the order of ``source.slices``);
+        None keeps the source weights (a plain rewrite).
+    quantize : {"float", "ushort", "ubyte"}
+        Encoding of ``WEIGHTS_n``; every vertex's weights sum exactly to one
+        after decoding (:func:`quantize_weights`).
+    sets : int, optional
+        Number of JOINTS/WEIGHTS sets (default ``ceil(k / 4)``).
+    levels : list of SimplifiedLevel, optional
+        Each becomes a mesh of its own on a node with the same skin.
+    lod : bool
+        Link the levels from the skinned mesh node(s) with ``MSFT_lod``
+        (coarser levels in order, plus ``MSFT_screencoverage`` in the node's
+        extras); otherwise each level gets its own scene.
+    embed : bool
+        For ``.gltf``: store the buffer as a data URI instead of a ``.bin`` file.
+
+    Notes
+    -----
+    Every accessor, bufferView, image and extension not involved in
+    skinning is kept with the same content; only the replaced
+    ``JOINTS_n``/``WEIGHTS_n`` accessors (and bufferViews nothing else uses)
+    are dropped, and indices are renumbered. All binary data is repacked
+    into a single buffer; images stored as external files are embedded when
+    the output goes to another folder.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".glb", ".gltf"):
+        raise StepError(f"'{path.suffix}' is not a glTF suffix", field="write", fix="write to .glb or .gltf")
+    if quantize not in QUANTIZATIONS:
+        raise StepError(f"unknown weight encoding '{quantize}'", field="quantize", fix="use float, ushort or ubyte")
+    doc = source.document
+    js = copy.deepcopy(doc.json)
+    n_joints = len(source.joints)
+    if reduced is not None and reduced.n_vertices != source.mesh.n_vertices:
+        raise StepError(f"reduced weights have {reduced.n_vertices} rows, the glTF mesh {source.mesh.n_vertices}",
+                        field="reduced", fix="write the weights of the mesh read from this file")
+    for ext in ("EXT_meshopt_compression", "KHR_meshopt_compression"):
+        if ext in js.get("extensionsRequired", []) + js.get("extensionsUsed", []):
+            raise StepError(f"documents using {ext} cannot be rewritten", field="extensionsUsed",
+                            fix="decompress the file first (e.g. gltfpack -noq)")
+
+    # 1. take the skinning attributes out; drop their accessors (and views) that nothing else uses
+    replaced: set[int] = set()
+    if reduced is not None:
+        for sl in source.slices:
+            attrs = js["meshes"][sl.mesh]["primitives"][sl.primitive]["attributes"]
+            for s in skinning_sets(attrs):
+                replaced.add(attrs.pop(f"JOINTS_{s}"))
+                replaced.add(attrs.pop(f"WEIGHTS_{s}"))
+    unused = replaced - {c[k] for c, k in _accessor_refs(js)}
+    _drop(js, "accessors", unused, _accessor_refs)
+    view_users = {c[k] for c, k in _view_refs(js)}
+    orphan_views = {doc.json["accessors"][a]["bufferView"] for a in unused
+                    if "bufferView" in doc.json["accessors"][a]} - view_users
+    kept_views = [i for i in range(len(js.get("bufferViews", []))) if i not in orphan_views]
+    _drop(js, "bufferViews", orphan_views, _view_refs)
+
+    # 2. copy every kept bufferView into the new blob byte for byte, then images stored as files
+    blob = _Blob(js)
+    js["bufferViews"] = [blob.add_view(doc.buffer_view_bytes(i), template=view)
+                         for i, view in zip(kept_views, js.get("bufferViews", []))]
+    if not js["bufferViews"]:
+        js.pop("bufferViews")
+    same_folder = path.parent.resolve() == doc.path.parent.resolve()
+    for i, img in enumerate(js.get("images", [])):
+        uri = img.get("uri")
+        if uri is None or uri.startswith("data:") or same_folder:
+            continue
+        data = doc.uri_bytes(uri, f"images[{i}]")
+        js.setdefault("bufferViews", []).append(blob.add_view(data))
+        img.pop("uri")
+        img["bufferView"] = len(js["bufferViews"]) - 1
+        img.setdefault("mimeType", _mime(data, uri))
+
+    # 2b. the new skinning attributes
+    if reduced is not None:
+        for sl in source.slices:
+            attrs = js["meshes"][sl.mesh]["primitives"][sl.primitive]["attributes"]
+            rows = slice(sl.start, sl.start + sl.count)
+            _put_sets(blob, attrs, reduced.indices[rows], reduced.values[rows], n_joints, quantize, sets)
+
+    # 3. simplified levels as meshes of their own
+    if levels:
+        skinned_nodes = [i for i, n in enumerate(js.get("nodes", []))
+                         if n.get("skin") == source.skin and n.get("mesh") in {s.mesh for s in source.slices}]
+        first = source.slices[0]
+        material = js["meshes"][first.mesh]["primitives"][first.primitive].get("material")
+        level_nodes = []
+        for level in levels:
+            if level.weights.n_handles != n_joints:
+                raise StepError(f"level '{level.label}' has weights for {level.weights.n_handles} handles, "
+                                f"the skin has {n_joints} joints", field="levels",
+                                fix="simplify the mesh read from this glTF file")
+            prim = _level_primitive(blob, level, n_joints, quantize, sets, material)
+            js.setdefault("meshes", []).append({"name": level.label, "primitives": [prim]})
+            js["nodes"].append({"name": level.label, "mesh": len(js["meshes"]) - 1, "skin": source.skin})
+            level_nodes.append(len(js["nodes"]) - 1)
+        if lod:
+            for i in skinned_nodes:
+                node = js["nodes"][i]
+                node.setdefault("extensions", {})["MSFT_lod"] = {"ids": level_nodes}
+                coverage = [0.5 ** (j + 1) for j in range(len(level_nodes))] + [0.0]
+                node.setdefault("extras", {})["MSFT_screencoverage"] = coverage
+            used_ext = js.setdefault("extensionsUsed", [])
+            if "MSFT_lod" not in used_ext:
+                used_ext.append("MSFT_lod")
+        else:
+            roots = _joint_roots(js, source.joints)
+            for level, node in zip(levels, level_nodes):
+                js.setdefault("scenes", []).append({"name": level.label, "nodes": [node] + roots})
+
+    # 4. one buffer
+    data = blob.bytes()
+    js["buffers"] = [{"byteLength": len(data)}] if data else []
+    if not data:
+        js.pop("buffers")
+    _write_document(path, js, data, embed=embed)
+
+
+def _joint_roots(js: dict, joints: list[int]) -> list[int]:
+    """Root nodes of the trees that hold the joints."""
+    from rigslim.io.gltf import node_parents
+
+    parent = node_parents(js)
+    roots = []
+    for j in joints:
+        r = j
+        while parent[r] >= 0:
+            r = int(parent[r])
+        if r not in roots:
+            roots.append(r)
+    return roots
+
+
+def _write_document(path: Path, js: dict, data: bytes, *, embed: bool = False) -> None:
+    """Write JSON + one binary buffer as .glb, or .gltf with a .bin (or a data URI)."""
+    if path.suffix.lower() == ".glb":
+        text = json.dumps(js, separators=(",", ":"), ensure_ascii=False).encode("utf-8")
+        text += b" " * ((-len(text)) % 4)
+        chunks = struct.pack("<II", len(text), CHUNK_JSON) + text
+        if data:
+            chunks += struct.pack("<II", len(data), CHUNK_BIN) + data
+        out = struct.pack("<III", GLB_MAGIC, 2, 12 + len(chunks)) + chunks
+        with atomic_path(path) as tmp:
+            tmp.write_bytes(out)
+        return
+    if data:
+        if embed:
+            js["buffers"][0]["uri"] = "data:application/octet-stream;base64," + base64.b64encode(data).decode()
+        else:
+            js["buffers"][0]["uri"] = path.stem + ".bin"
+    text = json.dumps(js, indent=2, ensure_ascii=False) + "\n"
+    if data and not embed:
+        with atomic_path(path.with_name(path.stem + ".bin")) as tmp_bin, atomic_path(path) as tmp:
+            tmp_bin.write_bytes(data)
+            tmp.write_text(text, encoding="utf-8")
+    else:
+        with atomic_path(path) as tmp:
+            tmp.write_text(text, encoding="utf-8")
+
+
+# --------------------------------------------------------------------------- export from libigl data
+
+
+def matrix_quaternion(R: np.ndarray) -> np.ndarray:
+    """Unit quaternions ``(x, y, z, w)`` of rotation matrices (Shepperd's method).
+
+    Parameters
+    ----------
+    R : (..., 3, 3) rotation matrices
+
+    Returns
+    -------
+    (..., 4) array with ``w >= 0``
+
+    Notes
+    -----
+    Picks the largest of ``4w^2 = 1 + tr R`` and ``4x^2 = 1 + R_00 - R_11 - R_22``
+    (and y, z alike) for stability, then recovers the other components from
+    the off-diagonal sums and differences.
+    """
+    R = np.asarray(R, dtype=np.float64)
+    shape = R.shape[:-2]
+    R = R.reshape(-1, 3, 3)
+    tr = np.trace(R, axis1=1, axis2=2)
+    d = np.stack([tr, R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], 1)
+    case = np.argmax(d, axis=1)
+    q = np.empty((len(R), 4))
+    for c in range(4):
+        s = case == c
+        if not s.any():
+            continue
+        M = R[s]
+        if c == 0:
+            w = 0.5 * np.sqrt(np.maximum(1 + tr[s], 0))
+            f = 0.25 / w
+            q[s] = np.stack([(M[:, 2, 1] - M[:, 1, 2]) * f, (M[:, 0, 2] - M[:, 2, 0]) * f,
+                             (M[:, 1, 0] - M[:, 0, 1]) * f, w], 1)
+        else:
+            i, j, k = [(0, 1, 2), (1, 2, 0), (2, 0, 1)][c - 1]
+            a = 0.5 * np.sqrt(np.maximum(1 + M[:, i, i] - M[:, j, j] - M[:, k, k], 0))
+            f = 0.25 / a
+            v = np.empty((s.sum(), 4))
+            v[:, i] = a
+            v[:, j] = (M[:, j, i] + M[:, i, j]) * f
+            v[:, k] = (M[:, k, i] + M[:, i, k]) * f
+            v[:, 3] = (M[:, k, j] - M[:, j, k]) * f
+            q[s] = v
+    q *= np.where(q[:, 3:] < 0, -1.0, 1.0)
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return q.reshape(shape + (4,))
+
+
+def rigid_parts(T: np.ndarray, *, tolerance: float = 1e-5, source=None) -> tuple[np.ndarray, np.ndarray]:
+    """Split 3x4 transforms into rotations and translations, checking that they are rigid.
+
+    Parameters
+    ----------
+    T : (..., 3, 4) array
+
+    Returns
+    -------
+    R : (..., 3, 3), t : (..., 3)
+
+    Notes
+    -----
+    Rigid means ``||R^T R - I||_max <= tolerance`` and ``det R > 0``; only
+    such transforms are a glTF joint's rotation and translation (TRS
+    channels cannot hold shear).
+    """
+    T = np.asarray(T, dtype=np.float64)
+    R, t = T[..., :3], T[..., 3]
+    err = np.abs(np.einsum("...ji,...jk->...ik", R, R) - np.eye(3)).max(axis=(-1, -2))
+    det = np.linalg.det(R)
+    if err.size and (err.max() > tolerance or det.min() <= 0):
+        bad = np.unravel_index(int(np.argmax(err + (det <= 0))), err.shape)
+        raise InputError(f"bone transform {tuple(int(x) for x in bad)} is not a rotation plus translation "
+                         f"(|R^T R - I| = {err.max():.2g}, det = {det.min():.3g})", source=source,
+                         field="animation", fix="glTF joints animate by rotation and translation: give rigid transforms")
+    return R, t
+
+
+def _dense_rows(W: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
+    """Fixed-width (m, c) indices and values of a sparse weight matrix, c = max non-zeros per row."""
+    W = sp.csr_matrix(W)
+    counts = np.diff(W.indptr)
+    c = max(1, int(counts.max(initial=1)))
+    m = W.shape[0]
+    I = np.zeros((m, c), np.int64)
+    V = np.zeros((m, c))
+    slot = np.arange(W.nnz) - np.repeat(W.indptr[:-1], counts)
+    rows = np.repeat(np.arange(m), counts)
+    I[rows, slot] = W.indices
+    V[rows, slot] = W.data
+    return I, V
+
+
+def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.0, quantize: str = "float",
+                   name: str = "rigslim", animation_name: str = "animation", embed: bool = False) -> None:
+    """Write a skinned glTF from libigl-style data (mesh, TGF skeleton, weights, bone transforms).
+
+    Parameters
+    ----------
+    path : path-like
+        ``.glb`` or ``.gltf``.
+    mesh : Mesh
+        Rest mesh; the rest pose is the bind pose.
+    handles : Handles
+        A skeleton; handle b is bone b, ``bones[b] = (parent joint, child joint)``.
+        Each bone becomes a joint node at its parent-joint position.
+    weights : scipy.sparse matrix (m, n) or ReducedWeights
+        Rows sum to one; all non-zeros are written (``ceil(max per row / 4)`` sets).
+    poses : Poses, optional
+        Per-bone 3x4 transforms relative to the rest pose (libigl's stacked
+        LBS convention); written as one animation with LINEAR translation
+        and rotation channels, frame f at ``f / fps`` seconds.
+    fps : float
+    quantize : {"float", "ushort", "ubyte"}
+    name, animation_name : str
+        Names of the mesh/node and of the animation.
+
+    Notes
+    -----
+    With ``s_b`` the bone's start and ``T_b = [R_b | t_b]`` its pose
+    transform, the joint's global transform is ``G_b = T_b @ Trans(s_b) =
+    [R_b | R_b s_b + t_b]`` and its inverse bind matrix ``Trans(-s_b)``, so
+    ``G_b @ IBM_b = T_b``: the glTF skin reproduces the libigl deformation.
+    Local transforms are ``G_parent^{-1} G_b`` (rotation ``R_p^T R_b``,
+    translation ``R_p^T (x_b - x_p)``), which needs rigid ``T_b``.
+    """
+    from rigslim.blend import per_vertex_normals
+    from rigslim.weights import ReducedWeights
+
+    path = Path(path)
+    if handles is None or handles.kind != "skeleton" or handles.bones is None:
+        raise StepError("exporting a skinned glTF needs a skeleton with bones", field="handles",
+                        fix="read a TGF skeleton (inputs.skeleton)")
+    n = handles.n
+    start = np.asarray(handles.joints, float)[np.asarray(handles.bones)[:, 0]]
+    parents = np.asarray(handles.parents, np.int64)
+    if isinstance(weights, ReducedWeights):
+        I, W = weights.indices, weights.values
+    else:
+        I, W = _dense_rows(weights)
+    if W.shape[0] != mesh.n_vertices:
+        raise StepError(f"weights have {W.shape[0]} rows, the mesh {mesh.n_vertices} vertices", field="weights",
+                        fix="give the weights of this mesh")
+
+    js = {"asset": {"version": "2.0", "generator": "rigslim export_skinned"}, "scene": 0,
+          "nodes": [], "meshes": [], "skins": [], "accessors": [], "bufferViews": []}
+    blob = _Blob(js)
+    V = np.asarray(mesh.V, np.float32)
+    N = per_vertex_normals(mesh.V, mesh.F).astype(np.float32)
+    N[~np.isfinite(N).all(axis=1)] = [0, 0, 1]
+    attrs = {"POSITION": blob.new_accessor(V, 5126, "VEC3", minmax=True),
+             "NORMAL": blob.new_accessor(N, 5126, "VEC3")}
+    _put_sets(blob, attrs, I, W, n, quantize, None)
+    idx_dtype, idx_ct = (np.uint16, 5123) if len(V) < 65535 else (np.uint32, 5125)
+    indices = blob.new_accessor(np.asarray(mesh.F).reshape(-1).astype(idx_dtype), idx_ct, "SCALAR",
+                                target=ELEMENT_ARRAY_BUFFER)
+    js["meshes"].append({"name": name, "primitives": [{"attributes": attrs, "indices": indices, "mode": 4}]})
+
+    # joint nodes: node b + 1 is bone b; rest = bind, no rotation
+    children = [[] for _ in range(n)]
+    for b in range(n):
+        if parents[b] >= 0:
+            children[parents[b]].append(b + 1)
+    js["nodes"].append({"name": name, "mesh": 0, "skin": 0})
+    for b in range(n):
+        p = parents[b]
+        node = {"name": handles.names[b], "translation": (start[b] - (start[p] if p >= 0 else 0)).tolist()}
+        if children[b]:
+            node["children"] = children[b]
+        js["nodes"].append(node)
+    ibm = np.tile(np.eye(4), (n, 1, 1))
+    ibm[:, :3, 3] = -start
+    js["skins"].append({"joints": list(range(1, n + 1)), "name": name,
+                        "inverseBindMatrices": blob.new_accessor(ibm.transpose(0, 2, 1).reshape(n, 16)
+                                                                 .astype(np.float32), 5126, "MAT4", target=None)})
+    roots = [b + 1 for b in range(n) if parents[b] < 0]
+    js["scenes"] = [{"name": name, "nodes": [0] + roots}]
+
+    if poses is not None and len(poses):
+        if poses.n_handles != n:
+            raise StepError(f"poses have {poses.n_handles} handles, the skeleton {n} bones", field="poses",
+                            fix="use the animation of this skeleton")
+        R, t = rigid_parts(poses.T, source=poses.source)            # (p, n, 3, 3), (p, n, 3)
+        x = np.einsum("pnij,nj->pni", R, start) + t                # joint world positions
+        Rl = R.copy()
+        xl = x.copy()
+        for b in range(n):
+            p = parents[b]
+            if p >= 0:
+                Rl[:, b] = np.einsum("pji,pjk->pik", R[:, p], R[:, b])
+                xl[:, b] = np.einsum("pji,pj->pi", R[:, p], x[:, b] - x[:, p])
+        q = matrix_quaternion(Rl)                                   # (p, n, 4)
+        for j in range(1, len(q)):                                  # shortest arcs between frames
+            flip = np.sum(q[j] * q[j - 1], axis=1) < 0
+            q[j, flip] *= -1
+        times = (np.arange(len(poses)) / fps).astype(np.float32)
+        tacc = blob.new_accessor(times, 5126, "SCALAR", target=None, minmax=True)
+        samplers, channels = [], []
+        for b in range(n):
+            for path_name, values, type_ in (("translation", xl[:, b], "VEC3"), ("rotation", q[:, b], "VEC4")):
+                out = blob.new_accessor(values.astype(np.float32), 5126, type_, target=None)
+                samplers.append({"input": tacc, "output": out, "interpolation": "LINEAR"})
+                channels.append({"sampler": len(samplers) - 1, "target": {"node": b + 1, "path": path_name}})
+        js["animations"] = [{"name": animation_name, "samplers": samplers, "channels": channels}]
+    data = blob.bytes()
+    js["buffers"] = [{"byteLength": len(data)}]
+    _write_document(path, js, data, embed=embed)

@@ -1,0 +1,81 @@
+"""glTF 2.0 reader and writer plugins (role ``gltf``; ``.glb`` / ``.gltf``).
+
+The reader fills the mesh, the skeleton (one handle per joint), the weights
+and the poses of one animation clip at once; the writer puts reduced weights
+(and simplified levels) back into the same document, or exports a new
+skinned document from libigl-style inputs. See docs/gltf.md.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from rigslim.plugin import Params, Reader, Writer
+
+
+class GltfReader(Reader):
+    name = "gltf"
+    summary = "skinned glTF 2.0 (.glb/.gltf): mesh, joints as handles, JOINTS_n/WEIGHTS_n, one animation sampled at fps"
+    role = "gltf"
+    suffixes = (".glb", ".gltf")
+
+    class Params(Params):
+        animation: str | int | None = None
+        fps: float = 30.0
+        mesh: str | int | None = None
+        skin: int | None = None
+        normalize: bool = True
+
+    def read(self, path, asset, params, ctx):
+        from rigslim.io.gltf import read_gltf_skin
+
+        skin = read_gltf_skin(path, animation=params.animation, fps=params.fps, mesh=params.mesh,
+                              skin=params.skin, normalize=params.normalize)
+        asset.mesh, asset.handles, asset.weights, asset.poses = skin.mesh, skin.handles, skin.weights, skin.poses
+        asset.extras["gltf"] = skin
+        clip = "rest pose only" if skin.animation is None else \
+            skin.document.json["animations"][skin.animation].get("name", f"#{skin.animation}")
+        asset.provenance["gltf"] = {"path": str(path), "skin": skin.skin, "primitives": len(skin.slices),
+                                    "animation": clip, "fps": skin.fps, "frames": len(skin.poses)}
+
+
+class GltfWriter(Writer):
+    name = "gltf"
+    summary = "glTF 2.0 (.glb/.gltf): the source document with reduced weights (k<=4: one set, 5..8: two) and levels"
+    suffixes = (".glb", ".gltf")
+
+    class Params(Params):
+        quantize: Literal["float", "ushort", "ubyte"] = "float"
+        sets: int | None = None
+        levels: bool = True
+        lod: bool = False
+        embed: bool = False
+        fps: float = 30.0
+
+    def write(self, path, asset, params, ctx):
+        from rigslim.io.gltf_write import export_skinned, write_gltf
+
+        levels = asset.extras.get("levels") if params.levels else None
+        source = asset.extras.get("gltf")
+        if source is not None:
+            write_gltf(path, source, asset.reduced, quantize=params.quantize, sets=params.sets, levels=levels,
+                       lod=params.lod, embed=params.embed)
+            mode = "rewrite"
+        else:
+            asset.require("mesh", "handles", step="write: gltf")
+            if levels:
+                ctx.log("levels are written only into documents read from glTF; exporting the full mesh")
+                levels = None
+            weights = asset.reduced if asset.reduced is not None else asset.weights
+            if weights is None:
+                asset.require("weights", step="write: gltf")
+            export_skinned(path, asset.mesh, asset.handles, weights, asset.poses, fps=params.fps,
+                           quantize=params.quantize, embed=params.embed)
+            mode = "export"
+        ctx.report.update({"mode": mode, "quantize": params.quantize,
+                           "k": asset.reduced.k if asset.reduced is not None else None,
+                           "levels": len(levels) if levels else 0})
+
+
+READERS = [GltfReader]
+WRITERS = [GltfWriter]
