@@ -1,0 +1,302 @@
+"""Per-pose quadrics and the quartic error of articulated simplification ([S09], ALGORITHMS.md sec. 4).
+
+The functions are batched over edges: the hot parts of the simplifier (the
+initial quadrics of every vertex and the alternating position / weight
+solves of many edges at once) are plain numpy array programs.
+
+Notation: ``P`` example poses, ``n`` bones, ``B`` edges in a batch, ``K``
+bones in an edge's restricted set (padded to the batch's largest).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from rigslim.blend import linear_blend
+
+
+def homogeneous(T: np.ndarray) -> np.ndarray:
+    """(..., 3, 4) affine transforms as (..., 4, 4) matrices with last row ``[0, 0, 0, 1]``."""
+    out = np.zeros(T.shape[:-2] + (4, 4))
+    out[..., :3, :] = T
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def face_planes(X: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit planes ``[n; d]`` (with ``n . x + d = 0`` on the face) and areas of the faces.
+
+    Parameters
+    ----------
+    X : (..., m, 3) array
+        Vertex positions (a leading axis, e.g. poses, is allowed).
+    F : (f, 3) int array
+
+    Returns
+    -------
+    planes : (..., f, 4) array
+    areas : (..., f) array
+    """
+    p0, p1, p2 = X[..., F[:, 0], :], X[..., F[:, 1], :], X[..., F[:, 2], :]
+    c = np.cross(p1 - p0, p2 - p0)
+    norm = np.linalg.norm(c, axis=-1)
+    n = c / np.maximum(norm, 1e-300)[..., None]
+    d = -np.einsum("...i,...i->...", n, p0)
+    return np.concatenate([n, d[..., None]], axis=-1), 0.5 * norm
+
+
+def vertex_quadrics(X: np.ndarray, F: np.ndarray, area_weighted: bool = True) -> np.ndarray:
+    """Fundamental quadrics of every vertex (Garland & Heckbert 1997), for one or many poses.
+
+    Parameters
+    ----------
+    X : (m, 3) or (P, m, 3) array
+        Vertex positions (in one pose, or a stack of poses).
+    F : (f, 3) int array
+    area_weighted : bool
+        Weight each face's plane by its area (the usual QSlim refinement).
+
+    Returns
+    -------
+    (m, 4, 4) or (m, P, 4, 4) array
+
+    Notes
+    -----
+    ``Q_v = sum_{faces f at v} w_f [n_f; d_f][n_f; d_f]^T`` with ``w_f`` the
+    face area (or 1), so ``p^T Q_v p`` is the (weighted) sum of squared
+    distances of the homogeneous point p to the planes of v's faces.
+    """
+    single = X.ndim == 2
+    Xs = X[None] if single else X
+    planes, areas = face_planes(Xs, F)                      # (P, f, 4), (P, f)
+    w = areas if area_weighted else np.ones_like(areas)
+    K = np.einsum("pf,pfi,pfj->fpij", w, planes, planes)    # (f, P, 4, 4)
+    f = len(F)
+    m = Xs.shape[1]
+    inc = sp.csr_matrix((np.ones(3 * f), (F.T.ravel(), np.tile(np.arange(f), 3))), shape=(m, f))
+    Q = np.asarray(inc @ K.reshape(f, -1)).reshape(m, Xs.shape[0], 4, 4)
+    return Q[:, 0] if single else Q
+
+
+def per_pose_quadrics(V: np.ndarray, F: np.ndarray, weights, T: np.ndarray, area_weighted: bool = True):
+    """Quadrics of every vertex in every example pose, ``Q_v^j`` of [S09] eq. 2.
+
+    Parameters
+    ----------
+    V : (m, 3) rest positions
+    F : (f, 3) faces
+    weights : (m, n) sparse matrix or ReducedWeights
+        The skin weights that deform the input mesh.
+    T : (P, n, 3, 4) array
+        Bone transforms of the example poses.
+
+    Returns
+    -------
+    Q : (m, P, 4, 4) array
+    X : (P, m, 3) array
+        The deformed positions (linear blend skinning) the planes come from.
+    """
+    X = np.stack([linear_blend(V, weights, T[j]) for j in range(len(T))])
+    return vertex_quadrics(X, F, area_weighted), X
+
+
+def quadric_error(Q: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """``[p; 1]^T Q [p; 1]`` for batches: Q (..., 4, 4), p (..., 3)."""
+    ph = np.concatenate([p, np.ones(p.shape[:-1] + (1,))], axis=-1)
+    return np.einsum("...i,...ij,...j->...", ph, Q, ph)
+
+
+def quartic_error(Q: np.ndarray, Tb: np.ndarray, a: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The quartic error of [S09] eq. 3 for a batch of candidate vertices.
+
+    Parameters
+    ----------
+    Q : (B, P, 4, 4) array
+        Per-pose quadrics of each edge (``Q_v1^j + Q_v2^j``).
+    Tb : (B, P, K, 3, 4) array
+        Transforms of each edge's bones in each pose.
+    a : (B, K) array
+        Weights over those bones (rows sum to one).
+    v : (B, 3) array
+        Rest positions.
+
+    Returns
+    -------
+    (B,) array
+
+    Notes
+    -----
+    ``E(v, a) = sum_j (sum_k a_k M_k^j v)^T Q^j (sum_k a_k M_k^j v)``.
+    """
+    X = np.einsum("bk,bpkrc->bprc", a, Tb)                  # blended (B, P, 3, 4)
+    p = np.einsum("bprc,bc->bpr", X[..., :3], v) + X[..., 3]
+    return quadric_error(Q, p).sum(axis=1)
+
+
+def position_step(Q: np.ndarray, Tb: np.ndarray, a: np.ndarray, fallback: np.ndarray):
+    """Optimal rest position for fixed weights ([S09] sec. 3.1), batched.
+
+    Parameters
+    ----------
+    Q : (B, P, 4, 4), Tb : (B, P, K, 3, 4), a : (B, K)
+    fallback : (B, c, 3) array
+        Candidate points (e.g. the edge's endpoints and midpoint) used where
+        the 3x3 system is singular, as QSlim does.
+
+    Returns
+    -------
+    v : (B, 3) array
+    singular : (B,) bool array
+
+    Notes
+    -----
+    With ``L_j = [[X_j], [0 0 0 1]]`` the blended 4x4 transform of pose j,
+    ``G = sum_j L_j^T Q^j L_j = [[A, b], [b^T, c]]`` and ``A v = -b``.
+    """
+    X = np.einsum("bk,bpkrc->bprc", a, Tb)
+    L = np.zeros(X.shape[:2] + (4, 4))
+    L[..., :3, :] = X
+    L[..., 3, 3] = 1.0
+    G = np.einsum("bpri,bprs,bpsj->bij", L, Q, L)
+    A, rhs = G[:, :3, :3], -G[:, :3, 3]
+    scale = np.trace(A, axis1=1, axis2=2) / 3.0
+    det = np.linalg.det(A)
+    singular = ~(np.abs(det) > 1e-10 * np.maximum(scale, 1e-300) ** 3)
+    A_safe = np.where(singular[:, None, None], np.eye(3), A)
+    v = np.linalg.solve(A_safe, rhs[..., None])[..., 0]
+    if singular.any():
+        s = np.flatnonzero(singular)
+        c = fallback.shape[1]
+        cand = fallback[s]                                          # (S, c, 3)
+        e = np.stack([quadric_error(G[s], cand[:, i]) for i in range(c)], axis=1)
+        v[s] = cand[np.arange(len(s)), np.argmin(e, axis=1)]
+    return v, singular
+
+
+def weight_step(Q: np.ndarray, Tb: np.ndarray, v: np.ndarray, a0: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Minimum-norm weight offset for a fixed position ([S09] sec. 3.2), batched.
+
+    Parameters
+    ----------
+    Q : (B, P, 4, 4), Tb : (B, P, K, 3, 4), v : (B, 3)
+    a0 : (B, K) array
+        Starting weights (a vertex's own, or the mean of an edge's endpoints').
+    mask : (B, K) bool array
+        Which of the K slots are bones of the restricted set (padding is False).
+
+    Returns
+    -------
+    (B, K) array
+        ``a = a0 + da``, zero on padding, rows summing to one.
+
+    Notes
+    -----
+    ``V_j = [M_1^j v, ..., M_K^j v]`` (4 x K), ``H = sum_j V_j^T Q^j V_j`` and
+
+        [da; lambda] = -pinv([[H, 1], [1^T, 0]]) [H a0; 0],
+
+    the minimum-norm minimiser of ``(a0 + da)^T H (a0 + da)`` subject to
+    ``1^T da = 0``. H is scaled to unit mean diagonal first (this does not
+    change da) so one relative pseudo-inverse threshold fits every edge.
+    """
+    B, P, K = Tb.shape[:3]
+    Y = np.einsum("bpkrc,bc->bpkr", Tb[..., :3], v) + Tb[..., 3]     # M_k^j v, (B, P, K, 3)
+    Yh = np.concatenate([Y, np.ones(Y.shape[:-1] + (1,))], axis=-1) * mask[:, None, :, None]
+    H = np.einsum("bpki,bpij,bplj->bkl", Yh, Q, Yh)
+    H = 0.5 * (H + np.swapaxes(H, 1, 2))
+    kk = np.maximum(mask.sum(axis=1), 1)
+    s = np.trace(H, axis1=1, axis2=2) / kk
+    H = H / np.where(s > 0, s, 1.0)[:, None, None]
+    KKT = np.zeros((B, K + 1, K + 1))
+    KKT[:, :K, :K] = H
+    KKT[:, :K, K] = mask
+    KKT[:, K, :K] = mask
+    rhs = np.zeros((B, K + 1))
+    rhs[:, :K] = np.einsum("bkl,bl->bk", H, a0)
+    sol = -np.einsum("bij,bj->bi", np.linalg.pinv(KKT, rcond=1e-10, hermitian=True), rhs)
+    a = (a0 + sol[:, :K]) * mask
+    return a
+
+
+def bone_limit(a: np.ndarray, mask: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Keep the n largest weights of each row and renormalise ([S09] sec. 3.2, bone limit).
+
+    Returns
+    -------
+    a : (B, K) array
+        Rows with at most n non-zeros, summing to one.
+    mask : (B, K) bool array
+        The restricted bone sets.
+    """
+    B, K = a.shape
+    if K <= n:
+        return a, mask
+    key = np.where(mask, a, -np.inf)
+    top = np.argsort(-key, axis=1, kind="stable")[:, :n]
+    keep = np.zeros_like(mask)
+    np.put_along_axis(keep, top, True, axis=1)
+    keep &= mask
+    out = np.where(keep, a, 0.0)
+    sums = out.sum(axis=1, keepdims=True)
+    bad = np.abs(sums[:, 0]) < 1e-9
+    if bad.any():   # the kept weights cancel out: fall back to their magnitudes
+        out[bad] = np.abs(out[bad])
+        sums[bad] = out[bad].sum(axis=1, keepdims=True)
+    return out / sums, keep
+
+
+def alternate(Q, Tb, a0, mask, fallback, *, iterations: int = 10, tol: float = 1e-6, max_bones: int | None = None):
+    """Alternating minimisation of the quartic error over position and weights, batched.
+
+    Parameters
+    ----------
+    Q : (B, P, 4, 4) per-pose quadrics of each edge
+    Tb : (B, P, K, 3, 4) transforms of each edge's bones
+    a0 : (B, K) starting weights (rows sum to one)
+    mask : (B, K) bool, the restricted bone sets
+    fallback : (B, c, 3) candidate points for singular position steps
+    iterations : int
+        Most alternations (position step then weight step) per pass.
+    tol : float
+        Stop once no edge's error fell by more than ``tol`` (relative).
+    max_bones : int, optional
+        Bone limit: after the alternation keep the n largest weights,
+        renormalise, and alternate again on that set.
+
+    Returns
+    -------
+    v : (B, 3), a : (B, K), E : (B,)
+        The best point and weights found and their error; E never exceeds
+        the error of the first position step with ``a0``.
+    """
+    def run(a_start, m):
+        a = a_start
+        v, _ = position_step(Q, Tb, a, fallback)
+        E = quartic_error(Q, Tb, a, v)
+        best_v, best_a, best_E = v, a, E
+        for _ in range(iterations):
+            a = weight_step(Q, Tb, v, a0=a_start, mask=m)
+            v, _ = position_step(Q, Tb, a, fallback)
+            E_new = quartic_error(Q, Tb, a, v)
+            better = E_new < best_E
+            gain = (best_E - E_new) / np.maximum(np.abs(best_E), 1e-300)
+            best_v = np.where(better[:, None], v, best_v)
+            best_a = np.where(better[:, None], a, best_a)
+            best_E = np.where(better, E_new, best_E)
+            if not (gain > tol).any():
+                break
+        return best_v, best_a, best_E
+
+    v, a, E = run(a0, mask)
+    if max_bones is not None and (np.count_nonzero(np.abs(a) > 0, axis=1) > max_bones).any():
+        over = np.count_nonzero(np.abs(a) > 0, axis=1) > max_bones
+        a_lim, m_lim = bone_limit(a[over], mask[over], max_bones)
+        sub = (Q[over], Tb[over], a_lim, m_lim, fallback[over])
+        v2, a2, E2 = _alternate_restricted(*sub, iterations=iterations, tol=tol)
+        v[over], a[over], E[over] = v2, a2, E2
+    return v, a, E
+
+
+def _alternate_restricted(Q, Tb, a0, mask, fallback, *, iterations, tol):
+    return alternate(Q, Tb, a0, mask, fallback, iterations=iterations, tol=tol, max_bones=None)

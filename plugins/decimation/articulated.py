@@ -1,0 +1,142 @@
+"""Articulated decimation plugins built on the shared collapse loop: ``quartic``, ``mohr-gleicher``, ``decoro-rusinkiewicz``.
+
+Each builds a :class:`rigslim.hierarchy.ProgressiveHierarchy` of the rest
+mesh with per-vertex skin weights, fitted to the asset's example poses, and
+extracts the levels the step asks for (``targets``: fractions of the input
+faces or face counts; ``error_targets``: collapse-error thresholds). Results
+go to ``asset.extras["hierarchy"]`` and ``asset.extras["levels"]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from pydantic import Field
+
+from rigslim.errors import StepError
+from rigslim.plugin import Decimator, Params
+
+
+class DecimationParams(Params):
+    """Parameters every articulated decimator shares."""
+
+    targets: list[float] = Field(default_factory=list)
+    """Levels to extract: a number below 1 is a fraction of the input faces, else a face count."""
+    error_targets: list[float] = Field(default_factory=list)
+    """Levels to extract by collapse error: the longest prefix of collapses with errors at most this."""
+    min_faces: int | None = None
+    """Build the hierarchy down to this many faces (default: the smallest target, or 70)."""
+    max_bones: int | None = Field(default=None, ge=1)
+    """At most this many non-zero weights per vertex at every level."""
+    keep_boundary: bool = True
+    min_normal_cos: float = Field(default=0.0, ge=-1.0, le=1.0)
+    """Refuse collapses that turn a surviving face's normal by more than arccos(this), in any pose."""
+    area_weighted: bool = True
+
+
+def target_faces(targets, n_faces: int) -> list[int]:
+    """Face counts of targets (fractions below 1, counts otherwise)."""
+    out = []
+    for t in targets:
+        if t <= 0:
+            raise StepError(f"target {t} is not positive", field="targets",
+                            fix="give fractions like 0.1 or face counts like 2000")
+        out.append(max(1, int(round(t * n_faces))) if t < 1 else int(t))
+    return out
+
+
+def target_label(method: str, t: float, faces: int) -> str:
+    return f"{method}-{t * 100:g}pct" if t < 1 else f"{method}-{faces}f"
+
+
+def limited_weights(A, max_bones: int | None) -> np.ndarray:
+    """Dense (m, n) weights, each row cut to its ``max_bones`` largest entries and renormalised."""
+    from rigslim.quadrics import bone_limit
+
+    W = sp.csr_matrix(A).toarray()
+    if max_bones is not None and W.shape[1] > max_bones:
+        W, _ = bone_limit(W, W != 0, max_bones)
+    return W
+
+
+class ArticulatedDecimator(Decimator):
+    """Shared driver: quadrics of the example poses, the collapse loop, level extraction."""
+
+    Params = DecimationParams
+
+    def model(self, Q, W, T, params):
+        raise NotImplementedError
+
+    def decimate(self, asset, params, ctx):
+        from rigslim.plugins.decimation.collapse import simplify
+        from rigslim.quadrics import per_pose_quadrics
+
+        step = f"decimate: {self.name}"
+        asset.require("mesh", "weights", "poses", "split", step=step)
+        mesh = asset.mesh
+        T = asset.example_poses().T
+        faces = target_faces(params.targets, mesh.n_faces)
+        min_faces = params.min_faces if params.min_faces is not None else (min(faces) if faces else 70)
+        Q, X = per_pose_quadrics(mesh.V, mesh.F, asset.weights, T, params.area_weighted)
+        W = limited_weights(asset.weights, params.max_bones)
+        model = self.model(Q, W, T, params)
+        hier = simplify(mesh.V, mesh.F, W, T, X, model, min_faces=min_faces, keep_boundary=params.keep_boundary,
+                        min_normal_cos=params.min_normal_cos, progress=ctx.progress, method=self.name,
+                        params=params.model_dump())
+        levels = [hier.at_faces(f, target_label(self.name, t, f)) for t, f in zip(params.targets, faces)]
+        levels += [hier.at_error(e, f"{self.name}-err{e:g}") for e in params.error_targets]
+        levels.sort(key=lambda lv: -lv.n_faces)
+        asset.extras["hierarchy"] = hier
+        asset.extras["levels"] = levels
+        ctx.report.update({
+            "collapses": hier.n_collapses, "input_faces": mesh.n_faces,
+            "final_faces": hier.faces_after(hier.n_collapses), "example_poses": len(T),
+            "levels": [{"label": lv.label, "faces": lv.n_faces, "vertices": lv.n_vertices,
+                        "max_bones": int(lv.weights.influence_counts().max()), "error": lv.error}
+                       for lv in levels]})
+        if hier.faces_after(hier.n_collapses) > min_faces:
+            ctx.log(f"stopped at {hier.faces_after(hier.n_collapses)} faces: no valid collapse is left")
+
+
+class QuarticParams(DecimationParams):
+    iterations: int = Field(default=10, ge=1)
+    """Most alternations of the position and weight steps per edge."""
+    tol: float = Field(default=1e-6, ge=0.0)
+    """Stop alternating once the error falls by less than this (relative)."""
+
+
+class Quartic(ArticulatedDecimator):
+    """[S09]: quartic error, alternating position/weight solves restricted to the endpoints' bones."""
+
+    name = "quartic"
+    summary = "[S09] edge collapses optimising rest position and skin weights for every example pose"
+    Params = QuarticParams
+
+    def model(self, Q, W, T, params):
+        from rigslim.plugins.decimation.models import QuarticModel
+
+        return QuarticModel(Q, iterations=params.iterations, tol=params.tol, max_bones=params.max_bones)
+
+
+class MohrGleicher(ArticulatedDecimator):
+    """Mohr & Gleicher 2003: summed per-pose quadrics, the better endpoint is kept."""
+
+    name = "mohr-gleicher"
+    summary = "Mohr-Gleicher 2003: summed per-pose quadrics, collapse to the better endpoint"
+
+    def model(self, Q, W, T, params):
+        from rigslim.plugins.decimation.models import MohrGleicherModel
+
+        return MohrGleicherModel(Q, max_bones=params.max_bones)
+
+
+class DeCoroRusinkiewicz(ArticulatedDecimator):
+    """DeCoro & Rusinkiewicz 2005: rest-frame quadrics, optimal position, distance-blended weights."""
+
+    name = "decoro-rusinkiewicz"
+    summary = "DeCoro-Rusinkiewicz 2005: pose quadrics pulled to the rest frame, weights blended by distance"
+
+    def model(self, Q, W, T, params):
+        from rigslim.plugins.decimation.models import DeCoroModel
+
+        return DeCoroModel(Q, W, T, max_bones=params.max_bones)

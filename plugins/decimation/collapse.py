@@ -1,0 +1,305 @@
+"""Greedy edge collapse of a skinned mesh with a lazy priority queue (QSlim's loop, [S09] sec. 3).
+
+The loop is shared by ``quartic``, ``mohr-gleicher`` and ``decoro-rusinkiewicz``;
+they differ only in their :class:`EdgeCostModel` (where the new vertex goes,
+which weights it gets, what the collapse costs).
+
+Every collapse is recorded, so the result is a
+:class:`rigslim.hierarchy.ProgressiveHierarchy`. Guards: the link condition
+(no non-manifold results), no fold-over of any surviving face in the rest
+pose or any example pose, boundary vertices kept.
+
+Lazy updates: after collapsing (a, b) into c, the new edges (c, x) are queued
+with the lower bound ``max(cost(a, x), cost(b, x), cost(a, b))`` (exact for
+quadric costs, since c's quadric is the sum of a's and b's) and marked dirty;
+when a dirty edge reaches the top, every dirty edge is re-evaluated in one
+batched solve and queued again with its true cost.
+"""
+
+from __future__ import annotations
+
+import heapq
+
+import numpy as np
+
+from rigslim.hierarchy import ProgressiveHierarchy
+from rigslim.weights import ReducedWeights
+
+CLEAN, DIRTY, DEAD, BLOCKED = 0, 1, 2, 3
+
+
+def blended_transforms(W: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """(B, P, 3, 4) per-vertex blended transforms ``sum_k w_k T_k^j`` for dense weights W (B, n)."""
+    return np.einsum("bn,pnrc->bprc", W, T)
+
+
+def posed_positions(v: np.ndarray, W: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """(B, P, 3) positions of rest points v (B, 3) with weights W (B, n) in the poses T (P, n, 3, 4)."""
+    X = blended_transforms(W, T)
+    return np.einsum("bprc,bc->bpr", X[..., :3], v) + X[..., 3]
+
+
+class SimplifyState:
+    """Vertex tables shared by the collapse loop and a cost model.
+
+    Attributes
+    ----------
+    V : (N, 3) rest positions, W : (N, n) dense weights, pos : (N, P + 1, 3)
+        rest (slot 0) and example-pose positions of every vertex that exists
+        or will exist (N = 2m - 1 at most).
+    T : (P, n, 3, 4) example-pose bone transforms.
+    """
+
+    def __init__(self, V, F, W, T, X):
+        m = len(V)
+        N = 2 * m
+        self.m = m
+        self.T = T
+        self.V = np.zeros((N, 3))
+        self.V[:m] = V
+        self.W = np.zeros((N, W.shape[1]))
+        self.W[:m] = W
+        self.pos = np.zeros((N, len(T) + 1, 3))
+        self.pos[:m, 0] = V
+        self.pos[:m, 1:] = np.transpose(X, (1, 0, 2))
+        self.F = np.array(F, dtype=np.int64)
+
+
+class EdgeCostModel:
+    """Where a collapse puts the new vertex, its weights and its cost."""
+
+    def costs(self, state: SimplifyState, ea: np.ndarray, eb: np.ndarray):
+        """Return ``v (B, 3), w (B, n), E (B,)`` for the edges (ea, eb)."""
+        raise NotImplementedError
+
+    def merge(self, state: SimplifyState, a: int, b: int, c: int) -> None:
+        """Update per-vertex data after collapsing a and b into c."""
+
+
+def batched(n: int, size: int):
+    for s in range(0, n, size):
+        yield slice(s, min(n, s + size))
+
+
+class _EdgeTable:
+    def __init__(self, n_handles: int, cap: int):
+        self.n = n_handles
+        self._alloc(cap)
+        self.key: dict[tuple[int, int], int] = {}
+        self.free: list[int] = []
+        self.size = 0
+
+    def _alloc(self, cap):
+        old = getattr(self, "a", None)
+        new = {"a": np.zeros(cap, np.int64), "b": np.zeros(cap, np.int64), "cost": np.zeros(cap),
+               "v": np.zeros((cap, 3)), "w": np.zeros((cap, self.n)), "stamp": np.zeros(cap, np.int64),
+               "state": np.full(cap, DEAD, np.int8)}
+        if old is not None:
+            for k, arr in new.items():
+                arr[: len(old)] = getattr(self, k)
+        for k, arr in new.items():
+            setattr(self, k, arr)
+
+    def add(self, a: int, b: int) -> int:
+        if self.free:
+            e = self.free.pop()
+        else:
+            if self.size == len(self.a):
+                self._alloc(2 * len(self.a))
+            e = self.size
+            self.size += 1
+        if a > b:
+            a, b = b, a
+        self.a[e], self.b[e] = a, b
+        self.stamp[e] += 1
+        self.key[(a, b)] = e
+        return e
+
+    def kill(self, e: int) -> None:
+        self.state[e] = DEAD
+        del self.key[(int(self.a[e]), int(self.b[e]))]
+        self.free.append(e)
+
+
+def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_boundary: bool = True,
+             min_normal_cos: float = 0.0, progress=None, method: str = "", params: dict | None = None,
+             batch: int = 2048) -> ProgressiveHierarchy:
+    """Greedy edge collapses down to ``min_faces``, recorded as a progressive hierarchy.
+
+    Parameters
+    ----------
+    V : (m, 3), F : (f, 3)
+        The rest mesh.
+    W : (m, n) dense array
+        Weights of the original vertices (after any bone limit).
+    T : (P, n, 3, 4)
+        Example-pose bone transforms.
+    X : (P, m, 3)
+        The input mesh deformed to the example poses (for fold-over checks).
+    model : EdgeCostModel
+    min_faces : int
+        Stop when at most this many faces are left (or nothing can collapse).
+    keep_boundary : bool
+        Never move a boundary vertex.
+    min_normal_cos : float
+        A collapse is refused if a surviving face's normal turns by more than
+        ``arccos(min_normal_cos)`` in the rest pose or any example pose.
+    progress : callable, optional
+        ``ctx.progress``.
+    batch : int
+        Edges per batched cost evaluation.
+
+    Returns
+    -------
+    ProgressiveHierarchy
+    """
+    progress = progress or (lambda it, total=None, description="": it)
+    st = SimplifyState(V, F, W, T, X)
+    m = st.m
+    Fm = st.F
+    f_alive = np.ones(len(Fm), dtype=bool)
+    vf: list[set | None] = [set() for _ in range(2 * m)]
+    for i, (x, y, z) in enumerate(Fm.tolist()):
+        vf[x].add(i)
+        vf[y].add(i)
+        vf[z].add(i)
+    # boundary: edges with one face
+    E_all = np.sort(np.concatenate([Fm[:, [0, 1]], Fm[:, [1, 2]], Fm[:, [2, 0]]]), axis=1)
+    uniq, counts = np.unique(E_all, axis=0, return_counts=True)
+    boundary = np.zeros(2 * m, dtype=bool)
+    if keep_boundary:
+        boundary[uniq[counts == 1].ravel()] = True
+    edges = uniq[~(boundary[uniq[:, 0]] | boundary[uniq[:, 1]])]
+
+    table = _EdgeTable(W.shape[1], max(16, 2 * len(edges)))
+    ids = np.array([table.add(int(a), int(b)) for a, b in edges], dtype=np.int64)
+
+    def evaluate(eids: np.ndarray) -> None:
+        for sl in batched(len(eids), batch):
+            e = eids[sl]
+            v, w, E = model.costs(st, table.a[e], table.b[e])
+            table.v[e], table.w[e], table.cost[e] = v, w, E
+            table.state[e] = CLEAN
+            table.stamp[e] += 1
+
+    evaluate(ids)
+    heap = list(zip(table.cost[ids].tolist(), table.stamp[ids].tolist(), ids.tolist()))
+    heapq.heapify(heap)
+    dirty: set[int] = set()
+    blocked_at: dict[int, set] = {}
+
+    scale = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0))) ** 2
+    tiny = 1e-14 * scale
+    n_faces = len(Fm)
+    collapses, errors, nfaces = [], [], []
+
+    def neighbours(x: int) -> set:
+        out = set(Fm[list(vf[x])].ravel().tolist())
+        out.discard(x)
+        return out
+
+    def try_collapse(e: int) -> bool:
+        nonlocal n_faces
+        a, b = int(table.a[e]), int(table.b[e])
+        fa, fb = vf[a], vf[b]
+        fab = fa & fb
+        if len(fab) != 2:
+            return False
+        Na, Nb = neighbours(a), neighbours(b)
+        if len((Na & Nb) - {a, b}) != 2:        # link condition
+            return False
+        union = (Na | Nb) - {a, b}
+        if len(union) < 3 or n_faces - 2 < 4:
+            return False
+        rem = list((fa | fb) - fab)
+        v, w = table.v[e], table.w[e]
+        pc = np.empty((len(T) + 1, 3))
+        pc[0] = v
+        pc[1:] = posed_positions(v[None], w[None], T)[0]
+        C = Fm[rem]
+        Pold = st.pos[C]                                          # (L, 3, P+1, 3)
+        Pnew = Pold.copy()
+        Pnew[(C == a) | (C == b)] = pc
+        no = np.cross(Pold[:, 1] - Pold[:, 0], Pold[:, 2] - Pold[:, 0])
+        nn = np.cross(Pnew[:, 1] - Pnew[:, 0], Pnew[:, 2] - Pnew[:, 0])
+        lo, ln = np.linalg.norm(no, axis=-1), np.linalg.norm(nn, axis=-1)
+        dot = np.einsum("lpi,lpi->lp", no, nn)
+        if ((lo > tiny) & ((ln <= tiny) | (dot < min_normal_cos * lo * ln))).any():
+            return False
+        # apply
+        c = m + len(collapses)
+        st.V[c], st.W[c], st.pos[c] = v, w, pc
+        model.merge(st, a, b, c)
+        for f in fab:
+            f_alive[f] = False
+            for x in Fm[f].tolist():
+                if x != a and x != b:
+                    vf[x].discard(f)
+        for f in rem:
+            row = Fm[f]
+            row[(row == a) | (row == b)] = c
+        vf[c] = set(rem)
+        vf[a] = vf[b] = None
+        n_faces -= 2
+        cost_ab = float(table.cost[e])
+        table.kill(e)
+        for x in union:
+            old = []
+            for y in (a, b):
+                k = (y, x) if y < x else (x, y)
+                eo = table.key.get(k)
+                if eo is not None:
+                    old.append(float(table.cost[eo]))
+                    dirty.discard(eo)
+                    table.kill(eo)
+            if boundary[x]:
+                continue
+            en = table.add(x, c)
+            table.cost[en] = max(old + [cost_ab])
+            table.state[en] = DIRTY
+            dirty.add(en)
+            heapq.heappush(heap, (float(table.cost[en]), int(table.stamp[en]), en))
+            for eb_ in blocked_at.pop(x, ()):
+                if table.state[eb_] == BLOCKED:
+                    table.state[eb_] = CLEAN
+                    heapq.heappush(heap, (float(table.cost[eb_]), int(table.stamp[eb_]), eb_))
+        collapses.append((a, b))
+        errors.append(cost_ab)
+        nfaces.append(n_faces)
+        return True
+
+    total = max(0, (n_faces - min_faces + 1) // 2)
+    for _ in progress(range(total), total=total, description=f"{method} collapses"):
+        if n_faces <= min_faces:
+            break
+        done = False
+        while heap:
+            cost, stamp, e = heapq.heappop(heap)
+            if stamp != table.stamp[e] or table.state[e] in (DEAD, BLOCKED):
+                continue
+            if table.state[e] == DIRTY:
+                todo = np.fromiter(dirty, dtype=np.int64)
+                dirty.clear()
+                evaluate(todo)
+                for d in todo.tolist():
+                    heapq.heappush(heap, (float(table.cost[d]), int(table.stamp[d]), d))
+                continue
+            if try_collapse(e):
+                done = True
+                break
+            table.state[e] = BLOCKED
+            blocked_at.setdefault(int(table.a[e]), set()).add(e)
+            blocked_at.setdefault(int(table.b[e]), set()).add(e)
+        if not done:
+            break
+
+    N = m + len(collapses)
+    Wall = st.W[:N]
+    Wall = np.where(np.abs(Wall) < 1e-14, 0.0, Wall)
+    k = max(1, int(np.count_nonzero(Wall, axis=1).max()))
+    order = np.argsort(Wall == 0, axis=1, kind="stable")[:, :k]
+    vals = np.take_along_axis(Wall, order, axis=1)
+    idx = np.where(vals != 0, order, 0)
+    weights = ReducedWeights(idx, vals, W.shape[1])
+    return ProgressiveHierarchy(st.V[:N].copy(), weights, F, np.array(collapses, dtype=np.int64).reshape(-1, 2),
+                                np.array(errors), np.array(nfaces, dtype=np.int64), method, dict(params or {}))

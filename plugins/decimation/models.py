@@ -1,0 +1,130 @@
+"""Edge cost models of the articulated simplifiers: [S09] quartic, Mohr-Gleicher 2003, DeCoro-Rusinkiewicz 2005.
+
+Each model says, for a batch of edges (a, b), where the merged vertex goes,
+which skin weights it gets and what the collapse costs; the collapse loop
+(:mod:`rigslim.plugins.decimation.collapse`) does the rest.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rigslim.plugins.decimation.collapse import EdgeCostModel, SimplifyState, blended_transforms
+from rigslim.quadrics import alternate, bone_limit, position_step, quadric_error, quartic_error
+
+
+def _restricted_bones(mask_full: np.ndarray, K: int) -> tuple[np.ndarray, np.ndarray]:
+    """(B, K) bone indices of each row's True entries first, and the matching validity mask."""
+    bones = np.argsort(~mask_full, axis=1, kind="stable")[:, :K]
+    return bones, np.take_along_axis(mask_full, bones, axis=1)
+
+
+class QuarticModel(EdgeCostModel):
+    """[S09]: per-pose quadrics summed over the edge; alternate position and weight solves.
+
+    Parameters
+    ----------
+    Q : (m, P, 4, 4) per-pose quadrics of the original vertices.
+    iterations, tol, max_bones : see :func:`rigslim.quadrics.alternate`.
+    """
+
+    def __init__(self, Q, *, iterations=10, tol=1e-6, max_bones=None):
+        m = len(Q)
+        self.Q = np.zeros((2 * m,) + Q.shape[1:])
+        self.Q[:m] = Q
+        self.iterations, self.tol, self.max_bones = iterations, tol, max_bones
+
+    def costs(self, st: SimplifyState, ea, eb):
+        Wa, Wb = st.W[ea], st.W[eb]
+        mask_full = (Wa != 0) | (Wb != 0)
+        Kb = mask_full.sum(axis=1)
+        order = np.argsort(Kb, kind="stable")
+        B, n = Wa.shape
+        v_out, w_out, E_out = np.zeros((B, 3)), np.zeros((B, n)), np.zeros(B)
+        for s in range(0, B, 512):
+            idx = order[s:s + 512]
+            K = int(Kb[idx].max())
+            bones, mask = _restricted_bones(mask_full[idx], K)
+            a0 = np.take_along_axis(0.5 * (Wa[idx] + Wb[idx]), bones, axis=1) * mask
+            Tb = np.transpose(st.T[:, bones], (1, 0, 2, 3, 4))          # (b, P, K, 3, 4)
+            Qe = self.Q[ea[idx]] + self.Q[eb[idx]]
+            pa, pb = st.V[ea[idx]], st.V[eb[idx]]
+            fallback = np.stack([pa, pb, 0.5 * (pa + pb)], axis=1)
+            v, a, E = alternate(Qe, Tb, a0, mask, fallback, iterations=self.iterations, tol=self.tol,
+                                max_bones=self.max_bones)
+            w = np.zeros((len(idx), n))
+            np.put_along_axis(w, bones, np.where(mask, a, 0.0), axis=1)   # bones are distinct per row
+            v_out[idx], w_out[idx], E_out[idx] = v, w, np.maximum(E, 0.0)
+        return v_out, w_out, E_out
+
+    def merge(self, st, a, b, c):
+        self.Q[c] = self.Q[a] + self.Q[b]
+
+
+class MohrGleicherModel(QuarticModel):
+    """Mohr & Gleicher 2003: the same summed per-pose quadrics; the new vertex is the better endpoint.
+
+    Notes
+    -----
+    ``cost(a, b) = min(E(v_a, w_a), E(v_b, w_b))`` with E the quartic error
+    of the edge's summed quadrics; the winner's position and weights move to
+    the merged vertex.
+    """
+
+    def costs(self, st, ea, eb):
+        Qe = self.Q[ea] + self.Q[eb]
+        out = []
+        for e in (ea, eb):
+            X = blended_transforms(st.W[e], st.T)                         # (B, P, 3, 4)
+            p = np.einsum("bprc,bc->bpr", X[..., :3], st.V[e]) + X[..., 3]
+            out.append(quadric_error(Qe, p).sum(axis=1))
+        take_b = out[1] < out[0]
+        v = np.where(take_b[:, None], st.V[eb], st.V[ea])
+        w = np.where(take_b[:, None], st.W[eb], st.W[ea])
+        return v, w, np.maximum(np.minimum(out[0], out[1]), 0.0)
+
+
+class DeCoroModel(EdgeCostModel):
+    """DeCoro & Rusinkiewicz 2005: per-pose quadrics brought to the rest frame and summed.
+
+    Parameters
+    ----------
+    Q : (m, P, 4, 4) per-pose quadrics; W : (m, n) weights; T : (P, n, 3, 4) poses.
+    max_bones : int, optional
+
+    Notes
+    -----
+    ``Qr_v = sum_j L_v^{jT} Q_v^j L_v^j`` with ``L_v^j`` vertex v's blended
+    4x4 transform in pose j; an edge has ``Qr_a + Qr_b``; the new vertex is
+    the QSlim optimum of that quadric and its weights are the endpoints'
+    blended by distance, ``w = (|v - v_b| w_a + |v - v_a| w_b) / (|v - v_a| + |v - v_b|)``.
+    """
+
+    def __init__(self, Q, W, T, *, max_bones=None):
+        m = len(Q)
+        L = np.zeros((m, T.shape[0], 4, 4))
+        L[..., :3, :] = blended_transforms(W, T)
+        L[..., 3, 3] = 1.0
+        self.Q = np.zeros((2 * m, 4, 4))
+        self.Q[:m] = np.einsum("mpri,mprs,mpsj->mij", L, Q, L)
+        self.max_bones = max_bones
+
+    def costs(self, st, ea, eb):
+        Qe = (self.Q[ea] + self.Q[eb])[:, None]                         # one "pose": identity
+        B = len(ea)
+        n = st.W.shape[1]
+        ident = np.zeros((B, 1, 1, 3, 4))
+        ident[..., :3, :3] = np.eye(3)
+        pa, pb = st.V[ea], st.V[eb]
+        v, _ = position_step(Qe, ident, np.ones((B, 1)), np.stack([pa, pb, 0.5 * (pa + pb)], axis=1))
+        da, db = np.linalg.norm(v - pa, axis=1), np.linalg.norm(v - pb, axis=1)
+        s = da + db
+        ta = np.where(s > 0, db / np.where(s > 0, s, 1.0), 0.5)
+        w = ta[:, None] * st.W[ea] + (1.0 - ta)[:, None] * st.W[eb]
+        if self.max_bones is not None:
+            w, _ = bone_limit(w, w != 0, self.max_bones)
+        E = quartic_error(Qe, ident, np.ones((B, 1)), v)
+        return v, w, np.maximum(E, 0.0)
+
+    def merge(self, st, a, b, c):
+        self.Q[c] = self.Q[a] + self.Q[b]
