@@ -1,7 +1,8 @@
 """The ``rigslim`` command line.
 
 ``rigslim run PIPELINE.yaml [--metrics FILE.json] [--set STEP.PARAM=VALUE]``
-runs a pipeline; ``rigslim plugins [--json]`` lists loaded plugins. Errors a
+runs a pipeline; ``rigslim report METRICS.json [...] -o report.html`` writes an
+HTML report of runs; ``rigslim plugins [--json]`` lists loaded plugins. Errors a
 user can cause print one line and exit with status 2.
 """
 
@@ -48,6 +49,41 @@ def _cmd_run(args) -> int:
     return 0
 
 
+def _cmd_report(args) -> int:
+    from rich.console import Console
+
+    from rigslim.errors import InputError
+    from rigslim.progress import Reporter
+    from rigslim.report import build_report, load_document, write_report
+
+    frames = None
+    if args.frames:
+        try:
+            frames = [int(f) for f in args.frames.split(",") if f.strip()]
+        except ValueError:
+            raise InputError(f"--frames '{args.frames}' is not a comma-separated list of frame numbers",
+                             field="--frames", fix="write e.g. --frames 12,180") from None
+    try:
+        width, height = (int(x) for x in args.size.lower().split("x"))
+    except ValueError:
+        raise InputError(f"--size '{args.size}' is not WIDTHxHEIGHT", field="--size",
+                         fix="write e.g. --size 360x300") from None
+    documents = [(load_document(p), p) for p in args.metrics]
+    console = Console(stderr=True, quiet=args.quiet)
+    reporter = Reporter(console)
+    report = build_report(documents, frames=frames, width=width, height=height, backend=args.backend,
+                          projection=args.projection, azimuth=args.azimuth, elevation=args.elevation,
+                          up_axis=args.up_axis, title=args.title, render=not args.no_renders,
+                          progress=reporter.track)
+    written = write_report(args.output, report, args.png_dir)
+    for note in report.notes:
+        reporter.note(note)
+    print(f"report written to {args.output} ({len(report.rows)} evaluations, {len(report.renders)} renders)")
+    for p in written:
+        print(f"render written to {p}")
+    return 0
+
+
 def _cmd_plugins(args) -> int:
     from rigslim.host import get_host
 
@@ -81,6 +117,22 @@ def build_parser() -> argparse.ArgumentParser:
                      help="override a step parameter (STEP: step name, stage key, plugin or 1-based index)")
     run.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     run.set_defaults(func=_cmd_run)
+    report = sub.add_parser("report", help="HTML report of metrics JSON files (table, plots, renders)")
+    report.add_argument("metrics", nargs="+", metavar="METRICS.json", help="metrics documents of 'rigslim run'")
+    report.add_argument("-o", "--output", required=True, metavar="REPORT.html", help="write the report here")
+    report.add_argument("--png-dir", metavar="DIR", help="also write the renders as PNG files here")
+    report.add_argument("--frames", metavar="F1,F2", help="animation frames to render (default: the worst test frame)")
+    report.add_argument("--size", default="360x300", metavar="WxH", help="size of each render (default 360x300)")
+    report.add_argument("--backend", choices=["auto", "opengl", "numpy"], default="auto",
+                        help="renderer (auto: OpenGL through EGL when available, else numpy)")
+    report.add_argument("--projection", choices=["perspective", "orthographic"], default="perspective")
+    report.add_argument("--azimuth", type=float, default=30.0, help="view direction around the up axis (degrees)")
+    report.add_argument("--elevation", type=float, default=15.0, help="view elevation (degrees)")
+    report.add_argument("--up-axis", type=int, choices=[0, 1, 2], default=1, help="world axis pointing up")
+    report.add_argument("--title", help="page title")
+    report.add_argument("--no-renders", action="store_true", help="table and plots only")
+    report.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    report.set_defaults(func=_cmd_report)
     plugins = sub.add_parser("plugins", help="list loaded plugins")
     plugins.add_argument("--json", action="store_true", help="machine-readable output")
     plugins.set_defaults(func=_cmd_plugins)

@@ -342,6 +342,7 @@ def run_pipeline(path, *, overrides: list[str] = (), metrics_path=None, host: Pl
     document = {
         "rigslim_version": rigslim.__version__,
         "pipeline": str(path),
+        "pipeline_file": str(path.resolve()),
         "name": doc.name or path.stem,
         "inputs": asset.provenance.get("inputs", {}),
         "mesh": ({"vertices": asset.mesh.n_vertices, "faces": asset.mesh.n_faces,

@@ -74,7 +74,7 @@ class Camera:
     @staticmethod
     def fit(points, width: int, height: int, *, azimuth: float = 30.0, elevation: float = 15.0,
             up_axis: int = 1, projection: str = "orthographic", margin: float = 1.05,
-            fov_degrees: float = 30.0) -> "Camera":
+            fov_degrees: float = 30.0, tight: bool = False) -> "Camera":
         """A camera that sees the whole bounding sphere of ``points``.
 
         Parameters
@@ -94,6 +94,12 @@ class Camera:
         fov_degrees : float
             Vertical (or, for portrait images, horizontal) field of view of the
             perspective camera.
+        tight : bool
+            Zoom so that the points themselves (not their bounding sphere)
+            fill the image up to ``margin``, centred: with ``c`` the centre of
+            the points' NDC bounding box and ``e`` their largest NDC offset
+            from it, the x and y rows of the projection become
+            ``(P_xy - c P_w) / (margin e)``.
 
         Notes
         -----
@@ -149,6 +155,13 @@ class Camera:
         view = np.eye(4)
         view[0, :3], view[1, :3], view[2, :3] = right, cam_up, w
         view[:3, 3] = -view[:3, :3] @ eye
+        if tight:
+            C = np.c_[P, np.ones(len(P))] @ (proj @ view).T
+            ndc = C[:, :2] / C[:, 3:4]
+            mid = 0.5 * (ndc.min(axis=0) + ndc.max(axis=0))
+            extent = float(np.max(np.abs(ndc - mid)))
+            if extent > 0:
+                proj[:2] = (proj[:2] - np.outer(mid, proj[3])) / (margin * extent)
         return Camera(view, proj, int(width), int(height), w, cam_up)
 
     @property

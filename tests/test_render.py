@@ -150,3 +150,16 @@ def test_render_mesh_backends_and_errors():
         Camera.fit(V, 0, 16)
     with pytest.raises(InputError):
         render_numpy(V, F + 100, [0.5, 0.5, 0.5], cam)
+
+
+@pytest.mark.parametrize("projection", ["orthographic", "perspective"])
+def test_tight_camera_centres_and_fills_the_image(projection):
+    V, _ = _icosphere(1)
+    V = V * [2.0, 0.5, 0.5] + [3.0, 1.0, 0.0]
+    cam = Camera.fit(V, 80, 60, projection=projection, tight=True, margin=1.0)
+    win = cam.to_window(V)
+    lo, hi = win[:, :2].min(axis=0), win[:, :2].max(axis=0)
+    np.testing.assert_allclose(0.5 * (lo + hi), [40, 30], atol=1e-6)
+    # the limiting side touches both image borders
+    assert np.isclose(hi[0] - lo[0], 80, atol=1e-6) or np.isclose(hi[1] - lo[1], 60, atol=1e-6)
+    assert (lo >= -1e-6).all() and (hi <= [80 + 1e-6, 60 + 1e-6]).all()

@@ -1,0 +1,148 @@
+"""Matplotlib figures of a report, as PNG bytes.
+
+The figures follow [P10]: per-frame error curves (fig. 10), error against
+the number of influences k (fig. 12) and histograms of the number of
+non-zero weights per vertex before and after reduction (fig. 8). Figures are
+drawn on the Agg canvas directly (no pyplot, no global backend change), so
+they work headless and never touch a user's matplotlib state.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+
+import numpy as np
+
+#: Colours of successive evaluations (matplotlib's tab10).
+PALETTE = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
+           "#bcbd22", "#17becf"]
+DPI = 100
+
+
+def _figure(width_in: float, height_in: float):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width_in, height_in), dpi=DPI, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _png(fig) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI)
+    return buf.getvalue()
+
+
+def color(i: int) -> str:
+    return PALETTE[i % len(PALETTE)]
+
+
+def error_curves(rows) -> bytes:
+    """Per-test-frame position and normal error of every evaluation ([P10] fig. 10).
+
+    Parameters
+    ----------
+    rows : list of rigslim.report.EvaluationRow
+        Each with ``label``, ``frames``, ``position_per_frame`` (% of the
+        bounding-box diagonal) and ``normal_per_frame`` (radians; drawn in degrees).
+    """
+    fig = _figure(8.0, 5.2)
+    ax_p, ax_n = fig.subplots(2, 1, sharex=True)
+    for i, r in enumerate(rows):
+        if r.position_per_frame is not None:
+            ax_p.plot(r.frames, r.position_per_frame, color=color(i), lw=1.4, marker=".", ms=3, label=r.label)
+        if r.normal_per_frame is not None:
+            ax_n.plot(r.frames, np.degrees(r.normal_per_frame), color=color(i), lw=1.4, marker=".", ms=3,
+                      label=r.label)
+    ax_p.set_ylabel("position RMS (% of diagonal)")
+    ax_n.set_ylabel("normal RMS (degrees)")
+    ax_n.set_xlabel("test frame")
+    for ax in (ax_p, ax_n):
+        ax.grid(alpha=0.3)
+        ax.set_ylim(bottom=0)
+    ax_p.set_title("Error per test frame")
+    if rows:
+        ax_p.legend(fontsize=8, loc="upper left", ncols=min(len(rows), 3))
+    return _png(fig)
+
+
+def error_vs_k(rows) -> bytes:
+    """Mean (solid) and maximum (dashed) error against k, one line per method ([P10] fig. 12)."""
+    fig = _figure(8.0, 3.4)
+    ax_p, ax_n = fig.subplots(1, 2)
+    methods: dict[str, list] = {}
+    for r in rows:
+        if r.k is not None:
+            methods.setdefault(r.method, []).append(r)
+    for i, (method, group) in enumerate(methods.items()):
+        group = sorted(group, key=lambda r: r.k)
+        ks = [r.k for r in group]
+        for ax, mean, peak, scale in ((ax_p, "position_mean", "position_max", 1.0),
+                                      (ax_n, "normal_mean", "normal_max", 180 / math.pi)):
+            pts = [(k, getattr(r, mean), getattr(r, peak)) for k, r in zip(ks, group)
+                   if getattr(r, mean) is not None]
+            if not pts:
+                continue
+            k_, m_, x_ = zip(*pts)
+            ax.plot(k_, np.array(m_) * scale, color=color(i), marker="o", label=f"{method} mean")
+            ax.plot(k_, np.array(x_) * scale, color=color(i), marker="^", ls="--", alpha=0.7, label=f"{method} max")
+    ax_p.set_ylabel("position RMS (% of diagonal)")
+    ax_n.set_ylabel("normal RMS (degrees)")
+    for ax in (ax_p, ax_n):
+        ax.set_xlabel("k (influences per vertex)")
+        ax.set_yscale("log")
+        ax.grid(alpha=0.3, which="both")
+        ax.xaxis.get_major_locator().set_params(integer=True)
+    ax_p.legend(fontsize=8)
+    fig.suptitle("Error against k")
+    return _png(fig)
+
+
+def influence_histograms(rows) -> bytes:
+    """Vertices per number of non-zero weights, input and reduced ([P10] fig. 8).
+
+    ``rows`` need ``histogram_input`` and ``histogram_reduced`` (lists whose
+    entry c is the number of vertices with c non-zero weights) or None.
+    """
+    fig = _figure(8.0, 3.4)
+    ax_in, ax_out = fig.subplots(1, 2, sharey=True)
+    inputs: dict[tuple, list] = {}
+    for r in rows:
+        if r.histogram_input is not None:
+            inputs.setdefault(tuple(r.histogram_input), []).append(r.label)
+    for j, (hist, labels) in enumerate(inputs.items()):
+        width = 0.8 / len(inputs)
+        x = np.arange(len(hist)) - 0.4 + width * (j + 0.5)
+        name = "input" if len(inputs) == 1 else f"input of {labels[0]}"
+        ax_in.bar(x, hist, width=width, color="#7f7f7f" if len(inputs) == 1 else color(j), label=name)
+    with_hist = [r for r in rows if r.histogram_reduced is not None]
+    for j, r in enumerate(with_hist):
+        width = 0.8 / len(with_hist)
+        hist = r.histogram_reduced
+        x = np.arange(len(hist)) - 0.4 + width * (j + 0.5)
+        ax_out.bar(x, hist, width=width, color=color(rows.index(r)), label=r.label)
+    ax_in.set_title("before: input weights")
+    ax_out.set_title("after: reduced weights")
+    ax_in.set_ylabel("vertices")
+    for ax in (ax_in, ax_out):
+        ax.set_xlabel("non-zero weights per vertex")
+        ax.grid(alpha=0.3, axis="y")
+        ax.xaxis.get_major_locator().set_params(integer=True)
+        if ax.has_data():
+            ax.legend(fontsize=8)
+    return _png(fig)
+
+
+def colorbar(vmax_degrees: float, cmap: str) -> bytes:
+    """A horizontal colour scale from 0 to ``vmax_degrees`` for the normal-deviation renders."""
+    from matplotlib.colorbar import ColorbarBase
+    from matplotlib.colors import Normalize
+
+    fig = _figure(4.2, 0.75)
+    ax = fig.add_subplot(1, 1, 1)
+    ColorbarBase(ax, cmap=cmap, norm=Normalize(0, vmax_degrees), orientation="horizontal")
+    ax.set_xlabel("normal deviation (degrees)", fontsize=8)
+    ax.tick_params(labelsize=8)
+    return _png(fig)

@@ -1,0 +1,57 @@
+"""The ``report`` writer: an HTML report of the pipeline's evaluations (``report: out/report.html``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from rigslim.errors import StepError
+from rigslim.plugin import Params, Writer
+
+
+class ReportWriter(Writer):
+    name = "report"
+    summary = ("self-contained HTML report of the evaluations so far: table, error curves, error against k, "
+               "weight-count histograms, OpenGL renders (full, reduced, normal deviation)")
+    suffixes = (".html", ".htm")
+
+    class Params(Params):
+        #: Animation frames to render (default: the worst test frame of the first evaluation).
+        frames: list[int] | None = None
+        width: int = 360
+        height: int = 300
+        #: Also write the renders as PNG files here (relative to the pipeline file).
+        png_dir: str | None = None
+        #: Metrics JSON files of other runs to compare with (relative to the pipeline file).
+        compare: list[str] = []
+        title: str | None = None
+        backend: Literal["auto", "opengl", "numpy"] = "auto"
+        projection: Literal["perspective", "orthographic"] = "perspective"
+        azimuth: float = 30.0
+        elevation: float = 15.0
+        up_axis: Literal[0, 1, 2] = 1
+        render: bool = True
+
+    def write(self, path, asset, params, ctx):
+        from rigslim.report import RenderData, build_report, load_document, write_report
+
+        document = ctx.document
+        if not document or not document.get("evaluations"):
+            raise StepError("a report needs evaluations before it", field="report",
+                            fix="put an 'evaluate' step before the 'report' step")
+        base = Path(ctx.base_dir)
+        documents = [(document, document.get("pipeline", ""))]
+        for other in params.compare:
+            p = Path(other) if Path(other).is_absolute() else base / other
+            documents.append((load_document(p), str(p)))
+        data = {id(document): RenderData(asset, dict(asset.extras.get("evaluated_reduced", {})))}
+        report = build_report(documents, data=data, frames=params.frames, width=params.width,
+                              height=params.height, backend=params.backend, projection=params.projection,
+                              azimuth=params.azimuth, elevation=params.elevation, up_axis=params.up_axis,
+                              title=params.title, render=params.render, progress=ctx.progress)
+        png_dir = None
+        if params.png_dir:
+            png_dir = Path(params.png_dir) if Path(params.png_dir).is_absolute() else base / params.png_dir
+        written = write_report(path, report, png_dir)
+        ctx.report.update({"evaluations": len(report.rows), "renders": len(report.renders),
+                           "png_files": [str(p) for p in written], "notes": report.notes})
