@@ -45,6 +45,9 @@ EGL_PLATFORM_DEVICE_EXT = 0x313F
 #: Display kinds, in the order :func:`create_context` tries them.
 PLATFORMS = ("device", "surfaceless", "default")
 
+# PyOpenGL reads this once, at its first import: importing this module first is enough.
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
 _lock = threading.Lock()
 _shared: dict = {}
 

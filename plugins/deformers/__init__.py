@@ -2,8 +2,9 @@
 
 from rigslim import hookimpl
 from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
+from rigslim.plugins.deformers.opencl_deformer import OpenCLDeformer
 
 
 @hookimpl
 def rigslim_deformers():
-    return [NumpyDeformer()]
+    return [NumpyDeformer(), OpenCLDeformer()]

@@ -1,21 +1,79 @@
-"""The numpy reference deformer: sparse (or fixed-k) blend of 3x4 handle transforms."""
+"""The numpy reference deformer: sparse (or fixed-k) blend of 3x4 handle transforms.
+
+Positions are ``v' = (sum_l w_l T_{i_l}) [v; 1]`` (:func:`rigslim.blend.linear_blend`);
+normals, when asked for, come from the same references the normal
+estimators use (blended-matrix for skeletons, approximate-affine for cages).
+"""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
-from rigslim.blend import linear_blend
+from rigslim.blend import linear_blend, per_vertex_normals
 from rigslim.plugin import Deformer
+
+from rigslim.plugins.deformers.base import (BoundDeformer, DeformerParams, check_weights, n_handles_of,
+                                            resolve_normals)
+
+
+class NumpyBound(BoundDeformer):
+    """Positions and normals in float64 numpy/scipy."""
+
+    backend = "numpy"
+
+    def __init__(self, mesh, weights, normals_mode, handles):
+        super().__init__(mesh.n_vertices, n_handles_of(weights), normals_mode)
+        self.mesh = mesh
+        self.V = mesh.V
+        self.weights = weights
+        self.handles = handles
+        self._normal_data = None
+
+    def _normals(self, T):
+        """Normals of pose T; the rest-pose data is computed on the first call."""
+        from rigslim.plugins.normals.approximate_affine import affine_fit_rest, approximate_affine_normals
+        from rigslim.plugins.normals.blended_matrix import blended_matrix_normals
+
+        if self._normal_data is None:
+            N0 = per_vertex_normals(self.mesh.V, self.mesh.F)
+            self._normal_data = N0 if self.normals_mode == "blended-matrix" else \
+                affine_fit_rest(self.weights, self.handles.cage.V, N0)
+        if self.normals_mode == "blended-matrix":
+            return blended_matrix_normals(self._normal_data, self.weights, T)
+        return approximate_affine_normals(self.weights, self.handles.cage.V, T, self._normal_data)
+
+    def _deform(self, T, normals):
+        t = time.perf_counter()
+        P = linear_blend(self.V, self.weights, T)
+        if not normals:
+            self.last_seconds = time.perf_counter() - t
+            return P
+        N = self._normals(T)
+        self.last_seconds = time.perf_counter() - t
+        return P, N
+
+    def bytes_per_frame(self, normals):
+        import scipy.sparse as sp
+
+        from rigslim.weights import ReducedWeights
+
+        w = self.weights
+        nnz = w.indices.size if isinstance(w, ReducedWeights) else sp.csr_matrix(w).nnz
+        m = self.n_vertices
+        inputs = 24 * m + 12 * nnz + 96 * self.n_handles          # float64 positions, int32+float64 weights
+        return inputs + 24 * m + (48 * m if normals else 0)       # rest normals read, normals written
 
 
 class NumpyDeformer(Deformer):
     name = "numpy"
-    summary = "reference linear blend in numpy/scipy (sparse input weights or fixed-k weights)"
+    summary = "reference linear blend in numpy/scipy (sparse input weights or fixed-k weights), float64"
 
-    def bind(self, mesh, weights, params):
-        V = mesh.V
+    class Params(DeformerParams):
+        pass
 
-        def deform(T: np.ndarray) -> np.ndarray:
-            return linear_blend(V, weights, T)
-
-        return deform
+    def bind(self, mesh, weights, params=None, handles=None) -> NumpyBound:
+        params = params if params is not None else self.Params()
+        weights = check_weights(mesh, weights, source="numpy deformer")
+        return NumpyBound(mesh, weights, resolve_normals(params.normals, handles), handles)

@@ -1,0 +1,140 @@
+"""The OpenCL deformer: ``kernels/blend.cl``, one work-item per vertex.
+
+At bind the rest positions, the packed weights (fixed-k int32/float32,
+compact uint16/float16, or full CSR) and the per-vertex normal data go to the
+device once; each frame uploads only the handle records (n x 5 float4) and
+runs one kernel that writes positions and, optionally, normals. Kernel time
+comes from the profiling event of the launch (``last_seconds``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rigslim.plugin import Deformer
+
+from rigslim.plugins.deformers.base import (BoundDeformer, DeformerParams, Layout, check_weights, handle_data,
+                                            n_handles_of, pack_weights, resolve_normals, rest_normal_data)
+
+_NORMALS_CODE = {None: 0, "blended-matrix": 1, "approximate-affine": 2}
+_LAYOUT_CODE = {"fixed": 0, "compact": 1, "csr": 2}
+
+
+class OpenCLBound(BoundDeformer):
+    """Device buffers for one mesh and weights, reused across frames."""
+
+    backend = "opencl"
+
+    def __init__(self, mesh, weights, normals_mode, handles, layout: str, device: str | None,
+                 local_size: int | None):
+        import pyopencl as cl
+
+        from rigslim.opencl import build_program, get_runtime
+
+        n = n_handles_of(weights)
+        super().__init__(mesh.n_vertices, n, normals_mode)
+        self.runtime = rt = get_runtime(device)
+        self.packed = pack_weights(weights, layout, n)
+        self.layout = self.packed.layout
+        self.local_size = local_size
+        self.C0 = handles.cage.V if (handles is not None and handles.is_cage) else None
+        m = self.n_vertices
+        mf = cl.mem_flags
+        ctx = rt.context
+
+        def upload(a):
+            return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
+
+        rest = np.zeros((m, 4), dtype=np.float32)
+        rest[:, :3] = mesh.V
+        self._rest = upload(rest)
+        if self.layout == "csr":
+            self._indices = upload(self.packed.indices if self.packed.indices.size else np.zeros(1, np.int32))
+            self._weights = upload(self.packed.values if self.packed.values.size else np.zeros(1, np.float32))
+            self._indptr = upload(self.packed.indptr)
+        else:  # slot-major: work-item v reads [l * m + v], so neighbours read neighbouring words
+            self._indices = upload(self.packed.indices.T.copy())
+            self._weights = upload(self.packed.values.T.copy())
+            self._indptr = None
+        self._handles = cl.Buffer(ctx, mf.READ_ONLY, size=n * 5 * 16)
+        self._positions = cl.Buffer(ctx, mf.WRITE_ONLY, size=max(m, 1) * 12)
+        data = rest_normal_data(normals_mode, mesh, weights, handles)
+        self._normal_data = upload(data.astype(np.float32)) if data is not None else None
+        self._normals = cl.Buffer(ctx, mf.WRITE_ONLY, size=max(m, 1) * 12) if data is not None else None
+        self._kernels = {}
+        for with_normals in ([False, True] if normals_mode else [False]):
+            options = [f"-DLAYOUT={_LAYOUT_CODE[self.layout]}", f"-DK={max(self.packed.k, 1)}",
+                       f"-DNORMALS={_NORMALS_CODE[normals_mode] if with_normals else 0}"]
+            self._kernels[with_normals] = build_program(rt, "blend.cl", options).blend
+        self._host_positions = np.empty((m, 3), dtype=np.float32)
+        self._host_normals = np.empty((m, 3), dtype=np.float32)
+
+    def _args(self, normals: bool) -> list:
+        args = [np.int32(self.n_vertices), self._rest, self._indices, self._weights, self._handles, self._positions]
+        if self._indptr is not None:
+            args.append(self._indptr)
+        if normals:
+            args += [self._normal_data, self._normals]
+        return args
+
+    def launch(self, T: np.ndarray, normals: bool = False, read: bool = True):
+        """Upload T, run the kernel; returns the kernel event (positions/normals stay on the device unless read)."""
+        import pyopencl as cl
+
+        queue = self.runtime.queue
+        cl.enqueue_copy(queue, self._handles, handle_data(T, self.C0), is_blocking=False)
+        kernel = self._kernels[normals]
+        global_size = self.n_vertices
+        local = None
+        if self.local_size:
+            global_size = -(-self.n_vertices // self.local_size) * self.local_size
+            local = (self.local_size,)
+        event = kernel(queue, (max(global_size, 1),), local, *self._args(normals))
+        if read:
+            cl.enqueue_copy(queue, self._host_positions, self._positions, is_blocking=not normals)
+            if normals:
+                cl.enqueue_copy(queue, self._host_normals, self._normals, is_blocking=True)
+        event.wait()
+        self.last_seconds = (event.profile.end - event.profile.start) * 1e-9
+        return event
+
+    def _deform(self, T, normals):
+        self.launch(T, normals, read=True)
+        P = self._host_positions.astype(np.float64)
+        return (P, self._host_normals.astype(np.float64)) if normals else P
+
+    def bytes_per_frame(self, normals: bool) -> int:
+        m = self.n_vertices
+        moved = 16 * m + self.packed.nbytes + self.n_handles * 80 + 12 * m
+        if normals:
+            moved += 16 * m + 12 * m
+        return int(moved)
+
+    def close(self) -> None:
+        for name in ("_rest", "_indices", "_weights", "_indptr", "_handles", "_positions", "_normal_data",
+                     "_normals"):
+            buf = getattr(self, name, None)
+            if buf is not None:
+                buf.release()
+                setattr(self, name, None)
+
+
+class OpenCLDeformer(Deformer):
+    name = "opencl"
+    summary = ("OpenCL kernel (kernels/blend.cl), one work-item per vertex; fixed-k, compact 16-bit or "
+               "full CSR weights; optional normals in the same kernel; buffers reused across frames")
+
+    class Params(DeformerParams):
+        #: OpenCL device spec: auto, gpu, cpu or part of a device/platform name.
+        device: str | None = None
+        #: Weight layout on the device: auto (fixed for reduced weights, csr for full sparse weights),
+        #: fixed (int32 + float32), compact (uint16 + float16) or csr.
+        layout: Layout = "auto"
+        #: Work-group size (None lets the driver choose).
+        local_size: int | None = None
+
+    def bind(self, mesh, weights, params=None, handles=None) -> OpenCLBound:
+        params = params if params is not None else self.Params()
+        weights = check_weights(mesh, weights, source="opencl deformer")
+        mode = resolve_normals(params.normals, handles)
+        return OpenCLBound(mesh, weights, mode, handles, params.layout, params.device, params.local_size)

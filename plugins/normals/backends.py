@@ -1,0 +1,48 @@
+"""Normal estimation on a deformer back end (OpenCL kernel or GLSL shader).
+
+The blended-matrix and approximate-affine estimators take ``backend:
+numpy | opencl | opengl``. For the GPU back ends the estimator binds the
+deformer of that back end with in-kernel normals once per (mesh, weights,
+handles) and reads the normals it computes beside the positions, so that an
+evaluation measures exactly what the kernel or shader produces.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+
+Backend = Literal["numpy", "opencl", "opengl"]
+
+_bound: dict = {}
+
+
+def bound_deformer(backend: str, mode: str, mesh, weights, handles, device: str | None = None):
+    """A deformer of ``backend`` bound with ``normals=mode``, cached by object identity."""
+    key = (backend, mode, device)
+    entry = _bound.get(key)
+    if entry is not None and entry[0] is mesh and entry[1] is weights and entry[2] is handles:
+        return entry[3]
+    if entry is not None:
+        entry[3].close()
+    if backend == "opencl":
+        from rigslim.plugins.deformers.opencl_deformer import OpenCLDeformer as cls
+    elif backend == "opengl":
+        from rigslim.plugins.deformers.opengl_deformer import OpenGLDeformer as cls
+    else:
+        from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer as cls
+    deformer = cls()
+    raw = {"normals": mode}
+    if device is not None and backend == "opencl":
+        raw["device"] = device
+    bound = deformer.bind(mesh, weights, deformer.parse_params(raw), handles=handles)
+    _bound[key] = (mesh, weights, handles, bound)
+    return bound
+
+
+def normals_from_backend(backend: str, mode: str, mesh, weights, handles, T, device: str | None = None) -> np.ndarray:
+    """(m, 3) float64 unit normals of pose T computed by the back end's kernel or shader."""
+    bound = bound_deformer(backend, mode, mesh, weights, handles, device)
+    _, N = bound.deform(np.asarray(T, dtype=np.float64), normals=True)
+    return np.asarray(N, dtype=np.float64)
