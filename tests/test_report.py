@@ -1,0 +1,249 @@
+"""HTML reports: the metrics-JSON additions, the summary, the plots, the pipeline step and the CLI."""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import re
+
+import numpy as np
+import pytest
+
+from rigslim.cli import main
+from rigslim.errors import InputError
+from rigslim.report import (build_report, heat_colors, load_document, normal_deviation_degrees, render_rows,
+                            summarize)
+
+PIPELINE = """
+name: elephant-small
+inputs:
+  mesh: data/elephant.obj
+  skeleton: data/elephant.tgf
+  weights: data/elephant-weights.dmat
+  animation: data/elephant-anim.dmat
+poses:
+  examples: "0:457:45"
+  test: "5:457:60"
+steps:
+  - select: k-largest
+    k: 2
+  - solve: k-largest
+  - evaluate: [position-rms, normal-deviation, max-influences]
+  - write: out/k2.npz
+  - select: k-largest
+    k: 4
+  - solve: k-largest
+  - evaluate: [position-rms, normal-deviation, max-influences]
+  - write: out/k4.npz
+  - report: out/report.html
+    png_dir: out/renders
+    width: 96
+    height: 80
+    frames: [65, 125]
+"""
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory, data_dir):
+    """The two-k elephant pipeline with a report step, run once; (folder, run result)."""
+    from rigslim.pipeline import run_pipeline
+
+    folder = tmp_path_factory.mktemp("report")
+    (folder / "data").symlink_to(data_dir, target_is_directory=True)
+    (folder / "p.yaml").write_text(PIPELINE)
+    result = run_pipeline(folder / "p.yaml", metrics_path=folder / "out" / "m.json")
+    return folder, result
+
+
+def _images(html_text):
+    return re.findall(r'<img[^>]*src="([^"]*)"', html_text)
+
+
+def _decode_png(uri_or_bytes):
+    from PIL import Image
+
+    data = uri_or_bytes
+    if isinstance(data, str):
+        assert data.startswith("data:image/png;base64,")
+        data = base64.b64decode(data.split(",", 1)[1])
+    return np.asarray(Image.open(io.BytesIO(data)).convert("RGB"))
+
+
+def test_metrics_json_has_influence_histograms(run, elephant):
+    folder, result = run
+    doc = json.loads((folder / "out" / "m.json").read_text())
+    m = elephant.mesh.n_vertices
+    for ev, k in zip(doc["evaluations"], (2, 4)):
+        hist = ev["influence_histogram"]
+        assert sum(hist["input"]) == sum(hist["reduced"]) == m
+        assert len(hist["reduced"]) - 1 == ev["metrics"]["max_influences"] == k
+        assert len(hist["input"]) - 1 == ev["metrics"]["input_max_influences"]
+        mean = np.dot(np.arange(len(hist["reduced"])), hist["reduced"]) / m
+        assert mean == pytest.approx(ev["metrics"]["mean_influences"])
+    assert doc["pipeline_file"] == str((folder / "p.yaml").resolve())
+    report_step = [s for s in doc["steps"] if s["stage"] == "report"][0]
+    assert report_step["plugin"] == "report" and report_step["path"].endswith("report.html")
+    assert report_step["report"]["renders"] == 2 * (1 + 2 * 2)
+
+
+def test_pipeline_report_is_self_contained(run):
+    folder, _ = run
+    text = (folder / "out" / "report.html").read_text()
+    srcs = _images(text)
+    # 2 plots (curves, error vs k) + histograms + colour bar + 2 frames x (full + 2 x (reduced + heat))
+    assert len(srcs) == 3 + 1 + 2 * 5
+    assert all(s.startswith("data:image/png;base64,") for s in srcs)
+    assert "http://" not in text and "https://" not in text and "<link" not in text
+    for label in ("k-largest-k2", "k-largest-k4"):
+        assert f'<td class="l">{label}</td>' in text
+    assert "24 &rarr; 2" in text and "24 &rarr; 4" in text
+    for uri in srcs:
+        img = _decode_png(uri)
+        assert img.shape[0] > 10 and img.std() > 1.0  # not a blank image
+    renders = sorted(p.name for p in (folder / "out" / "renders").iterdir())
+    assert len(renders) == 10 and "elephant-small-frame65-full.png" in renders
+    full = _decode_png((folder / "out" / "renders" / "elephant-small-frame65-full.png").read_bytes())
+    assert full.shape == (80, 96, 3)
+
+
+def test_renders_in_report_match_the_written_pngs(run):
+    folder, _ = run
+    text = (folder / "out" / "report.html").read_text()
+    png = (folder / "out" / "renders" / "elephant-small-frame125-k-largest-k4-reduced.png").read_bytes()
+    assert "data:image/png;base64," + base64.b64encode(png).decode() in text
+
+
+def test_summarize_reads_method_k_time_and_metro():
+    doc = {"name": "run", "frames": {"test": [3, 5]},
+           "steps": [{"stage": "read", "seconds": 9.0},
+                     {"stage": "select", "plugin": "k-largest", "k": 3, "seconds": 0.5},
+                     {"stage": "solve", "plugin": "poisson", "k": 3, "seconds": 2.0},
+                     {"stage": "evaluate", "seconds": 1.0},
+                     {"stage": "solve", "plugin": "other", "k": 3, "seconds": 4.0},
+                     {"stage": "evaluate", "seconds": 1.0}],
+           "evaluations": [
+               {"name": "a", "step": 3, "metrics": {"position_rms_pct": {"mean": 1, "max": 2, "per_frame": [2, 1]},
+                                                    "metro_hausdorff_pct": {"mean": 0.25, "max": 0.5}}},
+               {"name": "b", "step": 5, "metrics": {"normal_rms_rad": {"mean": 1, "max": 2, "per_frame": [1, 2]}}}]}
+    a, b = summarize(doc, "x.json")
+    assert (a.method, a.selection, a.k, a.seconds) == ("poisson", "k-largest", 3, 2.5)
+    assert (b.method, b.k, b.seconds) == ("other", 3, 4.0)
+    assert a.metro == {"metro_hausdorff_pct": 0.25} and b.metro == {}
+    assert a.worst_frame() == 3 and b.worst_frame() == 5
+    assert b.position_mean is None and b.normal_max == 2.0
+    report = build_report([(doc, "x.json")], render=False)
+    assert "metro_hausdorff_pct" in report.html and "0.25" in report.html
+    # error curves only: two methods with one k each give no error-vs-k plot, and there are no histograms
+    assert len(_images(report.html)) == 1
+    assert any("influence_histogram" in n for n in report.notes)
+    assert any("several k" in n for n in report.notes)
+    doc["evaluations"][1]["metrics"]["position_rms_pct"] = {"mean": 0.5, "max": 1, "per_frame": [1, 0.5]}
+    doc["steps"][4]["plugin"], doc["steps"][4]["k"] = "poisson", 5
+    assert len(_images(build_report([(doc, "x.json")], render=False).html)) == 2
+
+
+def test_normal_deviation_and_heat_colors():
+    N = np.array([[0, 0, 1.0], [0, 0, 1.0], [1.0, 0, 0]])
+    M = np.array([[0, 0, 1.0], [0, 1.0, 0], [-1.0, 0, 0]])
+    np.testing.assert_allclose(normal_deviation_degrees(N, M), [0, 90, 180], atol=1e-12)
+    C = heat_colors(np.array([0.0, 5.0, 50.0]), vmax=10.0, cmap="viridis")
+    from matplotlib import colormaps
+
+    np.testing.assert_allclose(C, colormaps["viridis"]([0.0, 0.5, 1.0])[:, :3])
+
+
+def test_reduced_equal_to_full_gives_a_zero_heat_map(elephant):
+    """Reduced weights that are the input weights: no normal deviation anywhere."""
+    from rigslim.report import RenderData, heat_colors as hc
+    from rigslim.weights import ReducedWeights
+
+    W = elephant.weights.tocsr()
+    k = int(np.diff(W.indptr).max())
+    idx = np.zeros((W.shape[0], k), dtype=np.int64)
+    val = np.zeros((W.shape[0], k))
+    for v in range(W.shape[0]):
+        cols, vals = W.indices[W.indptr[v]:W.indptr[v + 1]], W.data[W.indptr[v]:W.indptr[v + 1]]
+        idx[v, :len(cols)], val[v, :len(cols)] = cols, vals
+        idx[v, len(cols):] = [c for c in range(W.shape[1]) if c not in set(cols)][:k - len(cols)]
+    R = ReducedWeights(idx, val, W.shape[1])
+    doc = {"name": "same", "frames": {"test": elephant.split.test},
+           "steps": [{"stage": "read"}, {"stage": "solve", "plugin": "copy", "k": k}, {"stage": "evaluate"}],
+           "evaluations": [{"name": "copy", "step": 2, "metrics": {}}]}
+    rows = summarize(doc)
+    rs = render_rows(rows, {id(doc): RenderData(elephant, {2: R})}, frames=[40], width=48, height=40,
+                     backend="numpy", heat_max=10.0)
+    (_, reduced, heat, dmax), = rs.frames[0].reduced
+    assert dmax < 1e-6
+    assert np.array_equal(reduced, render_rows(rows, {id(doc): RenderData(elephant, {2: R})}, frames=[40],
+                                               width=48, height=40, backend="numpy").frames[0].reduced[0][1])
+    # every covered pixel of the heat map has the zero colour, shaded
+    zero = hc(np.array([0.0]), 10.0)[0]
+    covered = (heat != 255).any(axis=-1)
+    rgb = heat[covered].astype(float)
+    ratios = rgb / np.maximum(zero * 255, 1e-9)
+    assert covered.sum() > 50
+    assert np.allclose(ratios / ratios[:, :1], 1.0, atol=0.08)
+
+
+def test_cli_report_from_metrics_json(run, tmp_path, capsys):
+    folder, _ = run
+    out = tmp_path / "r.html"
+    rc = main(["report", str(folder / "out" / "m.json"), "-o", str(out), "--png-dir", str(tmp_path / "png"),
+               "--size", "64x48", "--frames", "65", "-q"])
+    assert rc == 0
+    text = out.read_text()
+    # renders came from the .npz files the pipeline wrote (no 'no reduced weights' note)
+    assert "no reduced weights" not in text
+    assert len(list((tmp_path / "png").glob("*.png"))) == 5
+    assert _decode_png(_images(text)[-1]).shape == (48, 64, 3)
+    assert "report written to" in capsys.readouterr().out
+
+
+def test_cli_report_errors(tmp_path, capsys):
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    assert main(["report", str(bad), "-o", str(tmp_path / "r.html")]) == 2
+    assert "not JSON" in capsys.readouterr().err
+    empty = tmp_path / "empty.json"
+    empty.write_text(json.dumps({"evaluations": []}))
+    assert main(["report", str(empty), "-o", str(tmp_path / "r.html")]) == 2
+    assert main(["report", str(empty), "-o", str(tmp_path / "r.html"), "--size", "big"]) == 2
+    assert "WIDTHxHEIGHT" in capsys.readouterr().err
+    assert not (tmp_path / "r.html").exists()
+    with pytest.raises(InputError):
+        load_document(tmp_path / "missing.json")
+
+
+def test_report_step_needs_an_evaluation(write_pipeline):
+    from rigslim.errors import RigslimError
+    from rigslim.pipeline import run_pipeline
+
+    path = write_pipeline("""
+inputs:
+  mesh: data/elephant.obj
+  skeleton: data/elephant.tgf
+  weights: data/elephant-weights.dmat
+steps:
+  - select: k-largest
+    k: 4
+  - report: out/r.html
+""")
+    with pytest.raises(RigslimError, match="evaluate"):
+        run_pipeline(path)
+    assert not (path.parent / "out" / "r.html").exists()
+
+
+def test_report_step_rejects_unknown_parameters(write_pipeline):
+    from rigslim.errors import RigslimError
+    from rigslim.pipeline import run_pipeline
+
+    path = write_pipeline("""
+inputs:
+  mesh: data/elephant.obj
+steps:
+  - report: out/r.html
+    widht: 20
+""")
+    with pytest.raises(RigslimError, match="widht"):
+        run_pipeline(path)
