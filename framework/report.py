@@ -295,13 +295,43 @@ def load_render_data(document: dict, json_path=None) -> RenderData:
                     path = pipeline.parent / path
                 if path.is_file():
                     R = read_reduced_npz(path)
-                    if asset.mesh is not None and R.n_vertices == asset.mesh.n_vertices:
+                    problem = _mismatch(asset, R, ev, steps[solve_at])
+                    if problem is None:
                         reduced[at] = R
                         break
+                    notes.append(f"{document.get('name', 'run')} / {ev.get('name')}: {path} {problem}; "
+                                 "not rendered (write each run's weights to its own file)")
         if at not in reduced:
             notes.append(f"{document.get('name', 'run')} / {ev.get('name')}: no reduced weights found "
                          "(add a 'write: out/NAME.npz' step after the solve to render them)")
     return RenderData(asset, reduced, notes)
+
+
+def _mismatch(asset, R, evaluation: dict, solve_step: dict) -> str | None:
+    """Why the reduced weights ``R`` are not the ones an evaluation measured, or None.
+
+    Checks the shape, k, and recomputes the position error of the first test
+    frame (``100 sqrt(mean_v |v(alpha) - vhat|^2) / diagonal``), which must
+    equal the recorded ``position_rms_pct`` (to 1e-3 relative: float32
+    deformers), so that an ``.npz`` overwritten by a later run is not
+    rendered under the wrong name.
+    """
+    from rigslim.blend import linear_blend
+
+    if asset.mesh is None or R.n_vertices != asset.mesh.n_vertices:
+        return "has another vertex count than the mesh"
+    if solve_step.get("k") is not None and R.k != solve_step["k"]:
+        return f"holds k={R.k}, the run solved k={solve_step['k']}"
+    per = (evaluation.get("metrics") or {}).get("position_rms_pct", {})
+    if isinstance(per, dict) and per.get("per_frame") and asset.poses is not None and asset.split is not None:
+        f = asset.split.test[0]
+        T = asset.poses.T[f]
+        d = linear_blend(asset.mesh.V, R, T) - linear_blend(asset.mesh.V, asset.weights, T)
+        err = 100.0 * float(np.sqrt(np.mean(np.sum(d * d, axis=1)))) / asset.mesh.bbox_diagonal
+        want = float(per["per_frame"][0])
+        if abs(err - want) > 1e-3 * max(abs(want), 1e-6) + 1e-9:
+            return f"gives {err:.6g}% on frame {f}, the run measured {want:.6g}% (overwritten by another run?)"
+    return None
 
 
 # ----------------------------------------------------------------------------------------------

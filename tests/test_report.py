@@ -247,3 +247,31 @@ steps:
 """)
     with pytest.raises(RigslimError, match="widht"):
         run_pipeline(path)
+
+
+def test_overwritten_npz_is_not_rendered_under_the_wrong_name(run, tmp_path):
+    """Two evaluations, one .npz: the k=2 weights file now holds k=4 weights."""
+    import shutil
+
+    from rigslim.report import load_render_data
+
+    folder, _ = run
+    doc = json.loads((folder / "out" / "m.json").read_text())
+    copy = tmp_path / "out"
+    shutil.copytree(folder / "out", copy)
+    for s in doc["steps"]:
+        if s.get("path", "").endswith(".npz"):
+            s["path"] = str(copy / ("k2.npz" if s["path"].endswith("k2.npz") else "k4.npz"))
+    data = load_render_data(doc)
+    assert sorted(data.reduced) == [3, 7] and not data.notes
+    # same k, different weights: the recomputed frame error gives it away
+    from rigslim.io import read_reduced_npz, write_reduced_npz
+
+    R = read_reduced_npz(copy / "k4.npz")
+    write_reduced_npz(copy / "k4.npz", type(R)(R.indices, R.values[:, ::-1].copy(), R.n_handles))
+    data = load_render_data(doc)
+    assert sorted(data.reduced) == [3]
+    assert any("overwritten" in n for n in data.notes)
+    shutil.copy(copy / "k4.npz", copy / "k2.npz")
+    data = load_render_data(doc)
+    assert data.reduced == {} and any("holds k=4" in n for n in data.notes)
