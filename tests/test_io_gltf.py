@@ -313,3 +313,17 @@ def test_assimp_exports_move_rigidly(name, vertices, joints):
     assert np.ptp(ratios) < 0.02 * np.mean(ratios)
     assert len(skin.poses) > 10
     assert np.ptp(skin.poses.T[:, :, :, 3], axis=0).max() > 0 or np.ptp(skin.poses.T[:, :, :, :3], axis=0).max() > 1e-3
+
+
+def test_malformed_documents_are_input_errors(tmp_path):
+    path = _synthetic(tmp_path)
+    js = json.loads(path.read_text())
+    js["nodes"][2]["children"] = "three"
+    path.write_text(json.dumps(js))
+    with pytest.raises(InputError, match="glTF 2.0 schema"):
+        read_gltf_skin(path)
+    js["nodes"][2]["children"] = [3]
+    js["meshes"][0]["primitives"][0]["attributes"]["JOINTS_0"] = 99
+    path.write_text(json.dumps(js))
+    with pytest.raises(InputError, match="malformed document"):
+        read_gltf_skin(path)

@@ -17,10 +17,12 @@ one animation clip sampled at a fixed frame rate. The document itself (raw
 JSON plus buffer bytes) travels with the result so that
 :mod:`rigslim.io.gltf_write` can write it back with new skin weights.
 
-pygltflib gives the typed view of the document used while reading; the raw
-JSON dictionary is kept as well because pygltflib's serialisation drops
-properties it does not know and rewrites number types, and a writer must keep
-everything it does not change.
+pygltflib parses every document into its typed model, which rejects
+properties of the wrong type with a clear error; the arrays themselves are
+decoded from the raw JSON dictionary, which is kept because pygltflib's
+serialisation drops properties it does not know, rewrites integer min/max as
+floats and replaces ``asset.generator``, while a writer must keep everything
+it does not change.
 """
 
 from __future__ import annotations
@@ -158,6 +160,11 @@ def load_gltf(path) -> GltfDocument:
         raise InputError(f"glTF version '{version}' is not 2.x", source=path, field="asset.version",
                          fix="convert the file to glTF 2.0 (e.g. with Blender or assimp)")
     out = GltfDocument(path, doc, [])
+    try:  # pygltflib's typed parse rejects properties of the wrong type (a string where a list belongs...)
+        out.typed
+    except (TypeError, ValueError, AttributeError, KeyError) as e:
+        raise InputError(f"the document does not follow the glTF 2.0 schema ({type(e).__name__}: {e})",
+                         source=path, field="json", fix="re-export the file; check it with the glTF-Validator") from None
     for i, buf in enumerate(doc.get("buffers", [])):
         if "uri" in buf:
             raw = out.uri_bytes(buf["uri"], f"buffers[{i}]")
@@ -675,6 +682,15 @@ def read_gltf_skin(path, *, animation=None, fps: float = 30.0, mesh=None, skin=N
     n and slots c.
     """
     doc = load_gltf(path)
+    try:
+        return _read_gltf_skin(doc, animation, fps, mesh, skin, normalize)
+    except (KeyError, IndexError) as e:
+        raise InputError(f"malformed document: a required property or index is missing or out of range ({e!r})",
+                         source=doc.path, field="json", fix="re-export the file; check it with the glTF-Validator"
+                         ) from None
+
+
+def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize) -> GltfSkin:
     js = doc.json
     if fps <= 0:
         raise InputError(f"fps {fps} is not positive", source=doc.path, field="fps", fix="give e.g. fps: 30")
