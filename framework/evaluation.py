@@ -1,5 +1,9 @@
 """Evaluation of a reduction on test poses: full against reduced deformation.
 
+For a simplification (``asset.extras["levels"]``) it also deforms every
+simplified level with its own weights (:meth:`Evaluation.level_positions`),
+to be compared with the full mesh under the full weights.
+
 An :class:`Evaluation` is handed to every metric. It deforms the rest mesh
 to each test pose twice, with the full input weights (the reference, always
 the numpy deformer) and with the reduced weights (through the asset's chosen
@@ -28,7 +32,10 @@ class Evaluation:
     """
 
     def __init__(self, asset, host):
-        asset.require("mesh", "weights", "poses", "split", "reduced", step="evaluate")
+        #: Simplified levels (``asset.extras["levels"]``, from a ``decimate`` step), finest first.
+        self.levels = list(asset.extras.get("levels") or [])
+        need = ("mesh", "weights", "poses", "split") + (() if self.levels else ("reduced",))
+        asset.require(*need, step="evaluate")
         self.asset = asset
         self.host = host
         self.mesh = asset.mesh
@@ -41,6 +48,7 @@ class Evaluation:
 
     @cached_property
     def _reduced_deform(self):
+        self.asset.require("reduced", step="this metric")
         deformer = self.host.get("deformer", self.asset.deformer)
         params = deformer.parse_params(self.asset.deformer_params)
         return deformer.bind(self.mesh, self.asset.reduced, params)
@@ -73,3 +81,8 @@ class Evaluation:
         est, params = self._normal_estimator
         return self._cached("reduced_n", j, lambda: est.estimate(
             self.mesh, self.asset.reduced, self.asset.handles, self.poses.T[j], self.reduced_positions(j), params))
+
+    def level_positions(self, i: int, j: int) -> np.ndarray:
+        """(v, 3) positions of simplified level i in test pose j, blended with the level's own weights."""
+        level = self.levels[i]
+        return self._cached(("level", i), j, lambda: linear_blend(level.mesh.V, level.weights, self.poses.T[j]))

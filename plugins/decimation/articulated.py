@@ -99,9 +99,9 @@ class ArticulatedDecimator(Decimator):
 
 
 class QuarticParams(DecimationParams):
-    iterations: int = Field(default=10, ge=1)
+    iterations: int = Field(default=5, ge=1)
     """Most alternations of the position and weight steps per edge."""
-    tol: float = Field(default=1e-6, ge=0.0)
+    tol: float = Field(default=1e-4, ge=0.0)
     """Stop alternating once the error falls by less than this (relative)."""
 
 

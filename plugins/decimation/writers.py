@@ -1,0 +1,96 @@
+"""Writers of simplification results: the progressive hierarchy (``.npz``) and the extracted levels.
+
+``hierarchy``: :meth:`rigslim.hierarchy.ProgressiveHierarchy.save` (load it
+back with ``ProgressiveHierarchy.load``).
+``levels``: a folder with, per level, ``<label>.obj`` (rest mesh),
+``<label>-weights.dmat`` (dense m x n skin weights, as libigl reads them) and
+``<label>.npz`` (fixed-k indices/values), plus ``levels.json`` listing them.
+Both are chosen by name (``writer: hierarchy`` / ``writer: levels``), since
+``.npz`` already means reduced weights.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from rigslim.errors import StepError
+from rigslim.plugin import Params, Writer
+
+
+def write_obj(path, V: np.ndarray, F: np.ndarray) -> None:
+    """A plain OBJ (``v`` and 1-based ``f`` lines), written atomically."""
+    from rigslim.io.atomic import atomic_path
+
+    with atomic_path(path) as tmp, open(tmp, "w") as fh:
+        np.savetxt(fh, V, fmt="v %.9g %.9g %.9g")
+        np.savetxt(fh, np.asarray(F, dtype=np.int64) + 1, fmt="f %d %d %d")
+
+
+def write_levels(folder, levels, binary: bool = True) -> None:
+    """Write levels into ``folder``: OBJ + DMAT + NPZ per level and ``levels.json``; the folder appears whole."""
+    from rigslim.io import write_dmat, write_reduced_npz
+
+    folder = Path(folder)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
+    try:
+        index = []
+        for lv in levels:
+            write_obj(tmp / f"{lv.label}.obj", lv.mesh.V, lv.mesh.F)
+            write_dmat(tmp / f"{lv.label}-weights.dmat", lv.weights.to_sparse().toarray(), binary=binary)
+            write_reduced_npz(tmp / f"{lv.label}.npz", lv.weights)
+            index.append({"label": lv.label, "method": lv.method, "faces": lv.n_faces, "vertices": lv.n_vertices,
+                          "error": None if np.isnan(lv.error) else lv.error,
+                          "max_bones": int(lv.weights.influence_counts().max()),
+                          "mesh": f"{lv.label}.obj", "weights": f"{lv.label}-weights.dmat",
+                          "reduced": f"{lv.label}.npz"})
+        (tmp / "levels.json").write_text(json.dumps({"levels": index}, indent=2) + "\n")
+        if folder.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{folder.name}.old.", dir=folder.parent))
+            os.replace(folder, old / folder.name)
+            os.replace(tmp, folder)
+            shutil.rmtree(old)
+        else:
+            os.replace(tmp, folder)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+class HierarchyWriter(Writer):
+    name = "hierarchy"
+    summary = "the progressive hierarchy of a decimate step (every collapse) as a compressed .npz"
+    suffixes = ()
+
+    def write(self, path, asset, params, ctx):
+        hier = asset.extras.get("hierarchy")
+        if hier is None:
+            raise StepError("there is no progressive hierarchy to write", field="write",
+                            fix="use a decimate step with quartic, mohr-gleicher or decoro-rusinkiewicz "
+                                "(static-qslim records none) before it")
+        hier.save(path)
+
+
+class LevelsWriter(Writer):
+    name = "levels"
+    summary = "the simplified levels of a decimate step: OBJ + DMAT weights + fixed-k .npz per level"
+    suffixes = ()
+
+    class Params(Params):
+        binary: bool = True
+
+    def write(self, path, asset, params, ctx):
+        levels = asset.extras.get("levels")
+        if not levels:
+            raise StepError("there are no simplified levels to write", field="write",
+                            fix="add a decimate step with 'targets' before it")
+        write_levels(path, levels, binary=params.binary)
+
+
+WRITERS = [HierarchyWriter, LevelsWriter]
