@@ -67,7 +67,7 @@ def _cmd_report(args) -> int:
         width, height = (int(x) for x in args.size.lower().split("x"))
     except ValueError:
         raise InputError(f"--size '{args.size}' is not WIDTHxHEIGHT", field="--size",
-                         fix="write e.g. --size 360x300") from None
+                         fix="write e.g. --size 320x270") from None
     documents = [(load_document(p), p) for p in args.metrics]
     console = Console(stderr=True, quiet=args.quiet)
     reporter = Reporter(console)
@@ -122,7 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("-o", "--output", required=True, metavar="REPORT.html", help="write the report here")
     report.add_argument("--png-dir", metavar="DIR", help="also write the renders as PNG files here")
     report.add_argument("--frames", metavar="F1,F2", help="animation frames to render (default: the worst test frame)")
-    report.add_argument("--size", default="360x300", metavar="WxH", help="size of each render (default 360x300)")
+    report.add_argument("--size", default="320x270", metavar="WxH", help="size of each render (default 320x270)")
     report.add_argument("--backend", choices=["auto", "opengl", "numpy"], default="auto",
                         help="renderer (auto: OpenGL through EGL when available, else numpy)")
     report.add_argument("--projection", choices=["perspective", "orthographic"], default="perspective")

@@ -361,9 +361,9 @@ def heat_colors(values: np.ndarray, vmax: float, cmap: str = HEAT_CMAP) -> np.nd
 
 @dataclass
 class RenderedFrame:
-    """The images of one test frame of one run."""
+    """The images of one test frame of runs that share their inputs."""
 
-    run: str
+    run: str  # the runs' names
     frame: int
     full: np.ndarray
     reduced: list  # [(row label, image, heat image, max deviation in degrees)]
@@ -377,7 +377,7 @@ class RenderSet:
     notes: list = field(default_factory=list)
 
 
-def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: int = 360, height: int = 300,
+def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: int = 320, height: int = 270,
                 backend: str = "auto", projection: str = "perspective", azimuth: float = 30.0,
                 elevation: float = 15.0, up_axis: int = 1, heat_max: float | None = None,
                 progress: Callable = lambda it, total=None, description="": it) -> RenderSet:
@@ -389,8 +389,9 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
     data : dict
         ``id(document) -> RenderData``; runs without an entry are skipped.
     frames : list of int, optional
-        Animation frames to render; default each run's worst test frame
-        (largest position error of its first evaluation).
+        Animation frames to render; default the worst test frame (largest
+        position error) of the first evaluation of each group of runs that
+        share inputs and test frames (one full render serves the group).
     heat_max : float, optional
         Top of the colour scale in degrees; default the largest 99th
         percentile of the per-vertex deviation over all renders, so that one
@@ -409,31 +410,34 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
 
     out = RenderSet()
     jobs = []
-    by_run: dict[int, list[EvaluationRow]] = {}
+    # runs of the same inputs and test frames share one full render per frame
+    groups: dict = {}
     for r in rows:
-        by_run.setdefault(id(r.document), []).append(r)
-    for key, run_rows in by_run.items():
-        rd = data.get(key)
-        if rd is None:
+        if id(r.document) not in data:
             continue
-        asset = rd.asset
+        inputs = r.document.get("inputs")
+        key = (json.dumps(inputs, sort_keys=True), tuple(r.frames)) if inputs else id(r.document)
+        groups.setdefault(key, []).append(r)
+    for group in groups.values():
+        asset = data[id(group[0].document)].asset
+        runs = list(dict.fromkeys(r.run for r in group))
+        name = ", ".join(runs)
         if asset.mesh is None or asset.weights is None or asset.poses is None:
-            out.notes.append(f"{run_rows[0].run}: no mesh, weights or poses to render")
+            out.notes.append(f"{name}: no mesh, weights or poses to render")
             continue
-        wanted = list(frames) if frames else [run_rows[0].worst_frame()]
-        for f in wanted:
+        wanted = list(frames) if frames else [group[0].worst_frame()]
+        for f in dict.fromkeys(wanted):
             if f is None:
                 continue
             if not 0 <= int(f) < len(asset.poses):
                 raise InputError(f"frame {f} is outside the animation (0..{len(asset.poses) - 1})",
-                                 source=run_rows[0].source or run_rows[0].run, field="frames",
+                                 source=group[0].source or group[0].run, field="frames",
                                  fix="choose test frames of the run")
-            if run_rows[0].frames and int(f) not in run_rows[0].frames:
-                out.notes.append(f"{run_rows[0].run}: frame {f} is not a test frame")
-            jobs.append((run_rows, rd, int(f)))
+            if group[0].frames and int(f) not in group[0].frames:
+                out.notes.append(f"{name}: frame {f} is not a test frame")
+            jobs.append((group, name, asset, int(f)))
     pending = []
-    for run_rows, rd, f in progress(jobs, total=len(jobs), description="rendering frames"):
-        asset = rd.asset
+    for group, name, asset, f in progress(jobs, total=len(jobs), description="rendering frames"):
         F = asset.mesh.F
         T = asset.poses.T[f]
         X = linear_blend(asset.mesh.V, asset.weights, T)
@@ -443,8 +447,8 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
         full, used = render_mesh(X, F, FULL_COLOR, cam, normals=N, backend=backend)
         out.backend = used
         reduced = []
-        for r in run_rows:
-            R = rd.reduced.get(r.step)
+        for r in group:
+            R = data[id(r.document)].reduced.get(r.step)
             if R is None:
                 continue
             Xr = linear_blend(asset.mesh.V, R, T)
@@ -452,7 +456,7 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
             img, _ = render_mesh(Xr, F, REDUCED_COLOR, cam, normals=Nr, backend=backend)
             dev = normal_deviation_degrees(N, Nr)
             reduced.append([r.label, img, (Xr, Nr, dev, cam, F), float(dev.max())])
-        pending.append(RenderedFrame(run_rows[0].run, f, full, reduced))
+        pending.append(RenderedFrame(name, f, full, reduced))
     devs = [np.percentile(item[2][2], 99) for rf in pending for item in rf.reduced]
     out.heat_max = float(heat_max) if heat_max else max([float(d) for d in devs] + [1e-3])
     for rf in pending:
@@ -549,7 +553,7 @@ class Report:
 
 
 def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None, frames=None,
-                 width: int = 360, height: int = 300, backend: str = "auto", projection: str = "perspective",
+                 width: int = 320, height: int = 270, backend: str = "auto", projection: str = "perspective",
                  azimuth: float = 30.0, elevation: float = 15.0, up_axis: int = 1, title: str | None = None,
                  render: bool = True, progress: Callable = lambda it, total=None, description="": it) -> Report:
     """Build the HTML report of some metrics documents.
@@ -638,7 +642,7 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
                      "the full deformation's.</div>")
         parts.append(f"<img alt=\"normal deviation scale\" src=\"{_data_uri(plots.colorbar(rset.heat_max, HEAT_CMAP))}\">")
         for rf in rset.frames:
-            base = _slug(f"{rf.run}-frame{rf.frame}")
+            base = _slug(f"{rf.run.split(',')[0]}-frame{rf.frame}")
             png = _png_of(rf.full)
             renders[f"{base}-full.png"] = png
             figs = [f"<div class=\"pair\"><figure><img alt=\"full frame {rf.frame}\" src=\"{_data_uri(png)}\">"
@@ -671,16 +675,34 @@ def _slug(text: str) -> str:
     return "-".join(p for p in keep.split("-") if p) or "run"
 
 
+def _umask_mode() -> int:
+    import os
+
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 def write_report(path, report: Report, png_dir=None) -> list[Path]:
-    """Write the HTML (and the renders as PNG files into ``png_dir``) atomically; return the PNG paths."""
+    """Write the HTML (and the renders as PNG files into ``png_dir``) atomically; return the PNG paths.
+
+    The files get the usual permissions (``0o666`` less the umask), not the
+    private mode of the temporary file they were written to, so that a web
+    server or a colleague can read them.
+    """
+    import os
+
     path = Path(path)
+    mode = _umask_mode()
     with atomic_path(path) as tmp:
         Path(tmp).write_text(report.html, encoding="utf-8")
+        os.chmod(tmp, mode)
     written = []
     if png_dir is not None:
         png_dir = Path(png_dir)
         for name, data in report.renders.items():
             with atomic_path(png_dir / name) as tmp:
                 Path(tmp).write_bytes(data)
+                os.chmod(tmp, mode)
             written.append(png_dir / name)
     return written

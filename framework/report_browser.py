@@ -320,6 +320,9 @@ def main(argv=None) -> int:
             data = buf.getvalue()
         with atomic_path(args.screenshot) as tmp:
             Path(tmp).write_bytes(data)
+            mask = os.umask(0)
+            os.umask(mask)
+            os.chmod(tmp, 0o666 & ~mask)
         print(f"screenshot written to {args.screenshot} ({len(data)} bytes)")
     return 0 if not check.console_errors and check.images_decoded == check.images_total else 1
 

@@ -18,8 +18,8 @@ class ReportWriter(Writer):
     class Params(Params):
         #: Animation frames to render (default: the worst test frame of the first evaluation).
         frames: list[int] | None = None
-        width: int = 360
-        height: int = 300
+        width: int = 320
+        height: int = 270
         #: Also write the renders as PNG files here (relative to the pipeline file).
         png_dir: str | None = None
         #: Metrics JSON files of other runs to compare with (relative to the pipeline file).
