@@ -5,7 +5,8 @@
  *   v' = X_v [v; 1],  X_v = sum_l w_l T_{i_l}                    (positions)
  *   n' = sign(det R) normalize(cof(R) n),  R = 3x3 part of X_v    (NORMALS == 1, skeletons)
  *   n' = sign(det X) normalize(adj(X) q),  q = (P + lambda I) n,  (NORMALS == 2, cages)
- *        X = sum_l w_l^2 (c_l - cbar)(chat_l - chatbar)^T + lambda I
+ *        X = sum_l w_l^2 (c_l - cbar)(chat_l - chatbar)^T + lambda I,
+ *        P = sum_l w_l^2 (c_l - cbar)(c_l - cbar)^T (both in the kernel; lambda per vertex)
  *
  * Compile-time options:
  *   LAYOUT   0 fixed (int32 index, float32 weight, slot-major [l*m + v]),
@@ -13,12 +14,29 @@
  *            2 csr (row pointers, int32 columns, float32 values)
  *   K        slots per vertex (fixed and compact layouts)
  *   NORMALS  0 none, 1 blended matrix, 2 approximate affine
+ *   FIT_DOUBLE  1: the approximate-affine fit (centroids, X, P, adjugate) in double precision
+ *            (cl_khr_fp64). In float32 its error grows like cond(P) * 6e-8 rad (about 1e-4 rad
+ *            at cond(P) = 1e3, which nearly coplanar influences reach); positions stay float32.
  *
  * Per-handle records (float4 each, HANDLE_STRIDE per handle):
  *   T row 0, T row 1, T row 2, (chat, 0) = T [c0; 1], (c0, 0).
  */
 
 #define HANDLE_STRIDE 5
+
+#ifndef FIT_DOUBLE
+#define FIT_DOUBLE 0
+#endif
+#if FIT_DOUBLE
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+typedef double real;
+typedef double3 real3;
+#define TO_REAL3(x) convert_double3(x)
+#else
+typedef float real;
+typedef float3 real3;
+#define TO_REAL3(x) (x)
+#endif
 
 #ifndef LAYOUT
 #define LAYOUT 0
@@ -74,8 +92,8 @@ __kernel void blend(const int m,
     ROW_BEGIN
     float4 x0 = (float4)(0.0f), x1 = (float4)(0.0f), x2 = (float4)(0.0f);
 #if NORMALS == 2
-    float sw = 0.0f;
-    float3 cbar = (float3)(0.0f), hbar = (float3)(0.0f);
+    real sw = 0;
+    real3 cbar = (real3)(0), hbar = (real3)(0);
 #endif
     for (int t = 0; t < count; ++t) {
         const int p = base + t * stride;
@@ -85,10 +103,10 @@ __kernel void blend(const int m,
         x1 = fma((float4)(w), handles[h + 1], x1);
         x2 = fma((float4)(w), handles[h + 2], x2);
 #if NORMALS == 2
-        const float w2 = w * w;
+        const real w2 = (real)w * (real)w;
         sw += w2;
-        hbar = fma((float3)(w2), handles[h + 3].xyz, hbar);
-        cbar = fma((float3)(w2), handles[h + 4].xyz, cbar);
+        hbar = fma((real3)(w2), TO_REAL3(handles[h + 3].xyz), hbar);
+        cbar = fma((real3)(w2), TO_REAL3(handles[h + 4].xyz), cbar);
 #endif
     }
     const float4 p4 = (float4)(rest[v].xyz, 1.0f);
@@ -102,26 +120,41 @@ __kernel void blend(const int m,
     const float s = dot(r0, c12) < 0.0f ? -1.0f : 1.0f;
     vstore3(s * unit_or_zero(nn), v, out_normals);
 #elif NORMALS == 2
-    const float inv = sw > 0.0f ? 1.0f / sw : 0.0f;
+    const real inv = sw > 0 ? 1 / sw : 0;
     cbar *= inv;
     hbar *= inv;
-    const float4 nd = normal_data[v];                  /* (q, lambda) */
-    float3 r0 = (float3)(nd.w, 0.0f, 0.0f);            /* rows of X + lambda I */
-    float3 r1 = (float3)(0.0f, nd.w, 0.0f);
-    float3 r2 = (float3)(0.0f, 0.0f, nd.w);
+    const float4 nd = normal_data[v];                  /* (rest normal n, lambda) */
+    const real lambda = nd.w;
+    real3 r0 = (real3)(lambda, 0, 0);                  /* rows of X + lambda I */
+    real3 r1 = (real3)(0, lambda, 0);
+    real3 r2 = (real3)(0, 0, lambda);
+    real3 p0 = r0, p1 = r1, p2 = r2;                   /* rows of P + lambda I */
     for (int t = 0; t < count; ++t) {
         const int p = base + t * stride;
         const int h = HANDLE_STRIDE * (int)indices[p];
-        const float w = LOAD_W(p);
-        const float3 d = (w * w) * (handles[h + 4].xyz - cbar);
-        const float3 e = handles[h + 3].xyz - hbar;
-        r0 = fma((float3)(d.x), e, r0);
-        r1 = fma((float3)(d.y), e, r1);
-        r2 = fma((float3)(d.z), e, r2);
+        const real w = LOAD_W(p);
+        const real3 c = TO_REAL3(handles[h + 4].xyz) - cbar;
+        const real3 d = (w * w) * c;
+        const real3 e = TO_REAL3(handles[h + 3].xyz) - hbar;
+        r0 = fma((real3)(d.x), e, r0);
+        r1 = fma((real3)(d.y), e, r1);
+        r2 = fma((real3)(d.z), e, r2);
+        p0 = fma((real3)(d.x), c, p0);
+        p1 = fma((real3)(d.y), c, p1);
+        p2 = fma((real3)(d.z), c, p2);
     }
-    const float3 c12 = cross(r1, r2);
-    const float3 nn = nd.x * c12 + nd.y * cross(r2, r0) + nd.z * cross(r0, r1);
-    const float s = dot(r0, c12) < 0.0f ? -1.0f : 1.0f;
-    vstore3(s * unit_or_zero(nn), v, out_normals);
+    /* P from the same differences as X: rounding of the handle positions then perturbs
+       the fitted map instead of the product X^-1 P. */
+    const real3 n = TO_REAL3(nd.xyz);
+    const real3 q = (real3)(dot(p0, n), dot(p1, n), dot(p2, n));
+    const real3 c12 = cross(r1, r2);
+    const real3 nn = q.x * c12 + q.y * cross(r2, r0) + q.z * cross(r0, r1);
+    const real len = length(nn);
+    const real s = (dot(r0, c12) < 0 ? -1 : 1) * (len > 0 ? 1 / len : 0);
+#if FIT_DOUBLE
+    vstore3(convert_float3(s * nn), v, out_normals);
+#else
+    vstore3(s * nn, v, out_normals);
+#endif
 #endif
 }

@@ -3,8 +3,9 @@
 from rigslim import hookimpl
 from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
 from rigslim.plugins.deformers.opencl_deformer import OpenCLDeformer
+from rigslim.plugins.deformers.opengl_deformer import OpenGLDeformer
 
 
 @hookimpl
 def rigslim_deformers():
-    return [NumpyDeformer(), OpenCLDeformer()]
+    return [NumpyDeformer(), OpenCLDeformer(), OpenGLDeformer()]

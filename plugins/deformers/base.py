@@ -130,8 +130,8 @@ class DeviceWeights:
     indptr : (m + 1,) int32 array or None
         csr row pointers.
     effective : ReducedWeights or csr_matrix
-        The weights the device really uses (float16-rounded for compact),
-        for the numpy reference a test compares against.
+        The weights the device really uses (rounded to float32, or float16
+        for compact), for the numpy reference a test compares against.
     """
 
     layout: str
@@ -152,11 +152,12 @@ def pack_weights(weights, layout: str, n_handles: int) -> DeviceWeights:
         layout = "fixed" if isinstance(weights, ReducedWeights) else "csr"
     if layout == "csr":
         A = weights.to_sparse() if isinstance(weights, ReducedWeights) else sp.csr_matrix(weights)
-        A = sp.csr_matrix(A)
+        A = sp.csr_matrix(A, copy=True)
         A.sort_indices()
         k = int(np.diff(A.indptr).max(initial=0))
-        return DeviceWeights("csr", k, A.indices.astype(np.int32), A.data.astype(np.float32),
-                             A.indptr.astype(np.int32), A)
+        values = A.data.astype(np.float32)
+        A.data = values.astype(np.float64)
+        return DeviceWeights("csr", k, A.indices.astype(np.int32), values, A.indptr.astype(np.int32), A)
     idx, val = fixed_k_arrays(weights)
     k = idx.shape[1]
     if layout == "compact":
@@ -168,15 +169,17 @@ def pack_weights(weights, layout: str, n_handles: int) -> DeviceWeights:
         return DeviceWeights("compact", k, idx.astype(np.uint16), val16, None, eff)
     if layout != "fixed":
         raise StepError(f"unknown weight layout '{layout}'", field="layout", fix="use auto, fixed, compact or csr")
-    eff = weights if isinstance(weights, ReducedWeights) else ReducedWeights(idx, val, n_handles)
-    return DeviceWeights("fixed", k, idx, val.astype(np.float32), None, eff)
+    val32 = val.astype(np.float32)
+    return DeviceWeights("fixed", k, idx, val32, None, ReducedWeights(idx, val32.astype(np.float64), n_handles))
 
 
 def rest_normal_data(mode: str | None, mesh, weights, handles) -> np.ndarray | None:
     """Per-vertex float64 (m, 4) data a kernel needs for normals.
 
     ``blended-matrix``: the rest normal ``(n, 0)``; ``approximate-affine``:
-    ``((P + lambda I) n, lambda)`` of :func:`affine_fit_rest`.
+    ``(n, lambda)`` with the ridge of :func:`affine_fit_rest` (the kernel forms
+    P from the same float32 handle differences as X: computing ``X^{-1} P``
+    from a P rounded on its own would cost ``cond(P) * eps`` in accuracy).
     """
     if mode is None:
         return None
@@ -188,7 +191,7 @@ def rest_normal_data(mode: str | None, mesh, weights, handles) -> np.ndarray | N
     from rigslim.plugins.normals.approximate_affine import affine_fit_rest
 
     fit = affine_fit_rest(weights, handles.cage.V, N0)
-    out[:, :3] = fit.q
+    out[:, :3] = N0
     out[:, 3] = fit.ridge
     return out
 
@@ -196,14 +199,17 @@ def rest_normal_data(mode: str | None, mesh, weights, handles) -> np.ndarray | N
 def handle_data(T: np.ndarray, C0: np.ndarray | None) -> np.ndarray:
     """(n, 5, 4) float32 per-handle records a kernel reads: rows of T, ``chat = T [c0; 1]``, ``c0``.
 
-    Without rest positions (skeletons) the last two records are zero.
+    ``chat`` and ``c0`` are centred on their means: the affine fit only uses
+    differences, and centring keeps float32 from losing digits to large
+    coordinates. Without rest positions (skeletons) the last two records are zero.
     """
     n = T.shape[0]
     out = np.zeros((n, 5, 4), dtype=np.float32)
     out[:, :3, :] = T
     if C0 is not None:
-        out[:, 3, :3] = np.einsum("nij,nj->ni", T[:, :, :3], C0) + T[:, :, 3]
-        out[:, 4, :3] = C0
+        chat = np.einsum("nij,nj->ni", T[:, :, :3], C0) + T[:, :, 3]
+        out[:, 3, :3] = chat - chat.mean(axis=0)
+        out[:, 4, :3] = C0 - C0.mean(axis=0)
     return out
 
 

@@ -9,8 +9,11 @@ comes from the profiling event of the launch (``last_seconds``).
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 
+from rigslim.errors import StepError
 from rigslim.plugin import Deformer
 
 from rigslim.plugins.deformers.base import (BoundDeformer, DeformerParams, Layout, check_weights, handle_data,
@@ -26,7 +29,7 @@ class OpenCLBound(BoundDeformer):
     backend = "opencl"
 
     def __init__(self, mesh, weights, normals_mode, handles, layout: str, device: str | None,
-                 local_size: int | None):
+                 local_size: int | None, fit_precision: str = "auto"):
         import pyopencl as cl
 
         from rigslim.opencl import build_program, get_runtime
@@ -34,6 +37,12 @@ class OpenCLBound(BoundDeformer):
         n = n_handles_of(weights)
         super().__init__(mesh.n_vertices, n, normals_mode)
         self.runtime = rt = get_runtime(device)
+        has_fp64 = "cl_khr_fp64" in rt.device.extensions
+        if fit_precision == "double" and not has_fp64:
+            raise StepError(f"{rt.name} has no double precision (cl_khr_fp64)", field="fit_precision",
+                            fix="use fit_precision: single or auto")
+        #: approximate-affine fit in double precision (positions and blended-matrix normals stay float32)
+        self.fit_double = normals_mode == "approximate-affine" and fit_precision != "single" and has_fp64
         self.packed = pack_weights(weights, layout, n)
         self.layout = self.packed.layout
         self.local_size = local_size
@@ -58,16 +67,31 @@ class OpenCLBound(BoundDeformer):
             self._indptr = None
         self._handles = cl.Buffer(ctx, mf.READ_ONLY, size=n * 5 * 16)
         self._positions = cl.Buffer(ctx, mf.WRITE_ONLY, size=max(m, 1) * 12)
-        data = rest_normal_data(normals_mode, mesh, weights, handles)
-        self._normal_data = upload(data.astype(np.float32)) if data is not None else None
-        self._normals = cl.Buffer(ctx, mf.WRITE_ONLY, size=max(m, 1) * 12) if data is not None else None
+        self._mesh, self._weights_in, self._handles_in = mesh, self.packed.effective, handles
+        self._normal_data = None          # uploaded, and the normals kernel built, on the first normals frame
+        self._normals = None
         self._kernels = {}
-        for with_normals in ([False, True] if normals_mode else [False]):
-            options = [f"-DLAYOUT={_LAYOUT_CODE[self.layout]}", f"-DK={max(self.packed.k, 1)}",
-                       f"-DNORMALS={_NORMALS_CODE[normals_mode] if with_normals else 0}"]
-            self._kernels[with_normals] = build_program(rt, "blend.cl", options).blend
         self._host_positions = np.empty((m, 3), dtype=np.float32)
         self._host_normals = np.empty((m, 3), dtype=np.float32)
+
+    def _kernel(self, normals: bool):
+        """The kernel for this layout and normal mode, built (and normal data uploaded) on first use."""
+        import pyopencl as cl
+
+        from rigslim.opencl import build_program
+
+        if normals and self._normal_data is None:
+            data = rest_normal_data(self.normals_mode, self._mesh, self._weights_in, self._handles_in)
+            mf = cl.mem_flags
+            self._normal_data = cl.Buffer(self.runtime.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                                          hostbuf=np.ascontiguousarray(data, dtype=np.float32))
+            self._normals = cl.Buffer(self.runtime.context, mf.WRITE_ONLY, size=max(self.n_vertices, 1) * 12)
+        if normals not in self._kernels:
+            options = [f"-DLAYOUT={_LAYOUT_CODE[self.layout]}", f"-DK={max(self.packed.k, 1)}",
+                       f"-DNORMALS={_NORMALS_CODE[self.normals_mode] if normals else 0}",
+                       f"-DFIT_DOUBLE={int(self.fit_double)}"]
+            self._kernels[normals] = cl.Kernel(build_program(self.runtime, "blend.cl", options), "blend")
+        return self._kernels[normals]
 
     def _args(self, normals: bool) -> list:
         args = [np.int32(self.n_vertices), self._rest, self._indices, self._weights, self._handles, self._positions]
@@ -83,7 +107,7 @@ class OpenCLBound(BoundDeformer):
 
         queue = self.runtime.queue
         cl.enqueue_copy(queue, self._handles, handle_data(T, self.C0), is_blocking=False)
-        kernel = self._kernels[normals]
+        kernel = self._kernel(normals)
         global_size = self.n_vertices
         local = None
         if self.local_size:
@@ -132,9 +156,13 @@ class OpenCLDeformer(Deformer):
         layout: Layout = "auto"
         #: Work-group size (None lets the driver choose).
         local_size: int | None = None
+        #: Arithmetic of the approximate-affine fit: auto (double where the device has cl_khr_fp64),
+        #: single (float32: error about cond(P) * 6e-8 rad) or double.
+        fit_precision: Literal["auto", "single", "double"] = "auto"
 
     def bind(self, mesh, weights, params=None, handles=None) -> OpenCLBound:
         params = params if params is not None else self.Params()
         weights = check_weights(mesh, weights, source="opencl deformer")
         mode = resolve_normals(params.normals, handles)
-        return OpenCLBound(mesh, weights, mode, handles, params.layout, params.device, params.local_size)
+        return OpenCLBound(mesh, weights, mode, handles, params.layout, params.device, params.local_size,
+                           params.fit_precision)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import ctypes
 import time
+from typing import Literal
 
 import numpy as np
 
@@ -65,7 +66,7 @@ class OpenGLBound(BoundDeformer):
 
     backend = "opengl"
 
-    def __init__(self, mesh, weights, normals_mode, handles, layout: str):
+    def __init__(self, mesh, weights, normals_mode, handles, layout: str, fit_precision: str = "auto"):
         from rigslim.egl import shared_context
         from rigslim.kernels import source
 
@@ -86,6 +87,8 @@ class OpenGLBound(BoundDeformer):
             raise StepError(f"k = {self.packed.k} needs {2 + 2 * k4} vertex attributes; this GL has {max_attribs}",
                             field="k", fix="reduce the weights to fewer influences, or use the opencl deformer")
         self.k4 = k4
+        #: approximate-affine fit in double precision (GLSL 4.00+ has doubles; positions stay float32)
+        self.fit_double = normals_mode == "approximate-affine" and fit_precision != "single"
         compact = self.layout == "compact"
         idx = np.zeros((m, 4 * k4), dtype=np.uint16 if compact else np.int32)
         val = np.zeros((m, 4 * k4), dtype=np.float16 if compact else np.float32)
@@ -93,7 +96,7 @@ class OpenGLBound(BoundDeformer):
         val[:, :self.packed.k] = self.packed.values
         self._attribute_bytes = idx.nbytes + val.nbytes
         rest = np.ascontiguousarray(mesh.V, dtype=np.float32)
-        data = rest_normal_data(normals_mode, mesh, weights, handles)
+        self._mesh, self._weights_in, self._handles_in = mesh, self.packed.effective, handles
 
         self.context.make_current()
         self._vao = _one(GL.glGenVertexArrays(1))
@@ -108,12 +111,8 @@ class OpenGLBound(BoundDeformer):
         array_buffer(b_rest, rest)
         GL.glEnableVertexAttribArray(0)
         GL.glVertexAttribPointer(0, 3, GL.GL_FLOAT, GL.GL_FALSE, 12, None)
-        if data is not None:
-            array_buffer(b_normal, np.ascontiguousarray(data, dtype=np.float32))
-            GL.glEnableVertexAttribArray(1)
-            GL.glVertexAttribPointer(1, 4, GL.GL_FLOAT, GL.GL_FALSE, 16, None)
-        else:
-            GL.glVertexAttrib4f(1, 0.0, 0.0, 0.0, 0.0)
+        GL.glVertexAttrib4f(1, 0.0, 0.0, 0.0, 0.0)     # normal data: a buffer on the first normals frame
+        self._has_normal_data = False
         array_buffer(b_idx, idx)
         itype, isize = (GL.GL_UNSIGNED_SHORT, 2) if compact else (GL.GL_INT, 4)
         for j in range(k4):
@@ -152,18 +151,35 @@ class OpenGLBound(BoundDeformer):
         GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0, GL.GL_RENDERBUFFER, self._rbo)
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, 0)
 
-        src = source("blend_vertex.glsl")
+        self._source = source("blend_vertex.glsl")
         self._programs = {}
-        for with_normals in ([False, True] if normals_mode else [False]):
-            code = _NORMALS_CODE[normals_mode] if with_normals else 0
-            varyings = ["out_position", "out_normal"] if with_normals else ["out_position"]
-            program = compile_program(src, {"K4": k4, "WEIGHT_LOCATION": 2 + k4, "NORMALS": code}, varyings)
-            GL.glUseProgram(program)
-            GL.glUniform1i(GL.glGetUniformLocation(program, "handles"), 0)
-            self._programs[with_normals] = program
-        GL.glUseProgram(0)
         self._host_positions = np.empty((m, 3), dtype=np.float32)
         self._host_normals = np.empty((m, 3), dtype=np.float32)
+
+    def _program(self, normals: bool):
+        """The program for this normal mode, linked (and normal data uploaded) on first use."""
+        from OpenGL import GL
+
+        if normals and not self._has_normal_data:
+            data = rest_normal_data(self.normals_mode, self._mesh, self._weights_in, self._handles_in)
+            data = np.ascontiguousarray(data, dtype=np.float32)
+            GL.glBindVertexArray(self._vao)
+            GL.glBindBuffer(GL.GL_ARRAY_BUFFER, self._buffers[1])
+            GL.glBufferData(GL.GL_ARRAY_BUFFER, data.nbytes, data, GL.GL_STATIC_DRAW)
+            GL.glEnableVertexAttribArray(1)
+            GL.glVertexAttribPointer(1, 4, GL.GL_FLOAT, GL.GL_FALSE, 16, None)
+            GL.glBindVertexArray(0)
+            self._has_normal_data = True
+        if normals not in self._programs:
+            code = _NORMALS_CODE[self.normals_mode] if normals else 0
+            varyings = ["out_position", "out_normal"] if normals else ["out_position"]
+            program = compile_program(self._source, {"K4": self.k4, "WEIGHT_LOCATION": 2 + self.k4,
+                                                     "NORMALS": code, "FIT_DOUBLE": int(self.fit_double)},
+                                      varyings)
+            GL.glUseProgram(program)
+            GL.glUniform1i(GL.glGetUniformLocation(program, "handles"), 0)
+            self._programs[normals] = program
+        return self._programs[normals]
 
     def launch(self, T: np.ndarray, normals: bool = False, read: bool = True) -> None:
         """Upload T, run the shader over all vertices with transform feedback; optionally read back."""
@@ -175,7 +191,7 @@ class OpenGLBound(BoundDeformer):
         GL.glBufferSubData(GL.GL_TEXTURE_BUFFER, 0, records.nbytes, records)
         GL.glActiveTexture(GL.GL_TEXTURE0)
         GL.glBindTexture(GL.GL_TEXTURE_BUFFER, self._texture)
-        GL.glUseProgram(self._programs[normals])
+        GL.glUseProgram(self._program(normals))
         GL.glBindVertexArray(self._vao)
         GL.glBindBufferBase(GL.GL_TRANSFORM_FEEDBACK_BUFFER, 0, self._feedback[0])
         if normals:
@@ -252,9 +268,12 @@ class OpenGLDeformer(Deformer):
         #: Attribute layout: auto/fixed (int32 + float32) or compact (uint16 + float16).
         #: Sparse input weights are padded to their widest row.
         layout: Layout = "auto"
+        #: Arithmetic of the approximate-affine fit: auto/double (GLSL doubles) or single (float32:
+        #: error about cond(P) * 6e-8 rad).
+        fit_precision: Literal["auto", "single", "double"] = "auto"
 
     def bind(self, mesh, weights, params=None, handles=None) -> OpenGLBound:
         params = params if params is not None else self.Params()
         weights = check_weights(mesh, weights, source="opengl deformer")
         mode = resolve_normals(params.normals, handles)
-        return OpenGLBound(mesh, weights, mode, handles, params.layout)
+        return OpenGLBound(mesh, weights, mode, handles, params.layout, params.fit_precision)

@@ -25,9 +25,11 @@ from rigslim.weights import ReducedWeights
 from rigslim.plugins.normals.backends import Backend, normals_from_backend
 from rigslim.plugins.normals.blended_matrix import normalize_rows
 
-#: A vertex whose weighted rest handles span less than 3 dimensions
-#: (``lambda_min(P) < DEGENERATE * lambda_max(P)``) gets a ridge term.
-DEGENERATE = 1e-6
+#: A vertex whose weighted rest handles (nearly) span less than 3 dimensions
+#: (``lambda_min(P) < DEGENERATE * lambda_max(P)``) gets a ridge term. At a
+#: condition number of 1e4 float32 (GPU) arithmetic already loses about
+#: 1e-4 rad on the fit, so such fits count as undetermined.
+DEGENERATE = 1e-4
 #: Ridge weight, relative to ``trace(P) / 3``, for such vertices.
 RIDGE = 1e-3
 
