@@ -126,3 +126,90 @@ def test_numpy_and_opencl_agree(rng):
         pytest.skip(f"no OpenCL CPU device: {e}")
     Wnp = mean_value_coordinates(P, V, F)
     assert np.abs(Wcl - Wnp).max() < 1e-10
+
+
+ELEPHANT_INPUTS = """
+inputs:
+  mesh: data/elephant.obj
+  skeleton: data/elephant.tgf
+  weights: data/elephant-weights.dmat
+  animation: data/elephant-anim.dmat
+poses: {examples: "0:457:45", test: "5:457:40"}
+"""
+
+
+def test_elephant_cage_pipeline_from_skeleton_motion(write_pipeline, tmp_path):
+    """mesh + skeleton weights + animation -> automatic cage -> MVC -> reduce -> evaluate."""
+    from rigslim.io import read_mesh
+    from rigslim.pipeline import run_pipeline
+
+    path = write_pipeline(ELEPHANT_INPUTS + """
+steps:
+  - generate: mean-value
+    cage: auto
+    cage_vertices: 60
+    cage_resolution: 40
+    save_cage: cage.obj
+  - select: k-largest
+    k: 8
+  - solve: k-largest
+  - evaluate: [position-rms, max-influences]
+""")
+    result = run_pipeline(path)
+    asset = result.asset
+    assert asset.handles.is_cage and asset.handles.n == asset.poses.n_handles == asset.weights.shape[1]
+    report = result.document["steps"][1]["report"]
+    assert report["cage"]["vertices_outside"] == 0 and report["cage"]["min_winding_number"] > 0.99
+    assert report["cage_poses"]["poses"] == 457
+    assert read_mesh(tmp_path / "cage.obj").n_vertices == asset.handles.n
+    # frame 0 is the elephant's rest pose: the skinned cage is the rest cage and MVC reproduces the mesh
+    assert np.allclose(asset.poses.T[0, :, :, 3], asset.handles.cage.V)
+    from rigslim.blend import linear_blend
+
+    # (the pipeline drops input weights below 1e-8 as round-off, hence not 1e-10)
+    err = np.abs(linear_blend(asset.mesh.V, asset.weights, asset.poses.T[0]) - asset.mesh.V).max()
+    assert err < 1e-8 * asset.mesh.bbox_diagonal
+    m = result.document["evaluations"][0]["metrics"]
+    assert m["max_influences"] == 8 and m["input_max_influences"] == asset.handles.n
+
+
+def test_user_cage_file_and_opencl_backend(write_pipeline, tmp_path):
+    pytest.importorskip("pyopencl")
+    from rigslim.cage import build_cage
+    from rigslim.io import read_mesh
+    from rigslim.opencl import OpenCLUnavailable, get_runtime
+    from rigslim.pipeline import run_pipeline
+
+    try:
+        get_runtime("cpu")
+    except OpenCLUnavailable as e:
+        pytest.skip(f"no OpenCL CPU device: {e}")
+    import igl
+
+    path = write_pipeline("""
+inputs:
+  mesh: data/elephant.obj
+  cage: cage.obj
+steps:
+  - generate: mean-value
+    backend: opencl
+    device: cpu
+""")
+    mesh = read_mesh(path.parent / "data" / "elephant.obj")
+    cage = build_cage(mesh, 40, resolution=32)
+    igl.write_triangle_mesh(str(tmp_path / "cage.obj"), np.asarray(cage.V), np.asarray(cage.F))
+    asset = run_pipeline(path).asset
+    W = asset.weights.toarray()
+    assert np.abs(W @ asset.handles.cage.V - mesh.V).max() < 1e-8 * mesh.bbox_diagonal
+
+
+def test_mean_value_without_a_cage_is_a_step_error(write_pipeline):
+    from rigslim.errors import StepError
+    from rigslim.pipeline import run_pipeline
+
+    path = write_pipeline(ELEPHANT_INPUTS + """
+steps:
+  - generate: mean-value
+""")
+    with pytest.raises(StepError, match="cage: auto"):
+        run_pipeline(path)

@@ -6,9 +6,10 @@
 
 from rigslim import hookimpl
 from rigslim.plugins.generators.bone_heat import BoneHeatGenerator
+from rigslim.plugins.generators.harmonic import HarmonicGenerator
 from rigslim.plugins.generators.mean_value import MeanValueGenerator
 
 
 @hookimpl
 def rigslim_weight_generators():
-    return [MeanValueGenerator(), BoneHeatGenerator()]
+    return [MeanValueGenerator(), HarmonicGenerator(), BoneHeatGenerator()]

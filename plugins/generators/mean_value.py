@@ -199,7 +199,7 @@ def mean_value_coordinates_opencl(P, V, F, *, device: str | None = None, precisi
     Fb = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=F.astype(np.int32))
     out = np.empty((m, n), dtype=dtype)
     Wb = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
-    kernel = prg.mean_value_coordinates
+    kernel = cl.Kernel(prg, "mean_value_coordinates")
     kernel(queue, (m,), None, Pb, np.int32(m), Vb, np.int32(n), Fb, np.int32(f), dtype(PLANE_EPS), Wb)
     cl.enqueue_copy(queue, out, Wb).wait()
     return out.astype(np.float64)
