@@ -327,3 +327,32 @@ def test_malformed_documents_are_input_errors(tmp_path):
     path.write_text(json.dumps(js))
     with pytest.raises(InputError, match="malformed document"):
         read_gltf_skin(path)
+
+
+def test_weld_merges_seam_vertices_and_keeps_rows_summing_to_one():
+    split = read_gltf_skin(GLTF / "animation_with_skeleton.glb")
+    welded = read_gltf_skin(GLTF / "animation_with_skeleton.glb", weld=True)
+    m = split.mesh.n_vertices
+    assert welded.mesh.n_vertices < m and welded.vertex_map.shape == (m,)
+    # every file vertex maps onto a welded vertex at exactly its position
+    np.testing.assert_array_equal(welded.mesh.V[welded.vertex_map], split.mesh.V)
+    # welded weights are the mean of the merged rows
+    P = np.zeros((m, welded.mesh.n_vertices))
+    P[np.arange(m), welded.vertex_map] = 1
+    expected = (P.T @ split.weights.toarray()) / P.sum(axis=0)[:, None]
+    np.testing.assert_allclose(welded.weights.toarray(), expected, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(welded.weights.sum(axis=1)).ravel(), 1.0, atol=1e-12)
+    # the welded mesh is connected where the file's was cut: far fewer boundary edges
+    import igl
+
+    def boundary(F):
+        b = igl.boundary_facets(F)
+        return len(b[0] if isinstance(b, tuple) else b)
+
+    assert boundary(welded.mesh.F) < boundary(split.mesh.F) / 10
+    # deformation unchanged wherever the merged rows agreed
+    X = linear_blend(split.mesh.V, split.weights, split.poses.T[7])
+    Xw = linear_blend(welded.mesh.V, welded.weights, welded.poses.T[7])[welded.vertex_map]
+    agree = np.abs(expected[welded.vertex_map] - split.weights.toarray()).max(axis=1) < 1e-12
+    assert agree.mean() > 0.5
+    np.testing.assert_allclose(Xw[agree], X[agree], atol=1e-9 * np.abs(X).max())

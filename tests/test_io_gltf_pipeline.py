@@ -97,3 +97,37 @@ def test_bad_gltf_inputs_are_one_line_errors(write_pipeline, inputs, match):
         run_pipeline(path)
     assert "\n" not in str(err.value) and err.value.fix
     assert not (path.parent / "out" / "x.glb").exists()
+
+
+def test_simplify_a_gltf_into_lod_levels(write_pipeline, valid):
+    """decimate + write: the original and two levels in one .glb, linked with MSFT_lod, valid."""
+    path = write_pipeline("""
+inputs:
+  gltf: data/gltf/huesitos.glb
+  fps: 10
+poses: {examples: "0:16:3", test: "1:16:3"}
+steps:
+  - decimate: quartic
+    targets: [0.6, 0.3]
+    max_bones: 2
+  - write: out/lod.glb
+    quantize: ushort
+    lod: true
+    clamp_negative: true
+    keep_input_weights: false
+""")
+    result = run_pipeline(path)
+    assert result.asset.mesh.n_vertices < 128             # welded: the cylinder's seams are closed
+    out = path.parent / "out" / "lod.glb"
+    valid(out)
+    levels = result.asset.extras["levels"]
+    from rigslim.io.gltf import load_gltf
+
+    doc = load_gltf(out)
+    assert [m.get("name") for m in doc.json["meshes"][1:]] == [lv.label for lv in levels]
+    for i, level in enumerate(levels, 1):
+        back = read_gltf_skin(out, mesh=i)
+        assert back.mesh.n_faces == level.n_faces
+        assert np.diff(back.weights.indptr).max() <= 2
+    report = result.document["steps"][-1]["report"]
+    assert report["mode"] == "rewrite" and report["levels"] == 2

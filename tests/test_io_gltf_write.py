@@ -352,3 +352,37 @@ def test_external_image_is_embedded_when_written_elsewhere(tmp_path, valid):
     assert back.buffer_view_bytes(img["bufferView"]) == _png_1x1()
     assert back.json["materials"] == js["materials"] and back.json["textures"] == js["textures"]
     assert _canonical(back, True) == _canonical(src.document, True)
+
+
+def test_welded_reduction_is_written_on_every_file_vertex(tmp_path, valid):
+    src = read_gltf_skin(GLTF / "animation_with_skeleton.glb", weld=True)
+    reduced = _k_largest(src.weights, 3)
+    out = tmp_path / "welded.glb"
+    write_gltf(out, src, reduced, quantize="ushort")
+    valid(out)
+    back = read_gltf_skin(out)                      # not welded: one row per file vertex
+    assert back.mesh.n_vertices == len(src.vertex_map)
+    expected = reduced.to_sparse()[src.vertex_map]
+    assert abs(back.weights - expected).max() <= 2 / 65535
+    # seam copies of one position carry identical weights: no cracks when the mesh moves
+    X = linear_blend(back.mesh.V, back.weights, back.poses.T[10])
+    for g in np.flatnonzero(np.bincount(src.vertex_map) > 1)[:50]:
+        copies = np.flatnonzero(src.vertex_map == g)
+        assert np.ptp(X[copies], axis=0).max() < 1e-9 * np.abs(X).max()
+
+
+def test_clamp_negative_weights(tmp_path, valid):
+    from rigslim.io.gltf_write import clamp_negative_weights
+
+    W, stats = clamp_negative_weights(np.array([[1.2, -0.2, 0.0], [0.5, 0.5, 0.0]]))
+    np.testing.assert_allclose(W, [[1.0, 0.0, 0.0], [0.5, 0.5, 0.0]])
+    assert stats == {"clamped_vertices": 1, "most_negative": -0.2}
+    src = read_gltf_skin(GLTF / "simple_skin.gltf")
+    red = ReducedWeights(np.tile([0, 1], (10, 1)), np.tile([0.9, 0.1], (10, 1)), 2)
+    vals = red.values.copy()
+    vals[3] = [1.25, -0.25]
+    stats = write_gltf(tmp_path / "c.glb", src, ReducedWeights(red.indices, vals, 2), quantize="ubyte",
+                       clamp_negative=True)
+    assert stats["clamped_vertices"] == 1 and stats["most_negative"] == -0.25
+    valid(tmp_path / "c.glb")
+    np.testing.assert_allclose(read_gltf_skin(tmp_path / "c.glb").weights.toarray()[3], [1, 0])

@@ -578,6 +578,46 @@ class GltfSkin:
     poses: Poses
     animation: int | None
     fps: float
+    vertex_map: np.ndarray | None = None
+
+    def file_rows(self, part: PrimitiveSlice) -> np.ndarray:
+        """Rows of :attr:`mesh` that hold the vertices of one primitive, in the file's order."""
+        rows = np.arange(part.start, part.start + part.count)
+        return rows if self.vertex_map is None else self.vertex_map[rows]
+
+
+def weld_vertices(V: np.ndarray, F: np.ndarray, weights: sp.csr_matrix):
+    """Merge vertices at identical positions (glTF splits them at UV seams and hard edges).
+
+    Parameters
+    ----------
+    V : (m, 3) positions, F : (f, 3) triangles, weights : (m, n) sparse rows summing to one
+
+    Returns
+    -------
+    vertex_map : (m,) int array
+        Welded vertex of every input vertex; welded vertices are numbered in
+        order of first occurrence.
+    V, F, weights
+        The welded mesh (faces that became degenerate are dropped) and its
+        weights: the mean of the merged rows, ``A_w = D^{-1} P^T A`` with
+        ``P`` the (m, m_w) merge indicator and ``D`` the group sizes, so
+        rows still sum to one.
+    """
+    _, first, inverse = np.unique(V, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    order = np.argsort(first, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    vertex_map = rank[inverse]
+    Vw = V[first[order]]
+    Fw = vertex_map[F]
+    keep = (Fw[:, 0] != Fw[:, 1]) & (Fw[:, 1] != Fw[:, 2]) & (Fw[:, 2] != Fw[:, 0])
+    P = sp.csr_matrix((np.ones(len(V)), (np.arange(len(V)), vertex_map)), shape=(len(V), len(Vw)))
+    sizes = np.asarray(P.sum(axis=0)).ravel()
+    Aw = sp.csr_matrix(sp.diags(1.0 / sizes) @ (P.T @ weights))
+    Aw.sort_indices()
+    return vertex_map, Vw, Fw[keep], Aw
 
 
 def _triangles(mode: int, idx: np.ndarray) -> np.ndarray:
@@ -647,7 +687,7 @@ def _choose_skin(doc: GltfDocument, skin, mesh) -> tuple[int, list[int]]:
 
 
 def read_gltf_skin(path, *, animation=None, fps: float = 30.0, mesh=None, skin=None,
-                   normalize: bool = True) -> GltfSkin:
+                   normalize: bool = True, weld: bool = False) -> GltfSkin:
     """Read a skinned glTF: merged mesh, joints as handles, weights and sampled poses.
 
     Parameters
@@ -668,6 +708,10 @@ def read_gltf_skin(path, *, animation=None, fps: float = 30.0, mesh=None, skin=N
     normalize : bool
         Divide each vertex's weights by their sum (quantised weights rarely
         sum exactly to one); otherwise rows must sum to 1 within 1e-6.
+    weld : bool
+        Merge vertices with identical positions (:func:`weld_vertices`), as
+        solvers and decimators need a connected mesh; the writer maps the
+        results back onto the file's vertices.
 
     Returns
     -------
@@ -683,14 +727,14 @@ def read_gltf_skin(path, *, animation=None, fps: float = 30.0, mesh=None, skin=N
     """
     doc = load_gltf(path)
     try:
-        return _read_gltf_skin(doc, animation, fps, mesh, skin, normalize)
+        return _read_gltf_skin(doc, animation, fps, mesh, skin, normalize, weld)
     except (KeyError, IndexError) as e:
         raise InputError(f"malformed document: a required property or index is missing or out of range ({e!r})",
                          source=doc.path, field="json", fix="re-export the file; check it with the glTF-Validator"
                          ) from None
 
 
-def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize) -> GltfSkin:
+def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, weld) -> GltfSkin:
     js = doc.json
     if fps <= 0:
         raise InputError(f"fps {fps} is not positive", source=doc.path, field="fps", fix="give e.g. fps: 30")
@@ -744,10 +788,13 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize) ->
                          fix="give a skinned mesh")
     V = np.concatenate(Vs)
     F = np.concatenate(Fs)
-    mesh_obj = Mesh(V, F, source=str(doc.path))
     A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(len(V), n))
     A.sum_duplicates()
     weights = validate_weights(A, len(V), n_handles=n, normalize=normalize, source=f"{doc.path} (WEIGHTS_n)")
+    vertex_map = None
+    if weld:
+        vertex_map, V, F, weights = weld_vertices(V, F, weights)
+    mesh_obj = Mesh(V, F, source=str(doc.path))
 
     # handles: one per joint, placed at the joint's bind position
     nodes = js.get("nodes", [])
@@ -779,4 +826,4 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize) ->
     T = np.einsum("jpab,jbc->pjac", world[joints], ibm)[:, :, :3, :]
     label = str(doc.path) if anim is None else f"{doc.path} animation {js['animations'][anim].get('name', anim)}"
     poses = Poses(T, np.arange(len(t)), source=label)
-    return GltfSkin(doc, skin_index, joints, slices, mesh_obj, handles, weights, poses, anim, float(fps))
+    return GltfSkin(doc, skin_index, joints, slices, mesh_obj, handles, weights, poses, anim, float(fps), vertex_map)

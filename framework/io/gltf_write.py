@@ -67,7 +67,7 @@ def quantize_weights(values: np.ndarray, kind: str = "float") -> np.ndarray:
     if W.size and W.min() < -1e-9:
         v = int(np.argmin(W.min(axis=1)))
         raise StepError(f"vertex {v} has a negative weight ({W[v].min():.3g}); glTF skin weights are non-negative",
-                        field="weights", fix="solve with 'nonnegative: true'")
+                        field="weights", fix="solve with 'nonnegative: true', or write with 'clamp_negative: true'")
     W = np.clip(W, 0.0, None)
     sums = W.sum(axis=1, keepdims=True)
     if (sums <= 0).any():
@@ -86,6 +86,36 @@ def quantize_weights(values: np.ndarray, kind: str = "float") -> np.ndarray:
     Q[rows, top] = 0
     Q[rows, top] = scale - Q.sum(axis=1)
     return Q.astype(dtype)
+
+
+def clamp_negative_weights(values: np.ndarray) -> tuple[np.ndarray, dict]:
+    """Set negative weights to zero and renormalise the rows that had any.
+
+    Parameters
+    ----------
+    values : (m, k) array, rows summing to one
+
+    Returns
+    -------
+    values : (m, k) array
+        ``w_c <- max(w_c, 0) / sum_c max(w_c, 0)`` on rows with a negative entry.
+    stats : dict
+        ``clamped_vertices`` (rows changed) and ``most_negative`` (smallest weight, 0 if none).
+    """
+    W = np.asarray(values, dtype=np.float64)
+    bad = (W < 0).any(axis=1)
+    stats = {"clamped_vertices": int(bad.sum()), "most_negative": float(min(W.min(initial=0.0), 0.0))}
+    if not bad.any():
+        return W, stats
+    W = W.copy()
+    P = np.clip(W[bad], 0.0, None)
+    sums = P.sum(axis=1, keepdims=True)
+    if (sums <= 0).any():
+        v = int(np.flatnonzero(bad)[np.flatnonzero(sums[:, 0] <= 0)[0]])
+        raise StepError(f"vertex {v} has no positive weight to keep", field="weights",
+                        fix="solve with 'nonnegative: true'")
+    W[bad] = P / sums
+    return W, stats
 
 
 def skinning_sets_arrays(indices: np.ndarray, values: np.ndarray, kind: str = "float",
@@ -243,7 +273,8 @@ def _mime(data: bytes, uri: str) -> str:
 # --------------------------------------------------------------------------- document writer
 
 
-def _level_primitive(blob: _Blob, level, n_joints: int, kind: str, n_sets: int | None, material=None) -> dict:
+def _level_primitive(blob: _Blob, level, n_joints: int, kind: str, n_sets: int | None, material=None,
+                     clamp: dict | None = None) -> dict:
     from rigslim.blend import per_vertex_normals
 
     mesh = level.mesh
@@ -254,7 +285,16 @@ def _level_primitive(blob: _Blob, level, n_joints: int, kind: str, n_sets: int |
         N = per_vertex_normals(mesh.V, mesh.F).astype(np.float32)
         N[~np.isfinite(N).all(axis=1)] = [0, 0, 1]
         attrs["NORMAL"] = blob.new_accessor(N, 5126, "VEC3")
-    _put_sets(blob, attrs, level.weights.indices, level.weights.values, n_joints, kind, n_sets)
+    # keep only as many slots as the level's busiest vertex uses (levels may come as dense rows)
+    values = np.asarray(level.weights.values, dtype=np.float64)
+    if clamp is not None:
+        values, stats = clamp_negative_weights(values)
+        _merge_clamp(clamp, stats)
+    order = np.argsort(-values, axis=1, kind="stable")
+    width = max(1, int((values != 0).sum(axis=1).max(initial=1)))
+    keep = order[:, :width]
+    _put_sets(blob, attrs, np.take_along_axis(level.weights.indices, keep, 1), np.take_along_axis(values, keep, 1),
+              n_joints, kind, n_sets)
     idx_dtype, idx_ct = (np.uint16, 5123) if len(V) < 65535 else (np.uint32, 5125)
     prim = {"attributes": attrs, "mode": 4,
             "indices": blob.new_accessor(F.reshape(-1).astype(idx_dtype), idx_ct, "SCALAR",
@@ -262,6 +302,11 @@ def _level_primitive(blob: _Blob, level, n_joints: int, kind: str, n_sets: int |
     if material is not None:
         prim["material"] = material
     return prim
+
+
+def _merge_clamp(total: dict, stats: dict) -> None:
+    total["clamped_vertices"] = total.get("clamped_vertices", 0) + stats["clamped_vertices"]
+    total["most_negative"] = min(total.get("most_negative", 0.0), stats["most_negative"])
 
 
 def _put_sets(blob: _Blob, attrs: dict, indices, values, n_joints: int, kind: str, n_sets: int | None) -> None:
@@ -273,7 +318,7 @@ def _put_sets(blob: _Blob, attrs: dict, indices, values, n_joints: int, kind: st
 
 
 def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float", sets: int | None = None,
-               levels=None, lod: bool = False, embed: bool = False) -> None:
+               levels=None, lod: bool = False, embed: bool = False, clamp_negative: bool = False) -> dict:
     """Write the source document with new skin weights (and simplified levels).
 
     Parameters
@@ -299,6 +344,15 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
         extras); otherwise each level gets its own scene.
     embed : bool
         For ``.gltf``: store the buffer as a data URI instead of a ``.bin`` file.
+    clamp_negative : bool
+        glTF weights must be non-negative: set negative weights to zero and
+        renormalise those rows (:func:`clamp_negative_weights`) instead of
+        raising a StepError. [S09] levels may carry negative weights.
+
+    Returns
+    -------
+    dict
+        ``clamped_vertices`` and ``most_negative`` (when clamping), ``sets``.
 
     Notes
     -----
@@ -325,6 +379,15 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
         if ext in js.get("extensionsRequired", []) + js.get("extensionsUsed", []):
             raise StepError(f"documents using {ext} cannot be rewritten", field="extensionsUsed",
                             fix="decompress the file first (e.g. gltfpack -noq)")
+
+    stats: dict = {}
+    clamp = {} if clamp_negative else None
+    if reduced is not None and clamp is not None:
+        from rigslim.weights import ReducedWeights
+
+        values, st = clamp_negative_weights(reduced.values)
+        _merge_clamp(clamp, st)
+        reduced = ReducedWeights(reduced.indices, values, reduced.n_handles)
 
     # 1. take the skinning attributes out; drop their accessors (and views) that nothing else uses
     replaced: set[int] = set()
@@ -363,7 +426,7 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
     if reduced is not None:
         for sl in source.slices:
             attrs = js["meshes"][sl.mesh]["primitives"][sl.primitive]["attributes"]
-            rows = slice(sl.start, sl.start + sl.count)
+            rows = source.file_rows(sl)
             _put_sets(blob, attrs, reduced.indices[rows], reduced.values[rows], n_joints, quantize, sets)
 
     # 3. simplified levels as meshes of their own
@@ -378,7 +441,7 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
                 raise StepError(f"level '{level.label}' has weights for {level.weights.n_handles} handles, "
                                 f"the skin has {n_joints} joints", field="levels",
                                 fix="simplify the mesh read from this glTF file")
-            prim = _level_primitive(blob, level, n_joints, quantize, sets, material)
+            prim = _level_primitive(blob, level, n_joints, quantize, sets, material, clamp)
             js.setdefault("meshes", []).append({"name": level.label, "primitives": [prim]})
             js["nodes"].append({"name": level.label, "mesh": len(js["meshes"]) - 1, "skin": source.skin})
             level_nodes.append(len(js["nodes"]) - 1)
@@ -402,6 +465,11 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
     if not data:
         js.pop("buffers")
     _write_document(path, js, data, embed=embed)
+    if reduced is not None:
+        stats["sets"] = sets or max(1, -(-reduced.k // 4))
+    if clamp is not None:
+        stats.update({"clamped_vertices": 0, "most_negative": 0.0} | clamp)
+    return stats
 
 
 def _joint_roots(js: dict, joints: list[int]) -> list[int]:
@@ -540,6 +608,14 @@ def _dense_rows(W: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
     I[rows, slot] = W.indices
     V[rows, slot] = W.data
     return I, V
+
+
+def fixed_width_weights(W) -> "ReducedWeights":
+    """Sparse (m, n) weights as :class:`ReducedWeights` with k = the largest row count."""
+    from rigslim.weights import ReducedWeights
+
+    I, V = _dense_rows(W)
+    return ReducedWeights(I, V, sp.csr_matrix(W).shape[1])
 
 
 def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.0, quantize: str = "float",

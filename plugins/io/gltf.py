@@ -25,18 +25,21 @@ class GltfReader(Reader):
         mesh: str | int | None = None
         skin: int | None = None
         normalize: bool = True
+        weld: bool = True
 
     def read(self, path, asset, params, ctx):
         from rigslim.io.gltf import read_gltf_skin
 
         skin = read_gltf_skin(path, animation=params.animation, fps=params.fps, mesh=params.mesh,
-                              skin=params.skin, normalize=params.normalize)
+                              skin=params.skin, normalize=params.normalize, weld=params.weld)
         asset.mesh, asset.handles, asset.weights, asset.poses = skin.mesh, skin.handles, skin.weights, skin.poses
         asset.extras["gltf"] = skin
         clip = "rest pose only" if skin.animation is None else \
             skin.document.json["animations"][skin.animation].get("name", f"#{skin.animation}")
         asset.provenance["gltf"] = {"path": str(path), "skin": skin.skin, "primitives": len(skin.slices),
-                                    "animation": clip, "fps": skin.fps, "frames": len(skin.poses)}
+                                    "animation": clip, "fps": skin.fps, "frames": len(skin.poses),
+                                    "file_vertices": sum(p.count for p in skin.slices),
+                                    "welded_vertices": skin.mesh.n_vertices}
 
 
 class GltfWriter(Writer):
@@ -51,15 +54,25 @@ class GltfWriter(Writer):
         lod: bool = False
         embed: bool = False
         fps: float = 30.0
+        keep_input_weights: bool = True
+        clamp_negative: bool = False
 
     def write(self, path, asset, params, ctx):
-        from rigslim.io.gltf_write import export_skinned, write_gltf
+        from rigslim.io.gltf_write import export_skinned, fixed_width_weights, write_gltf
 
         levels = asset.extras.get("levels") if params.levels else None
         source = asset.extras.get("gltf")
         if source is not None:
-            write_gltf(path, source, asset.reduced, quantize=params.quantize, sets=params.sets, levels=levels,
-                       lod=params.lod, embed=params.embed)
+            reduced = asset.reduced
+            if reduced is None and not params.keep_input_weights:
+                asset.require("weights", step="write: gltf")
+                reduced = fixed_width_weights(asset.weights)
+            stats = write_gltf(path, source, reduced, quantize=params.quantize, sets=params.sets, levels=levels,
+                               lod=params.lod, embed=params.embed, clamp_negative=params.clamp_negative)
+            ctx.report.update(stats)
+            if stats.get("clamped_vertices"):
+                ctx.log(f"{stats['clamped_vertices']} vertices had negative weights (down to "
+                        f"{stats['most_negative']:.3g}): set to zero and renormalised")
             mode = "rewrite"
         else:
             asset.require("mesh", "handles", step="write: gltf")
