@@ -1,0 +1,212 @@
+"""Articulated simplification benchmark: [S09] quartic against Mohr-Gleicher, DeCoro-Rusinkiewicz and static QSlim.
+
+For each model (the elephant, 12k triangles, real animation; the elephant
+subdivided twice, ~193k triangles; the armadillo, 86k triangles, 5 handles,
+generated poses) and each method, builds the whole hierarchy down to 70
+faces (static QSlim: nested pymeshlab runs at every target down to 70),
+times it, and measures the Metro distance (two-sided, pymeshlab) between
+each simplified level deformed by its own weights and the original mesh
+deformed by the input weights, on test poses never used for fitting.
+
+Usage::
+
+    .venv/bin/python benchmarks/simplify.py            # everything (long)
+    .venv/bin/python benchmarks/simplify.py --quick    # the 12k elephant only
+
+Writes docs/results/simplify.{json,md,png}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.datasets import DATA, elephant  # noqa: E402
+
+METHODS = ["quartic", "mohr-gleicher", "decoro-rusinkiewicz", "static-qslim"]
+FRACTIONS = [0.2, 0.1, 0.05, 0.02, 0.01]
+OUT = ROOT / "docs" / "results"
+
+
+def armadillo(n_frames: int = 80, seed: int = 7):
+    """The armadillo with its 5-handle weights and a generated animation.
+
+    Each handle rotates about its weighted centroid, around a fixed random
+    axis, by ``A sin(2 pi f t / n + phi)`` with A in [20, 40] degrees and one
+    or two cycles over the clip; frame t uses the same formula, so example
+    frames ``0:80:8`` and test frames ``4:80:8`` are disjoint samples of one
+    smooth motion.
+    """
+    from rigslim.asset import Asset
+    from rigslim.io import read_dmat, read_mesh
+    from rigslim.poses import FrameSplit, Poses
+    from rigslim.weights import validate_weights
+
+    mesh = read_mesh(DATA / "armadillo.obj")
+    W = validate_weights(read_dmat(DATA / "armadillo-weights.dmat"), mesh.n_vertices, normalize=True)
+    Wd = W.toarray()
+    n = Wd.shape[1]
+    centres = (Wd ** 2).T @ mesh.V / (Wd ** 2).sum(axis=0)[:, None]
+    rng = np.random.default_rng(seed)
+    axes = rng.normal(size=(n, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    amp = np.radians(rng.uniform(20, 40, n))
+    freq = rng.integers(1, 3, n)
+    phase = rng.uniform(0, 2 * np.pi, n)
+    T = np.zeros((n_frames, n, 3, 4))
+    for t in range(n_frames):
+        for i in range(n):
+            th = amp[i] * np.sin(2 * np.pi * freq[i] * t / n_frames + phase[i])
+            k = axes[i]
+            Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+            R = np.eye(3) + np.sin(th) * Kx + (1 - np.cos(th)) * Kx @ Kx
+            T[t, i, :, :3] = R
+            T[t, i, :, 3] = centres[i] - R @ centres[i]
+    poses = Poses(T, source="generated armadillo poses")
+    split = FrameSplit.from_specs("0:80:8", "4:80:8", n_frames)
+    return Asset(mesh=mesh, weights=W, poses=poses, split=split,
+                 provenance={"inputs": {"mesh": "armadillo.obj", "poses": "generated"}})
+
+
+def run_method(asset, method: str, min_faces: int, max_bones, test_stride: int, samples: int):
+    from rigslim.evaluation import Evaluation
+    from rigslim.host import get_host
+    from rigslim.plugin import StepContext
+    from rigslim.plugins.metrics.metro import metro_distance
+
+    host = get_host()
+    plugin = host.get("articulated-decimation", method)
+    raw = {"targets": FRACTIONS + ([min_faces] if method == "static-qslim" else []), "max_bones": max_bones}
+    if method != "static-qslim":
+        raw["min_faces"] = min_faces
+    asset.extras.clear()
+    ctx = StepContext()
+    t0 = time.perf_counter()
+    plugin.decimate(asset, plugin.parse_params(raw), ctx)
+    seconds = time.perf_counter() - t0
+    ev = Evaluation(asset, host)
+    frames = list(range(0, len(ev), test_stride))
+    scale = 100.0 / asset.mesh.bbox_diagonal
+    levels = []
+    for i, lv in enumerate(ev.levels):
+        rms, mx = [], []
+        for j in frames:
+            d = metro_distance(ev.level_positions(i, j), lv.mesh.F, ev.full_positions(j), asset.mesh.F, samples)
+            rms.append(scale * d["rms"])
+            mx.append(scale * d["max"])
+        levels.append({"label": lv.label, "faces": lv.n_faces, "vertices": lv.n_vertices,
+                       "max_bones": int(lv.weights.influence_counts().max()),
+                       "rms_pct_mean": float(np.mean(rms)), "max_pct_mean": float(np.mean(mx)),
+                       "max_pct_max": float(np.max(mx))})
+    final = ctx.report.get("final_faces", min(lv["faces"] for lv in levels))
+    return {"method": method, "seconds": seconds, "final_faces": final, "levels": levels,
+            "test_frames": [ev.frames[j] for j in frames]}
+
+
+def at(result, frac, n_faces):
+    want = max(1, int(round(frac * n_faces)))
+    return min(result["levels"], key=lambda lv: abs(lv["faces"] - want))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="the 12k elephant only")
+    ap.add_argument("--samples", type=int, default=20000)
+    ap.add_argument("--out", default=str(OUT))
+    args = ap.parse_args(argv)
+
+    datasets = [("elephant-12k", lambda: elephant(0), None, 1),
+                ("elephant-12k-4bones", lambda: elephant(0), 4, 1)]
+    if not args.quick:
+        datasets += [("elephant-193k", lambda: elephant(2), None, 4),
+                     ("armadillo-86k", armadillo, None, 1)]
+    import os
+
+    cpu = next((ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo") if ln.startswith("model name")), "?")
+    machine = {"nproc": os.cpu_count(), "cpu": cpu, "python": platform.python_version(),
+               "note": "shared 2-core machine; other jobs ran at the same time, so timings are upper bounds"}
+    results = []
+    for name, load, max_bones, stride in datasets:
+        asset = load()
+        info = {"dataset": name, "faces": asset.mesh.n_faces, "vertices": asset.mesh.n_vertices,
+                "handles": asset.weights.shape[1], "example_poses": len(asset.split.examples),
+                "test_poses": len(asset.split.test[::stride]), "max_bones": max_bones, "runs": []}
+        for method in METHODS:
+            r = run_method(asset, method, 70, max_bones, stride, args.samples)
+            info["runs"].append(r)
+            l10, l2 = at(r, 0.1, info["faces"]), at(r, 0.02, info["faces"])
+            print(f"{name:22s} {method:20s} {r['seconds']:8.2f}s  10%: rms {l10['rms_pct_mean']:.4f} "
+                  f"max {l10['max_pct_mean']:.4f}   2%: rms {l2['rms_pct_mean']:.4f} max {l2['max_pct_mean']:.4f}",
+                  flush=True)
+        results.append(info)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    doc = {"machine": machine, "fractions": FRACTIONS, "results": results}
+    (out / "simplify.json").write_text(json.dumps(doc, indent=2) + "\n")
+    md = markdown(doc)
+    (out / "simplify.md").write_text(md)
+    print(md)
+    plot(doc, out / "simplify.png")
+
+
+def markdown(doc) -> str:
+    m = doc["machine"]
+    lines = ["# Articulated simplification: results", "",
+             f"Machine: {m['cpu']}, nproc {m['nproc']}, Python {m['python']} ({m['note']}).",
+             "Written by `benchmarks/simplify.py`. Time: the whole hierarchy down to 70 faces "
+             "(static QSlim: nested pymeshlab runs at 20/10/5/2/1% and 70 faces), including the per-pose quadrics.",
+             "Errors: two-sided Metro distance (pymeshlab Hausdorff) on test poses never used for fitting, "
+             "as % of the rest bounding-box diagonal; RMS and max averaged over the test poses. "
+             "Ratio: quartic's RMS / this method's RMS.", ""]
+    for d in doc["results"]:
+        lines += [f"## {d['dataset']}: {d['faces']:,} faces, {d['handles']} handles, {d['example_poses']} example "
+                  f"poses, {d['test_poses']} test poses, max_bones {d['max_bones']}", "",
+                  "| method | time (s) | RMS 10% | max 10% | RMS 2% | max 2% | quartic/this RMS 10% | quartic/this RMS 2% |",
+                  "|---|---|---|---|---|---|---|---|"]
+        q = next(r for r in d["runs"] if r["method"] == "quartic")
+        q10, q2 = at(q, 0.1, d["faces"]), at(q, 0.02, d["faces"])
+        for r in d["runs"]:
+            l10, l2 = at(r, 0.1, d["faces"]), at(r, 0.02, d["faces"])
+            lines.append(f"| {r['method']} | {r['seconds']:.1f} | {l10['rms_pct_mean']:.4f} | {l10['max_pct_mean']:.3f} | "
+                         f"{l2['rms_pct_mean']:.4f} | {l2['max_pct_mean']:.3f} | "
+                         f"{q10['rms_pct_mean'] / l10['rms_pct_mean']:.2f} | {q2['rms_pct_mean'] / l2['rms_pct_mean']:.2f} |")
+        lines.append("")
+    lines += ["![error against face count](simplify.png)", ""]
+    return "\n".join(lines)
+
+
+def plot(doc, path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    res = doc["results"]
+    fig, axes = plt.subplots(1, len(res), figsize=(4.5 * len(res), 4), squeeze=False)
+    for ax, d in zip(axes[0], res):
+        for r in d["runs"]:
+            lv = sorted(r["levels"], key=lambda x: x["faces"])
+            ax.loglog([x["faces"] for x in lv], [x["rms_pct_mean"] for x in lv], "o-", label=r["method"])
+        ax.set_title(d["dataset"])
+        ax.set_xlabel("faces")
+        ax.set_ylabel("test-pose Metro RMS (% bbox diag)")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0][0].legend(fontsize=8)
+    fig.tight_layout()
+    from rigslim.io.atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+
+
+if __name__ == "__main__":
+    main()
