@@ -5,6 +5,7 @@
 """
 
 from rigslim import hookimpl
+from rigslim.plugins.generators.bbw import BBWGenerator
 from rigslim.plugins.generators.bone_heat import BoneHeatGenerator
 from rigslim.plugins.generators.harmonic import HarmonicGenerator
 from rigslim.plugins.generators.mean_value import MeanValueGenerator
@@ -12,4 +13,4 @@ from rigslim.plugins.generators.mean_value import MeanValueGenerator
 
 @hookimpl
 def rigslim_weight_generators():
-    return [MeanValueGenerator(), HarmonicGenerator(), BoneHeatGenerator()]
+    return [MeanValueGenerator(), HarmonicGenerator(), BoneHeatGenerator(), BBWGenerator()]
