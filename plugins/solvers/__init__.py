@@ -2,8 +2,9 @@
 
 from rigslim import hookimpl
 from rigslim.plugins.solvers.k_largest import KLargestSolver
+from rigslim.plugins.solvers.methods import GeometricSolver, PoissonSolver, SmoothSolver
 
 
 @hookimpl
 def rigslim_weight_solvers():
-    return [KLargestSolver()]
+    return [KLargestSolver(), GeometricSolver(), SmoothSolver(), PoissonSolver()]

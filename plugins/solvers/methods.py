@@ -1,0 +1,152 @@
+"""Weight-solver plugins ``geometric``, ``smooth`` and ``poisson`` ([P10] section 3).
+
+Each assembles its energy (:mod:`rigslim.plugins.solvers.problem`) on the
+asset's influence sets and minimises it with
+
+- ``solver: global``: the exact sparse solve under the equality constraints
+  (:mod:`rigslim.plugins.solvers.global_solver`); not available with
+  ``nonnegative``;
+- ``solver: local``: [P10]'s per-vertex QPs in parallel Gauss-Seidel sweeps
+  over a distance-2 colouring (:mod:`rigslim.plugins.solvers.local_solver`),
+  on numpy or OpenCL (``device``), from the k-largest weights;
+- ``solver: auto``: global without non-negativity; with it, the global
+  optimum projected per vertex onto the feasible set (in each vertex's
+  local Hessian metric), then local sweeps to convergence.
+
+The step's report (metrics JSON ``solver`` section) holds the method, the
+solver path, sweeps, energies, convergence and, when the equality-only
+optimum is known, the relative gap to it.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Literal
+
+import numpy as np
+from pydantic import Field
+
+from rigslim.errors import StepError
+from rigslim.plugin import Params, WeightSolver
+from rigslim.plugins.solvers.global_solver import global_solve
+from rigslim.plugins.solvers.local_solver import feasible_start, local_solve
+from rigslim.plugins.solvers.problem import RIDGE, build_problem
+from rigslim.qp import solve_small_qps
+from rigslim.weights import ReducedWeights
+
+
+class ReductionParams(Params):
+    """Parameters common to the optimising solvers."""
+
+    nonnegative: bool | None = Field(None, description="weights >= 0 (default: on for skeletons and for "
+                                                       "inputs without negative weights)")
+    linear_precision: bool | None = Field(None, description="also reproduce the rest position on cages "
+                                                            "(default: on for smooth, off otherwise)")
+    solver: Literal["auto", "local", "global"] = "auto"
+    tolerance: float = Field(1e-7, gt=0, description="stop sweeps when the relative energy decrease is below this")
+    max_sweeps: int = Field(2000, ge=1, description="upper bound on local sweeps")
+    device: str = Field("numpy", description="local sweeps on 'numpy', or an OpenCL device: "
+                                             "'opencl' (auto), 'gpu', 'cpu' or part of a device name")
+    relaxation: float = Field(1.85, ge=1.0, lt=2.0, description="over-relaxation of local steps (1 = plain "
+                                                                "Gauss-Seidel as in the paper)")
+    ridge: float = Field(RIDGE, ge=0, description="ridge towards the k-largest weights, relative to the "
+                                                  "mean local Hessian diagonal")
+
+
+class LaplacianParams(ReductionParams):
+    laplacian: Literal["mass-weighted", "plain"] = Field(
+        "mass-weighted", description="||y||_*^2 = y^T L^T M^-1 L y (mass-weighted) or ||L y||^2 (plain)")
+
+
+class PoissonParams(LaplacianParams):
+    position_weight: float = Field(0.0, ge=0, description="lambda: weight of the geometric (position) term; "
+                                                          "0 is the paper's Poisson method")
+
+
+def project_feasible(prob, target, start) -> np.ndarray:
+    """Per vertex, the feasible point nearest ``target`` in the local Hessian metric:
+    ``min 1/2 (x - t)^T H_v (x - t)  s.t.  C_v x = d_v, x >= 0`` (exact small QPs)."""
+    H = prob.local_hessians()
+    g = -np.einsum("mkl,ml->mk", H, target)
+    g = np.where(prob.valid, g, 0.0)
+    return solve_small_qps(H, g, prob.C, prob.d, nonneg=prob.nonneg, x0=start).x
+
+
+def reduce_weights(asset, method: str, params, ctx=None) -> tuple[ReducedWeights, dict]:
+    """Run one optimising solver on an asset with influence sets; returns weights and report."""
+    t0 = time.perf_counter()
+    asset.require("mesh", "handles", "weights", "influences", step=f"solve: {method}")
+    if method != "smooth":
+        asset.require("poses", "split", step=f"solve: {method}")
+    lp = params.linear_precision
+    if method == "smooth" and asset.handles.is_cage:
+        if lp is False:
+            raise StepError("smooth weights on a cage need linear precision (without poses nothing else "
+                            "ties them to the shape)", field="linear_precision",
+                            fix="remove 'linear_precision: false' or use the poisson or geometric solver")
+        lp = True
+    lp = bool(lp) if lp is not None else method == "smooth"
+    prob = build_problem(asset, method, nonnegative=params.nonnegative,
+                         laplacian=getattr(params, "laplacian", "mass-weighted"), linear_precision=lp,
+                         position_weight=getattr(params, "position_weight", 0.0), ridge=params.ridge)
+    if params.solver == "global" and prob.nonneg:
+        raise StepError("the global solver handles equality constraints only, and non-negativity is on",
+                        field="solver", fix="use solver: auto or local, or set nonnegative: false")
+    progress = getattr(ctx, "progress", None)
+    backend = "numpy" if params.device == "numpy" else "opencl"
+    cl_device = None if params.device in ("numpy", "opencl") else params.device
+    sweep_args = dict(tolerance=params.tolerance, max_sweeps=params.max_sweeps, backend=backend,
+                      device=cl_device, progress=progress, relaxation=params.relaxation)
+    report = {"method": method, "nonnegative": prob.nonneg, "linear_precision": lp, **prob.info}
+    adjacency = asset.mesh.adjacency
+    if params.solver == "global" or (params.solver == "auto" and not prob.nonneg):
+        alpha, rep = global_solve(prob)
+        report.update(path="global", **rep, gap=0.0)
+    elif params.solver == "local" or not prob.coupled:
+        alpha, rep = local_solve(prob, adjacency, **sweep_args)
+        report.update(path="local", **rep)
+    else:
+        start, dropped = feasible_start(prob)
+        unconstrained, grep = global_solve(prob)
+        projected = project_feasible(prob, unconstrained, start)
+        alpha, rep = local_solve(prob, adjacency, projected, **sweep_args)
+        if dropped:
+            rep["linear_precision_dropped"] = dropped
+        report.update(path="auto: global, projection, local", **rep,
+                      equality_optimum=grep["energy"], global_seconds=grep["seconds"],
+                      gap_above_equality_optimum=(rep["energy"] - grep["energy"]) / abs(grep["energy"]))
+    report.pop("energy_history", None)
+    report["seconds"] = time.perf_counter() - t0
+    if ctx is not None and hasattr(ctx, "report"):
+        ctx.report.update(report)
+    alpha = np.where(asset.influences.valid, alpha, 0.0)
+    if prob.nonneg:
+        alpha = np.maximum(alpha, 0.0)
+    return ReducedWeights.from_influences(asset.influences, alpha, asset.weights.shape[1]), report
+
+
+class GeometricSolver(WeightSolver):
+    name = "geometric"
+    summary = "per-vertex least squares fit of the example poses' positions ([P10] eq. 3)"
+    Params = ReductionParams
+
+    def solve(self, asset, params, ctx):
+        return reduce_weights(asset, "geometric", params, ctx)[0]
+
+
+class SmoothSolver(WeightSolver):
+    name = "smooth"
+    summary = "weights whose Laplacian best matches the input weights' ([P10] sec. 3.1; no poses)"
+    Params = LaplacianParams
+
+    def solve(self, asset, params, ctx):
+        return reduce_weights(asset, "smooth", params, ctx)[0]
+
+
+class PoissonSolver(WeightSolver):
+    name = "poisson"
+    summary = "weights whose deformed Laplacians match the full deformation's ([P10] eq. 5)"
+    Params = PoissonParams
+
+    def solve(self, asset, params, ctx):
+        return reduce_weights(asset, "poisson", params, ctx)[0]
