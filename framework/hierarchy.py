@@ -118,9 +118,16 @@ class ProgressiveHierarchy:
         self.collapses = np.asarray(self.collapses, dtype=np.int64).reshape(-1, 2)
         self.errors = np.asarray(self.errors, dtype=np.float64)
         self.n_faces = np.asarray(self.n_faces, dtype=np.int64)
-        if len(self.V) != self.n_original + len(self.collapses):
-            raise ValueError(f"{len(self.V)} vertices but {self.n_original} originals and "
-                             f"{len(self.collapses)} collapses")
+        c = len(self.collapses)
+        m = len(self.V) - c
+        if self.weights.n_vertices != len(self.V):
+            raise ValueError(f"{self.weights.n_vertices} weight rows for {len(self.V)} vertices")
+        if len(self.errors) != c or len(self.n_faces) != c:
+            raise ValueError(f"{c} collapses but {len(self.errors)} errors and {len(self.n_faces)} face counts")
+        if self.F.size and self.F.max() >= m:
+            raise ValueError(f"faces use vertex {self.F.max()} but there are {m} original vertices")
+        if c and (self.collapses >= m + np.arange(c)[:, None]).any():
+            raise ValueError("a collapse merges a vertex that does not exist yet")
 
     # -- sizes -------------------------------------------------------------
     @property
