@@ -49,6 +49,7 @@ HEAT_CMAP = "YlOrRd"
 #: Colours of the full and reduced deformation renders.
 FULL_COLOR = (0.72, 0.76, 0.86)
 REDUCED_COLOR = (0.88, 0.76, 0.60)
+LEVEL_COLOR = (0.70, 0.84, 0.70)
 #: Reduction stages whose seconds count as the evaluation's reduction time.
 TIMED_STAGES = ("generate", "select", "solve", "decimate")
 
@@ -63,7 +64,7 @@ class EvaluationRow:
         Unique name in the report (the evaluation's name, prefixed by the run's
         name when two runs share evaluation names).
     method : str
-        The solve step's plugin (``"input"`` when there is none).
+        The solve step's plugin, else the decimate step's (``"input"`` when there is neither).
     selection : str or None
         The select step's plugin.
     k : int or None
@@ -75,6 +76,10 @@ class EvaluationRow:
         ``position_rms_pct`` and ``normal_rms_rad`` per test frame.
     metro : dict
         Metric keys that mention Metro or Hausdorff, with their mean (or value).
+    metro_per_frame : ndarray or None
+        ``hausdorff_rms_pct`` per test frame (Metro RMS distance, % of the diagonal).
+    levels : dict
+        Per simplified level (``key@level`` metrics of a decimation): ``{level: {key: value}}``.
     histogram_input, histogram_reduced : list of int or None
         Vertices per number of non-zero weights.
     """
@@ -94,6 +99,8 @@ class EvaluationRow:
     normal_per_frame: np.ndarray | None
     metrics: dict = field(repr=False)
     metro: dict = field(default_factory=dict)
+    metro_per_frame: np.ndarray | None = None
+    levels: dict = field(default_factory=dict)
     histogram_input: list | None = None
     histogram_reduced: list | None = None
 
@@ -118,8 +125,9 @@ class EvaluationRow:
         return self._stat("normal_rms_rad", "max")
 
     def worst_frame(self) -> int | None:
-        """The test frame with the largest position error (else normal error)."""
-        per = self.position_per_frame if self.position_per_frame is not None else self.normal_per_frame
+        """The test frame with the largest position error (else normal, else Metro error)."""
+        per = next((p for p in (self.position_per_frame, self.normal_per_frame, self.metro_per_frame)
+                    if p is not None), None)
         if per is None or len(per) != len(self.frames) or not len(per):
             return self.frames[0] if self.frames else None
         return int(self.frames[int(np.argmax(per))])
@@ -174,6 +182,7 @@ def summarize(document: dict, source: str = "") -> list[EvaluationRow]:
         before = steps[1:at] if isinstance(at, int) and 0 < at <= len(steps) else steps[1:]
         solve = next((s for s in reversed(before) if s.get("stage") == "solve"), None)
         select = next((s for s in reversed(before) if s.get("stage") == "select"), None)
+        decimate = next((s for s in reversed(before) if s.get("stage") == "decimate"), None)
         seconds = 0.0
         for s in reversed(before):
             if s.get("stage") == "evaluate":
@@ -182,18 +191,22 @@ def summarize(document: dict, source: str = "") -> list[EvaluationRow]:
                 seconds += float(s.get("seconds", 0.0))
         k = (solve or {}).get("k", (select or {}).get("k"))
         metrics = ev.get("metrics") or {}
-        metro = {}
+        metro, levels = {}, {}
         for key, value in metrics.items():
-            if "metro" in key.lower() or "hausdorff" in key.lower():
+            name, sep, level = key.partition("@")
+            if sep:  # per-level values of a simplification: "hausdorff_rms_pct@10%", "faces@10%"
+                levels.setdefault(level, {})[name] = value
+            elif "metro" in key.lower() or "hausdorff" in key.lower():
                 metro[key] = float(value["mean"]) if isinstance(value, dict) and "mean" in value else value
         hist = ev.get("influence_histogram") or {}
         rows.append(EvaluationRow(
             label=str(ev.get("name", "evaluation")), run=str(document.get("name", "run")),
             evaluation=str(ev.get("name", "evaluation")), source=str(source), document=document, step=at,
-            method=(solve or {}).get("plugin", "input"), selection=(select or {}).get("plugin"),
+            method=(solve or decimate or {}).get("plugin", "input"), selection=(select or {}).get("plugin"),
             k=int(k) if k is not None else None, seconds=seconds, frames=frames,
             position_per_frame=_per_frame(metrics, "position_rms_pct"),
-            normal_per_frame=_per_frame(metrics, "normal_rms_rad"), metrics=metrics, metro=metro,
+            normal_per_frame=_per_frame(metrics, "normal_rms_rad"), metrics=metrics, metro=metro, levels=levels,
+            metro_per_frame=_per_frame(metrics, "hausdorff_rms_pct"),
             histogram_input=hist.get("input"), histogram_reduced=hist.get("reduced")))
     return rows
 
@@ -367,6 +380,7 @@ class RenderedFrame:
     frame: int
     full: np.ndarray
     reduced: list  # [(row label, image, heat image, max deviation in degrees)]
+    levels: list = field(default_factory=list)  # [(level label, faces, image)] of a simplification
 
 
 @dataclass
@@ -400,7 +414,9 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
     Notes
     -----
     Full: ``v^j = sum_i w_{v,i} T_i^j [v; 1]`` with the input weights;
-    reduced: the same with the reduced weights. Both are shaded with their
+    reduced: the same with the reduced weights; simplified levels
+    (``asset.extras["levels"]`` of a ``decimate`` step, in-pipeline reports
+    only): each level's rest mesh blended with its own weights. Both are shaded with their
     own area-weighted normals; the heat map colours the reduced deformation
     by ``theta_v`` (:func:`normal_deviation_degrees`) between the two.
     All images of one frame share one camera fitted to the full deformation.
@@ -456,7 +472,12 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
             img, _ = render_mesh(Xr, F, REDUCED_COLOR, cam, normals=Nr, backend=backend)
             dev = normal_deviation_degrees(N, Nr)
             reduced.append([r.label, img, (Xr, Nr, dev, cam, F), float(dev.max())])
-        pending.append(RenderedFrame(name, f, full, reduced))
+        levels = []
+        for level in data[id(group[0].document)].asset.extras.get("levels") or []:
+            Xl = linear_blend(level.mesh.V, level.weights, T)
+            img, _ = render_mesh(Xl, level.mesh.F, LEVEL_COLOR, cam, backend=backend)
+            levels.append((str(level.label), int(level.mesh.n_faces), img))
+        pending.append(RenderedFrame(name, f, full, reduced, levels))
     devs = [np.percentile(item[2][2], 99) for rf in pending for item in rf.reduced]
     out.heat_max = float(heat_max) if heat_max else max([float(d) for d in devs] + [1e-3])
     for rf in pending:
@@ -520,8 +541,9 @@ _CHECK_JS = """
 
 def _table(rows: list[EvaluationRow]) -> str:
     metro_keys = sorted({k for r in rows for k in r.metro})
+    names = {"hausdorff_rms_pct": "Metro RMS % mean", "hausdorff_max_pct": "Metro max % mean"}
     head = ["run / evaluation", "method", "k", "reduction (s)", "position RMS % mean", "position RMS % max",
-            "normal RMS rad mean", "normal RMS rad max"] + [f"{k}" for k in metro_keys] + \
+            "normal RMS rad mean", "normal RMS rad max"] + [names.get(k, k) for k in metro_keys] + \
         ["max influences (input &rarr; reduced)", "mean influences"]
     out = ["<table><thead><tr>" + "".join(f'<th class="{"l" if i < 2 else ""}">{h}</th>'
                                            for i, h in enumerate(head)) + "</tr></thead><tbody>"]
@@ -539,6 +561,18 @@ def _table(rows: list[EvaluationRow]) -> str:
         cells += [f"<td>{infl}</td>", f"<td>{_fmt(m.get('mean_influences'))}</td>"]
         out.append("<tr>" + "".join(cells) + "</tr>")
     out.append("</tbody></table>")
+    if any(r.levels for r in rows):
+        out.append("<h3>Simplified levels</h3><table><thead><tr><th class=\"l\">run / evaluation</th>"
+                   "<th class=\"l\">level</th><th>faces</th><th>Metro RMS % mean</th><th>Metro RMS % max</th>"
+                   "<th>Metro max % mean</th><th>Metro max % max</th></tr></thead><tbody>")
+        for r in rows:
+            for level, vals in r.levels.items():
+                rms, mx = vals.get("hausdorff_rms_pct") or {}, vals.get("hausdorff_max_pct") or {}
+                out.append(f'<tr><td class="l">{html.escape(r.label)}</td><td class="l">{html.escape(level)}</td>'
+                           f"<td>{_fmt(vals.get('faces'))}</td><td>{_fmt(rms.get('mean'))}</td>"
+                           f"<td>{_fmt(rms.get('max'))}</td><td>{_fmt(mx.get('mean'))}</td>"
+                           f"<td>{_fmt(mx.get('max'))}</td></tr>")
+        out.append("</tbody></table>")
     return "\n".join(out)
 
 
@@ -629,18 +663,20 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
             ks.setdefault(r.method, set()).add(r.k)
     if any(len(v) > 1 for v in ks.values()):
         parts.append(f"<img alt=\"error against k\" src=\"{_data_uri(plots.error_vs_k(rows))}\">")
-    else:
+    elif ks:
         notes.append("error against k: give runs of one method with several k to see it")
     if any(r.histogram_input is not None or r.histogram_reduced is not None for r in rows):
         parts.append(f"<img alt=\"weight-count histograms\" src=\"{_data_uri(plots.influence_histograms(rows))}\">")
-    else:
+    elif ks:
         notes.append("weight-count histograms: the documents have no 'influence_histogram'")
     parts.append("</div>")
     if rset is not None and rset.frames:
-        parts.append("<h2>Renders</h2><div class=\"meta\">Left: full input weights. Then per run: reduced "
-                     "weights, and the reduced deformation coloured by the angle between its normals and "
-                     "the full deformation's.</div>")
-        parts.append(f"<img alt=\"normal deviation scale\" src=\"{_data_uri(plots.colorbar(rset.heat_max, HEAT_CMAP))}\">")
+        parts.append("<h2>Renders</h2><div class=\"meta\">First: the full input weights. Then per evaluation: "
+                     "the reduced weights, and the reduced deformation coloured by the angle between its "
+                     "normals and the full deformation's; or each simplified level with its own weights.</div>")
+        if any(rf.reduced for rf in rset.frames):
+            parts.append(f"<img alt=\"normal deviation scale\" "
+                         f"src=\"{_data_uri(plots.colorbar(rset.heat_max, HEAT_CMAP))}\">")
         for rf in rset.frames:
             base = _slug(f"{rf.run.split(',')[0]}-frame{rf.frame}")
             png = _png_of(rf.full)
@@ -656,6 +692,12 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
                             f"<figure><img alt=\"{html.escape(label)} normal deviation\" src=\"{_data_uri(p2)}\">"
                             f"<figcaption>{html.escape(label)}: normal deviation (max {dmax:.2f}&deg;)"
                             f"</figcaption></figure></div>")
+            for label, faces, img in rf.levels:
+                p1 = _png_of(img)
+                renders[f"{base}-{_slug(label)}-level.png"] = p1
+                figs.append(f"<div class=\"pair\"><figure><img alt=\"{html.escape(label)} frame {rf.frame}\" "
+                            f"src=\"{_data_uri(p1)}\"><figcaption>{html.escape(label)} ({faces} faces, "
+                            f"own weights)</figcaption></figure></div>")
             parts.append(f"<div class=\"frame\"><h3>{html.escape(rf.run)}, frame {rf.frame}</h3>{''.join(figs)}</div>")
     if notes:
         parts.append("<h2>Notes</h2><ul class=\"notes\">" + "".join(f"<li>{html.escape(n)}</li>" for n in notes)

@@ -40,31 +40,38 @@ def color(i: int) -> str:
 
 
 def error_curves(rows) -> bytes:
-    """Per-test-frame position and normal error of every evaluation ([P10] fig. 10).
+    """Per-test-frame errors of every evaluation ([P10] fig. 10), one panel per measured error.
 
     Parameters
     ----------
     rows : list of rigslim.report.EvaluationRow
         Each with ``label``, ``frames``, ``position_per_frame`` (% of the
-        bounding-box diagonal) and ``normal_per_frame`` (radians; drawn in degrees).
+        bounding-box diagonal), ``normal_per_frame`` (radians; drawn in
+        degrees) and ``metro_per_frame`` (% of the diagonal); a panel is
+        drawn for each that any row has.
     """
-    fig = _figure(8.0, 5.2)
-    ax_p, ax_n = fig.subplots(2, 1, sharex=True)
-    for i, r in enumerate(rows):
-        if r.position_per_frame is not None:
-            ax_p.plot(r.frames, r.position_per_frame, color=color(i), lw=1.4, marker=".", ms=3, label=r.label)
-        if r.normal_per_frame is not None:
-            ax_n.plot(r.frames, np.degrees(r.normal_per_frame), color=color(i), lw=1.4, marker=".", ms=3,
-                      label=r.label)
-    ax_p.set_ylabel("position RMS (% of diagonal)")
-    ax_n.set_ylabel("normal RMS (degrees)")
-    ax_n.set_xlabel("test frame")
-    for ax in (ax_p, ax_n):
+    panels = [(attr, label, scale) for attr, label, scale in (
+        ("position_per_frame", "position RMS (% of diagonal)", 1.0),
+        ("normal_per_frame", "normal RMS (degrees)", 180.0 / math.pi),
+        ("metro_per_frame", "Metro RMS (% of diagonal)", 1.0))
+        if any(getattr(r, attr, None) is not None for r in rows)]
+    fig = _figure(8.0, 1.0 + 2.1 * max(len(panels), 1))
+    axes = fig.subplots(max(len(panels), 1), 1, sharex=True, squeeze=False)[:, 0]
+    for ax, (attr, label, scale) in zip(axes, panels):
+        for i, r in enumerate(rows):
+            per = getattr(r, attr, None)
+            if per is not None and len(per) == len(r.frames):
+                ax.plot(r.frames, np.asarray(per) * scale, color=color(i), lw=1.4, marker=".", ms=3, label=r.label)
+        ax.set_ylabel(label)
         ax.grid(alpha=0.3)
         ax.set_ylim(bottom=0)
-    ax_p.set_title("Error per test frame")
-    if rows:
-        ax_p.legend(fontsize=8, loc="upper left", ncols=min(len(rows), 3))
+    if not panels:
+        axes[0].text(0.5, 0.5, "no per-frame errors in these documents", ha="center", va="center",
+                     transform=axes[0].transAxes)
+    axes[-1].set_xlabel("test frame")
+    axes[0].set_title("Error per test frame")
+    if axes[0].get_legend_handles_labels()[0]:
+        axes[0].legend(fontsize=8, loc="upper left", ncols=min(len(rows), 3))
     return _png(fig)
 
 

@@ -275,3 +275,54 @@ def test_overwritten_npz_is_not_rendered_under_the_wrong_name(run, tmp_path):
     shutil.copy(copy / "k4.npz", copy / "k2.npz")
     data = load_render_data(doc)
     assert data.reduced == {} and any("holds k=4" in n for n in data.notes)
+
+
+def test_simplification_levels_and_metro_curves():
+    """A decimation evaluation: Metro per frame and per level, no reduced weights."""
+    doc = {"name": "simplify", "frames": {"test": [5, 12, 19]},
+           "steps": [{"stage": "read"}, {"stage": "decimate", "plugin": "quartic", "seconds": 3.0},
+                     {"stage": "evaluate"}],
+           "evaluations": [{"name": "quartic-levels", "step": 2, "metrics": {
+               "hausdorff_rms_pct": {"mean": 0.2, "max": 0.3, "per_frame": [0.1, 0.3, 0.2]},
+               "hausdorff_max_pct": {"mean": 1.0, "max": 1.5, "per_frame": [1.0, 1.5, 0.5]},
+               "hausdorff_rms_pct@10%": {"mean": 0.2, "max": 0.3, "per_frame": [0.1, 0.3, 0.2]},
+               "hausdorff_max_pct@10%": {"mean": 1.0, "max": 1.5, "per_frame": [1.0, 1.5, 0.5]},
+               "faces@10%": 1206,
+               "hausdorff_rms_pct@2%": {"mean": 0.9, "max": 1.2, "per_frame": [0.9, 1.2, 0.6]},
+               "faces@2%": 241}}]}
+    row, = summarize(doc)
+    assert row.method == "quartic" and row.seconds == 3.0 and row.k is None
+    assert set(row.levels) == {"10%", "2%"} and row.levels["2%"]["faces"] == 241
+    assert row.metro == {"hausdorff_rms_pct": 0.2, "hausdorff_max_pct": 1.0}
+    np.testing.assert_allclose(row.metro_per_frame, [0.1, 0.3, 0.2])
+    assert row.step == 2
+    assert row.worst_frame() == 12  # no position or normal error: the frame of largest Metro RMS
+    report = build_report([(doc, "")], render=False)
+    assert "Simplified levels" in report.html and "<td>241</td>" in report.html
+    assert "Metro RMS % mean" in report.html and report.notes == []
+    curves = _decode_png(_images(report.html)[0])
+    assert curves.shape[0] == 310  # one panel: Metro (no position or normal error measured)
+
+
+def test_simplified_level_renders_like_the_same_reduced_weights(run, elephant):
+    """A 'level' that is the full mesh with reduced weights draws exactly as those reduced weights do."""
+    from dataclasses import replace
+
+    from rigslim.hierarchy import SimplifiedLevel
+    from rigslim.report import RenderData
+
+    folder, result = run
+    R = result.asset.extras["evaluated_reduced"][7]  # the k=4 evaluation
+    asset = replace(elephant, extras={"levels": [SimplifiedLevel(elephant.mesh, R, "k4-as-level")]})
+    doc = json.loads((folder / "out" / "m.json").read_text())
+    rows = summarize(doc)
+    rs = render_rows(rows, {id(doc): RenderData(asset, {7: R})}, frames=[65], width=64, height=56,
+                     backend="numpy")
+    frame, = rs.frames
+    (label, faces, level_img), = frame.levels
+    assert (label, faces) == ("k4-as-level", elephant.mesh.n_faces)
+    reduced_img = dict((r[0], r[1]) for r in frame.reduced)["k-largest-k4"]
+    covered = (level_img != 255).any(axis=-1)
+    assert covered.sum() > 100
+    # same geometry, different base colour: same silhouette
+    assert np.array_equal(covered, (reduced_img != 255).any(axis=-1))
