@@ -89,7 +89,7 @@ class OpenCLBound(BoundDeformer):
         if normals not in self._kernels:
             options = [f"-DLAYOUT={_LAYOUT_CODE[self.layout]}", f"-DK={max(self.packed.k, 1)}",
                        f"-DNORMALS={_NORMALS_CODE[self.normals_mode] if normals else 0}",
-                       f"-DFIT_DOUBLE={int(self.fit_double)}"]
+                       f"-DFIT_DOUBLE={int(self.fit_double)}", "-cl-mad-enable"]
             self._kernels[normals] = cl.Kernel(build_program(self.runtime, "blend.cl", options), "blend")
         return self._kernels[normals]
 

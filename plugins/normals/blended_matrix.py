@@ -71,7 +71,11 @@ def blended_matrix_normals(N0: np.ndarray, weights, T: np.ndarray) -> np.ndarray
     reflections. Identity at rest (``R_v = I``); exact for rigid motion of a
     vertex's bones.
     """
-    R = blended_matrices(weights, T)[:, :, :3]
+    return normals_from_linear_parts(blended_matrices(weights, T)[:, :, :3], N0)
+
+
+def normals_from_linear_parts(R: np.ndarray, N0: np.ndarray) -> np.ndarray:
+    """``sign(det R) normalize(cof(R) n)`` per vertex, for (m, 3, 3) blended linear parts R."""
     N = cofactor_apply(R, N0)
     return normalize_rows(N * np.sign(np.linalg.det(R))[:, None])
 
