@@ -41,7 +41,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from rigslim.errors import InputError
+from rigslim.errors import InputError, RigslimError
 from rigslim.io.atomic import atomic_path
 
 #: Colour map of the normal-deviation renders (pale yellow: none, dark red: the scale's maximum).
@@ -625,7 +625,7 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
                 continue
             try:
                 data[id(doc)] = load_render_data(doc, source if source and Path(source).is_file() else None)
-            except InputError as e:
+            except RigslimError as e:  # moved or edited inputs: report without its renders
                 notes.append(f"{doc.get('name', source)}: cannot re-read the inputs ({e.one_line()})")
                 continue
         for doc, _ in documents:
@@ -654,7 +654,8 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
     parts += ["<h2>Summary</h2>", _table(rows),
               "<div class=\"meta\">Position RMS: RMS vertex distance between reduced and full deformation, "
               "% of the rest bounding-box diagonal; normal RMS: RMS angle between their normals (radians). "
-              "Mean and max over test frames. Reduction time: select + solve steps.</div>",
+              "Mean and max over test frames. Reduction time: generate, select, solve and decimate steps "
+              "since the previous evaluation.</div>",
               "<h2>Plots</h2><div class=\"plots\">",
               f"<img alt=\"error per test frame\" src=\"{_data_uri(plots.error_curves(rows))}\">"]
     ks = {}

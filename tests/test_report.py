@@ -326,3 +326,15 @@ def test_simplified_level_renders_like_the_same_reduced_weights(run, elephant):
     assert covered.sum() > 100
     # same geometry, different base colour: same silhouette
     assert np.array_equal(covered, (reduced_img != 255).any(axis=-1))
+
+
+def test_report_without_readable_inputs_keeps_table_and_plots(run, tmp_path):
+    """Inputs moved away after the run: the report says so and still has its table and plots."""
+    folder, _ = run
+    doc = json.loads((folder / "out" / "m.json").read_text())
+    doc.pop("pipeline_file")
+    doc["pipeline"] = str(tmp_path / "gone.yaml")
+    doc["inputs"] = {role: str(tmp_path / "gone" / p.rsplit("/", 1)[-1]) for role, p in doc["inputs"].items()}
+    report = build_report([(doc, "")])
+    assert any("cannot re-read the inputs" in n for n in report.notes)
+    assert report.renders == {} and len(_images(report.html)) == 3
