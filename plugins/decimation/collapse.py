@@ -76,6 +76,14 @@ class EdgeCostModel:
         """Update per-vertex data after collapsing a and b into c."""
 
 
+def _normals(P: np.ndarray) -> np.ndarray:
+    """Unnormalised normals (L, P+1, 3) of triangles given as corner positions (L, 3, P+1, 3)."""
+    u, w = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    return np.stack([u[..., 1] * w[..., 2] - u[..., 2] * w[..., 1],
+                     u[..., 2] * w[..., 0] - u[..., 0] * w[..., 2],
+                     u[..., 0] * w[..., 1] - u[..., 1] * w[..., 0]], axis=-1)
+
+
 def batched(n: int, size: int):
     for s in range(0, n, size):
         yield slice(s, min(n, s + size))
@@ -188,6 +196,7 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     dirty: set[int] = set()
     blocked_at: dict[int, set] = {}
 
+    Tflat = np.ascontiguousarray(np.transpose(T, (1, 0, 2, 3)).reshape(T.shape[1], -1))   # (n, P*12)
     scale = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0))) ** 2
     tiny = 1e-14 * scale
     n_faces = len(Fm)
@@ -215,15 +224,15 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         v, w = table.v[e], table.w[e]
         pc = np.empty((len(T) + 1, 3))
         pc[0] = v
-        pc[1:] = posed_positions(v[None], w[None], T)[0]
+        X = (w @ Tflat).reshape(-1, 3, 4)
+        pc[1:] = X[:, :, :3] @ v + X[:, :, 3]
         C = Fm[rem]
         Pold = st.pos[C]                                          # (L, 3, P+1, 3)
         Pnew = Pold.copy()
         Pnew[(C == a) | (C == b)] = pc
-        no = np.cross(Pold[:, 1] - Pold[:, 0], Pold[:, 2] - Pold[:, 0])
-        nn = np.cross(Pnew[:, 1] - Pnew[:, 0], Pnew[:, 2] - Pnew[:, 0])
-        lo, ln = np.linalg.norm(no, axis=-1), np.linalg.norm(nn, axis=-1)
-        dot = np.einsum("lpi,lpi->lp", no, nn)
+        no, nn = _normals(Pold), _normals(Pnew)
+        lo, ln = np.sqrt((no * no).sum(axis=-1)), np.sqrt((nn * nn).sum(axis=-1))
+        dot = (no * nn).sum(axis=-1)
         if ((lo > tiny) & ((ln <= tiny) | (dot < min_normal_cos * lo * ln))).any():
             return False
         # apply
