@@ -207,3 +207,15 @@ def test_yaml_deform_and_normals_steps_use_opencl(write_pipeline, tmp_path, caps
     # compact float16 weights: positions differ by < 1e-3 % of the diagonal; normals by far less than their error
     assert a["position_rms_pct"]["mean"] == pytest.approx(b["position_rms_pct"]["mean"], abs=5e-3)
     assert a["normal_rms_rad"]["mean"] == pytest.approx(b["normal_rms_rad"]["mean"], abs=1e-3)
+
+
+def test_single_precision_fit_error_is_reported(cage):
+    """float32 approximate-affine fit: error grows like cond(P) * 6e-8 rad; measured and loosely bounded."""
+    mesh, handles, W, poses = cage
+    reduced = reduce_to(W, 4)
+    bound = OpenCLDeformer().bind(mesh, reduced, OpenCLDeformer.Params(fit_precision="single"), handles=handles)
+    ref = NumpyDeformer().bind(mesh, bound.packed.effective, NumpyDeformer.Params(), handles=handles)
+    assert not bound.fit_double
+    err = max(angles(bound.deform(T, normals=True)[1], ref.deform(T, normals=True)[1]).max() for T in poses)
+    print(f"\nOpenCL approximate-affine normals, float32 fit, k=4 IDW cage: max {err:.2e} rad from numpy")
+    assert err < 1e-3
