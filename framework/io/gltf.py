@@ -648,7 +648,18 @@ def _choose_skin(doc: GltfDocument, skin, mesh) -> tuple[int, list[int]]:
         raise InputError("the file has no skin", source=doc.path, field="skins",
                          fix="give a skinned glTF (a mesh node with 'skin')")
     users = {}  # skin -> ordered unique mesh indices
-    for node in js.get("nodes", []):
+    nodes = js.get("nodes", [])
+    if mesh is None and js.get("scenes"):
+        # only what the default scene shows (levels written as extra scenes or MSFT_lod nodes stay out)
+        scene = js["scenes"][js.get("scene", 0)]
+        shown, stack = [], list(reversed(scene.get("nodes", [])))
+        while stack:
+            i = stack.pop()
+            shown.append(i)
+            stack.extend(reversed(nodes[i].get("children", [])))
+    else:
+        shown = range(len(nodes))
+    for node in (nodes[i] for i in shown):
         if "skin" in node and "mesh" in node:
             users.setdefault(node["skin"], [])
             if node["mesh"] not in users[node["skin"]]:
@@ -701,8 +712,9 @@ def read_gltf_skin(path, *, animation=None, fps: float = 30.0, mesh=None, skin=N
         Sampling rate: frame f is the pose at time ``f / fps`` seconds, for
         ``f = 0 .. floor(duration * fps + 0.001)`` (a thousandth of a frame absorbs float32 key times; times past the last key clamp).
     mesh : str or int, optional
-        Read only this mesh (name or index); default every mesh that nodes
-        instantiate with the chosen skin, primitives merged in order.
+        Read only this mesh (name or index), wherever its node is; default
+        every mesh that nodes of the default scene instantiate with the
+        chosen skin (depth-first order), primitives merged in order.
     skin : int, optional
         Which skin, when several are used.
     normalize : bool
