@@ -34,7 +34,6 @@ import base64
 import datetime as _dt
 import html
 import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -640,7 +639,8 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
     title = title or ("rigslim report: " + ", ".join(dict.fromkeys(r.run for r in rows)))
     when = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     parts = [f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>",
-             f"<meta name=\"viewport\" content=\"width=device-width,initial-scale=1\"><style>{_CSS}</style></head><body>",
+             "<meta name=\"viewport\" content=\"width=device-width,initial-scale=1\">",
+             f"<style>{_CSS}</style></head><body>",
              f"<h1>{html.escape(title)}</h1>",
              f"<div class=\"meta\">rigslim {html.escape(__version__)} &middot; {when}"
              + (f" &middot; renders: {html.escape(rset.backend)}" if rset and rset.backend else "") + "</div>",

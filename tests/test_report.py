@@ -155,7 +155,7 @@ def test_normal_deviation_and_heat_colors():
 
 def test_reduced_equal_to_full_gives_a_zero_heat_map(elephant):
     """Reduced weights that are the input weights: no normal deviation anywhere."""
-    from rigslim.report import RenderData, heat_colors as hc
+    from rigslim.report import RenderData
     from rigslim.weights import ReducedWeights
 
     W = elephant.weights.tocsr()
@@ -178,7 +178,7 @@ def test_reduced_equal_to_full_gives_a_zero_heat_map(elephant):
     assert np.array_equal(reduced, render_rows(rows, {id(doc): RenderData(elephant, {2: R})}, frames=[40],
                                                width=48, height=40, backend="numpy").frames[0].reduced[0][1])
     # every covered pixel of the heat map has the zero colour, shaded
-    zero = hc(np.array([0.0]), 10.0)[0]
+    zero = heat_colors(np.array([0.0]), 10.0)[0]
     covered = (heat != 255).any(axis=-1)
     rgb = heat[covered].astype(float)
     ratios = rgb / np.maximum(zero * 255, 1e-9)

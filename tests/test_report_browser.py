@@ -53,7 +53,8 @@ def test_browser_check_catches_errors_and_broken_images(tmp_path):
     page = tmp_path / "bad.html"
     page.write_text('<!DOCTYPE html><html><head><title>bad</title></head><body><p>text</p>'
                     '<img src="data:image/png;base64,AAAA"><img src="missing.png">'
-                    '<script>console.error("boom"); console.log("harmless-log-line"); notDefined();</script></body></html>')
+                    '<script>console.error("boom"); console.log("harmless-log-line"); notDefined();</script>'
+                    '</body></html>')
     check = check_page(page, width=400, height=300)
     assert check.images_total == 2 and check.images_decoded == 0
     joined = " | ".join(check.console_errors)
