@@ -77,3 +77,19 @@ def test_start_must_be_given_with_bounds(rng):
     H, g, C, d, _ = _random_batch(rng, 3, 4, 1)
     with pytest.raises(ValueError):
         solve_small_qps(H, g, C, d, nonneg=True)
+
+
+@pytest.mark.parametrize("k,q,nonneg", [(4, 1, True), (6, 4, True), (5, 2, False)])
+def test_opencl_kernel_matches_numpy(rng, k, q, nonneg):
+    pytest.importorskip("pyopencl")
+    from rigslim.opencl import OpenCLUnavailable, get_runtime
+    from rigslim.plugins.solvers.opencl_qp import solve_small_qps_opencl
+
+    try:
+        get_runtime("cpu")
+    except OpenCLUnavailable:
+        pytest.skip("no OpenCL CPU device")
+    H, g, C, d, x0 = _random_batch(rng, 200, k, q)
+    ref = solve_small_qps(H, g, C, d, nonneg=nonneg, x0=x0).x
+    x = solve_small_qps_opencl(H, g, C, d, nonneg, x0, device="cpu")
+    np.testing.assert_allclose(x, ref, atol=1e-10)

@@ -43,8 +43,8 @@ class ReductionParams(Params):
     linear_precision: bool | None = Field(None, description="also reproduce the rest position on cages "
                                                             "(default: on for smooth, off otherwise)")
     solver: Literal["auto", "local", "global"] = "auto"
-    tolerance: float = Field(1e-7, gt=0, description="stop sweeps when the relative energy decrease is below this")
-    max_sweeps: int = Field(2000, ge=1, description="upper bound on local sweeps")
+    tolerance: float = Field(1e-5, gt=0, description="stop sweeps when the relative energy decrease is below this")
+    max_sweeps: int = Field(500, ge=1, description="upper bound on local sweeps")
     device: str = Field("numpy", description="local sweeps on 'numpy', or an OpenCL device: "
                                              "'opencl' (auto), 'gpu', 'cpu' or part of a device name")
     relaxation: float = Field(1.85, ge=1.0, lt=2.0, description="over-relaxation of local steps (1 = plain "
