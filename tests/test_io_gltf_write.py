@@ -410,3 +410,35 @@ def test_threejs_plays_the_exported_elephant_like_libigl(tmp_path, valid, elepha
         assert np.abs(three[0]["positions"][j] - ours).max() < 1e-6 * scale
         # ubyte weights move vertices from the float reduction by < 0.06 % of the diagonal (measured, all frames)
         assert np.linalg.norm(three[0]["positions"][j] - libigl, axis=1).max() < 1e-3 * mesh.bbox_diagonal
+
+
+@pytest.mark.parametrize("lod", [False, True])
+def test_export_with_levels(tmp_path, valid, elephant_small, lod):
+    from rigslim.hierarchy import SimplifiedLevel
+    from rigslim.mesh import Mesh
+
+    mesh, handles, W, P = elephant_small
+    reduced = _k_largest(W, 4)
+    keep = np.unique(mesh.F[::4])                      # a coarse level: every 4th face, its vertices renumbered
+    remap = -np.ones(mesh.n_vertices, int)
+    remap[keep] = np.arange(len(keep))
+    vals = reduced.values[keep].copy()
+    vals[0] = [1.5, -0.5, 0, 0]                          # a negative weight, as [S09] levels may have
+    level = SimplifiedLevel(Mesh(mesh.V[keep], remap[mesh.F[::4]]), ReducedWeights(reduced.indices[keep], vals, 24),
+                            "quarter")
+    out = tmp_path / "lod.glb"
+    with pytest.raises(StepError, match="clamp_negative"):
+        export_skinned(out, mesh, handles, reduced, P, levels=[level], lod=lod)
+    stats = export_skinned(out, mesh, handles, reduced, P, levels=[level], lod=lod, clamp_negative=True,
+                           quantize="ushort")
+    assert stats == {"sets": 1, "clamped_vertices": 1, "most_negative": -0.5}
+    valid(out)
+    base = read_gltf_skin(out)
+    assert base.mesh.n_vertices == mesh.n_vertices      # the default scene shows the full mesh only
+    back = read_gltf_skin(out, mesh="quarter")
+    np.testing.assert_array_equal(back.mesh.F, level.mesh.F)
+    assert np.diff(back.weights.indptr).max() <= 4
+    np.testing.assert_array_equal(back.weights.toarray()[0, reduced.indices[keep[0], 0]], 1.0)
+    doc = load_gltf(out)
+    assert ("MSFT_lod" in doc.json.get("extensionsUsed", [])) == lod
+    assert len(doc.json["scenes"]) == (1 if lod else 2)

@@ -619,7 +619,8 @@ def fixed_width_weights(W) -> "ReducedWeights":
 
 
 def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.0, quantize: str = "float",
-                   name: str = "rigslim", animation_name: str = "animation", embed: bool = False) -> None:
+                   name: str = "rigslim", animation_name: str = "animation", embed: bool = False,
+                   levels=None, lod: bool = False, clamp_negative: bool = False) -> dict:
     """Write a skinned glTF from libigl-style data (mesh, TGF skeleton, weights, bone transforms).
 
     Parameters
@@ -641,6 +642,13 @@ def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.
     quantize : {"float", "ushort", "ubyte"}
     name, animation_name : str
         Names of the mesh/node and of the animation.
+    levels, lod, clamp_negative :
+        Simplified levels and how to link them, as in :func:`write_gltf`.
+
+    Returns
+    -------
+    dict
+        ``sets``, and with ``clamp_negative`` ``clamped_vertices`` / ``most_negative``.
 
     Notes
     -----
@@ -665,6 +673,10 @@ def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.
         I, W = weights.indices, weights.values
     else:
         I, W = _dense_rows(weights)
+    clamp = {} if clamp_negative else None
+    if clamp is not None:
+        W, st = clamp_negative_weights(W)
+        _merge_clamp(clamp, st)
     if W.shape[0] != mesh.n_vertices:
         raise StepError(f"weights have {W.shape[0]} rows, the mesh {mesh.n_vertices} vertices", field="weights",
                         fix="give the weights of this mesh")
@@ -702,6 +714,21 @@ def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.
                                                                  .astype(np.float32), 5126, "MAT4", target=None)})
     roots = [b + 1 for b in range(n) if parents[b] < 0]
     js["scenes"] = [{"name": name, "nodes": [0] + roots}]
+    level_nodes = []
+    for level in levels or []:
+        if level.weights.n_handles != n:
+            raise StepError(f"level '{level.label}' has weights for {level.weights.n_handles} handles, "
+                            f"the skeleton has {n} bones", field="levels", fix="simplify this mesh")
+        prim = _level_primitive(blob, level, n, quantize, None, None, clamp)
+        js["meshes"].append({"name": level.label, "primitives": [prim]})
+        js["nodes"].append({"name": level.label, "mesh": len(js["meshes"]) - 1, "skin": 0})
+        level_nodes.append(len(js["nodes"]) - 1)
+        if not lod:
+            js["scenes"].append({"name": level.label, "nodes": [level_nodes[-1]] + roots})
+    if level_nodes and lod:
+        js["nodes"][0]["extensions"] = {"MSFT_lod": {"ids": level_nodes}}
+        js["nodes"][0]["extras"] = {"MSFT_screencoverage": [0.5 ** (j + 1) for j in range(len(level_nodes))] + [0.0]}
+        js["extensionsUsed"] = ["MSFT_lod"]
 
     if poses is not None and len(poses):
         if poses.n_handles != n:
@@ -732,3 +759,7 @@ def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.
     data = blob.bytes()
     js["buffers"] = [{"byteLength": len(data)}]
     _write_document(path, js, data, embed=embed)
+    stats = {"sets": max(1, -(-I.shape[1] // 4))}
+    if clamp is not None:
+        stats.update({"clamped_vertices": 0, "most_negative": 0.0} | clamp)
+    return stats

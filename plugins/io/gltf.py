@@ -70,21 +70,20 @@ class GltfWriter(Writer):
             stats = write_gltf(path, source, reduced, quantize=params.quantize, sets=params.sets, levels=levels,
                                lod=params.lod, embed=params.embed, clamp_negative=params.clamp_negative)
             ctx.report.update(stats)
-            if stats.get("clamped_vertices"):
-                ctx.log(f"{stats['clamped_vertices']} vertices had negative weights (down to "
-                        f"{stats['most_negative']:.3g}): set to zero and renormalised")
             mode = "rewrite"
         else:
             asset.require("mesh", "handles", step="write: gltf")
-            if levels:
-                ctx.log("levels are written only into documents read from glTF; exporting the full mesh")
-                levels = None
             weights = asset.reduced if asset.reduced is not None else asset.weights
             if weights is None:
                 asset.require("weights", step="write: gltf")
-            export_skinned(path, asset.mesh, asset.handles, weights, asset.poses, fps=params.fps,
-                           quantize=params.quantize, embed=params.embed)
+            stats = export_skinned(path, asset.mesh, asset.handles, weights, asset.poses, fps=params.fps,
+                                   quantize=params.quantize, embed=params.embed, levels=levels, lod=params.lod,
+                                   clamp_negative=params.clamp_negative)
+            ctx.report.update(stats)
             mode = "export"
+        if ctx.report.get("clamped_vertices"):
+            ctx.log(f"{ctx.report['clamped_vertices']} vertices had negative weights (down to "
+                    f"{ctx.report['most_negative']:.3g}): set to zero and renormalised")
         ctx.report.update({"mode": mode, "quantize": params.quantize,
                            "k": asset.reduced.k if asset.reduced is not None else None,
                            "levels": len(levels) if levels else 0})
