@@ -399,3 +399,15 @@ def test_threejs_matches_step_cubicspline_matrix_nodes(threejs, tmp_path):
     skin = read_gltf_skin(out, animation="Walk", fps=8)
     assert abs(skin.weights - src.weights).max() < 1e-7
     _compare_with_threejs(threejs, out, skin, list(range(9)), 1e-6)
+
+
+def test_world_matrices_deep_chain_and_cycles():
+    from rigslim.io.gltf import world_matrices
+
+    n = 3000                                           # deeper than Python's recursion limit
+    parent = np.arange(-1, n - 1)
+    local = np.tile(_h(np.eye(3), (0, 1, 0)), (n, 1, 1, 1))
+    world = world_matrices(local, parent)
+    np.testing.assert_allclose(world[:, 0, 1, 3], np.arange(1, n + 1))
+    with pytest.raises(InputError, match="cycle"):
+        world_matrices(local[:2], np.array([1, 0]))

@@ -323,21 +323,19 @@ def node_parents(doc: dict) -> np.ndarray:
 
 
 def _topological(parent: np.ndarray) -> list[int]:
+    """Node indices with every parent before its children (iterative; rejects cycles)."""
     order, seen = [], np.zeros(len(parent), bool)
-
-    def visit(i, depth=0):
-        if seen[i]:
-            return
-        if depth > len(parent):
-            raise InputError("the node hierarchy has a cycle", field="nodes", fix="repair the file")
-        if parent[i] >= 0:
-            visit(int(parent[i]), depth + 1)
-        if not seen[i]:
-            seen[i] = True
-            order.append(i)
-
     for i in range(len(parent)):
-        visit(i)
+        chain = []
+        j = i
+        while j >= 0 and not seen[j]:
+            chain.append(j)
+            if len(chain) > len(parent):
+                raise InputError("the node hierarchy has a cycle", field="nodes", fix="repair the file")
+            j = int(parent[j])
+        for j in reversed(chain):
+            seen[j] = True
+            order.append(j)
     return order
 
 
