@@ -411,3 +411,14 @@ def test_world_matrices_deep_chain_and_cycles():
     np.testing.assert_allclose(world[:, 0, 1, 3], np.arange(1, n + 1))
     with pytest.raises(InputError, match="cycle"):
         world_matrices(local[:2], np.array([1, 0]))
+
+
+def test_sampling_at_chosen_times(tmp_path):
+    path = _synthetic(tmp_path)
+    times = [0.3, 0.05, 0.77, 2.0]
+    skin = read_gltf_skin(path, animation="Walk", times=times)
+    assert len(skin.poses) == 4
+    for j, t in enumerate(times):
+        np.testing.assert_allclose(skin.poses.T[j], _expected_T(min(t, 1.0)), atol=2e-6)
+    with pytest.raises(InputError, match="times"):
+        read_gltf_skin(path, times=[-1.0])

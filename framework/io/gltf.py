@@ -696,7 +696,7 @@ def _choose_skin(doc: GltfDocument, skin, mesh) -> tuple[int, list[int]]:
 
 
 def read_gltf_skin(path, *, animation=None, fps: float = 30.0, mesh=None, skin=None,
-                   normalize: bool = True, weld: bool = False) -> GltfSkin:
+                   normalize: bool = True, weld: bool = False, times=None) -> GltfSkin:
     """Read a skinned glTF: merged mesh, joints as handles, weights and sampled poses.
 
     Parameters
@@ -722,6 +722,9 @@ def read_gltf_skin(path, *, animation=None, fps: float = 30.0, mesh=None, skin=N
         Merge vertices with identical positions (:func:`weld_vertices`), as
         solvers and decimators need a connected mesh; the writer maps the
         results back onto the file's vertices.
+    times : sequence of float, optional
+        Sample the clip at these times (seconds) instead: frame j is
+        ``times[j]`` (``fps`` then only labels the frames for writers).
 
     Returns
     -------
@@ -737,14 +740,14 @@ def read_gltf_skin(path, *, animation=None, fps: float = 30.0, mesh=None, skin=N
     """
     doc = load_gltf(path)
     try:
-        return _read_gltf_skin(doc, animation, fps, mesh, skin, normalize, weld)
+        return _read_gltf_skin(doc, animation, fps, mesh, skin, normalize, weld, times)
     except (KeyError, IndexError) as e:
         raise InputError(f"malformed document: a required property or index is missing or out of range ({e!r})",
                          source=doc.path, field="json", fix="re-export the file; check it with the glTF-Validator"
                          ) from None
 
 
-def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, weld) -> GltfSkin:
+def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, weld, times) -> GltfSkin:
     js = doc.json
     if fps <= 0:
         raise InputError(f"fps {fps} is not positive", source=doc.path, field="fps", fix="give e.g. fps: 30")
@@ -827,7 +830,12 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, we
 
     # poses
     anim = find_animation(doc, animation)
-    if anim is None:
+    if times is not None:
+        t = np.asarray(times, dtype=np.float64).reshape(-1)
+        if not len(t) or not np.isfinite(t).all() or (t < 0).any():
+            raise InputError("times must be a non-empty list of non-negative seconds", source=doc.path,
+                             field="times", fix="give e.g. times: [0, 0.5, 1.25]")
+    elif anim is None:
         t = np.zeros(1)
     else:
         t = np.arange(int(np.floor(animation_duration(doc, anim) * fps + 1e-3)) + 1) / fps
