@@ -400,6 +400,8 @@ def _run_step(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base
                 "reduced": np.bincount(asset.reduced.influence_counts()).tolist()}
             # the weights this evaluation measured, for report steps that render several evaluations
             asset.extras.setdefault("evaluated_reduced", {})[step.index] = asset.reduced
+            asset.extras.setdefault("evaluated_normals", {})[step.index] = (asset.normal_estimator,
+                                                                            dict(asset.normal_params))
         document["evaluations"].append(evaluation_entry)
         entry["plugin"] = ",".join(n for n, _ in step.plugin)
         return entry

@@ -237,6 +237,8 @@ class RenderData:
     asset: Any
     reduced: dict  # evaluation step index -> ReducedWeights
     notes: list = field(default_factory=list)
+    #: evaluation step index -> (normal estimator name, its parameters); default ("recomputed", {})
+    normals: dict = field(default_factory=dict)
 
 
 def _pipeline_path(document: dict, json_path: Path | None) -> Path | None:
@@ -272,8 +274,9 @@ def load_render_data(document: dict, json_path=None) -> RenderData:
     notes = []
     pipeline = _pipeline_path(document, json_path)
     host = get_host()
+    pipeline_steps = []
     if pipeline is not None:
-        doc, _ = load_pipeline(pipeline, host=host)
+        doc, pipeline_steps = load_pipeline(pipeline, host=host)
         spec = SimpleNamespace(inputs=doc.inputs, poses=None)
         base = pipeline.parent.resolve()
     else:
@@ -289,12 +292,20 @@ def load_render_data(document: dict, json_path=None) -> RenderData:
     if asset.poses is not None and frames.get("test"):
         asset.split = FrameSplit(list(frames.get("examples") or []), list(frames["test"]),
                                  list(frames.get("dropped_from_test") or []))
-    reduced = {}
+    reduced, normals = {}, {}
     steps = document.get("steps") or []
     for ev in document["evaluations"]:
         at = ev.get("step")
         if not isinstance(at, int):
             continue
+        # the normal estimator the evaluation measured with: the last 'normals' step before it (its name
+        # as run, from the document; its parameters from the pipeline file when that step still names it)
+        est = [i for i in range(1, min(at, len(steps))) if steps[i].get("stage") == "normals"]
+        if est:
+            i = est[-1]
+            name = steps[i].get("plugin")
+            same = [s for s in pipeline_steps if s.index == i and s.key == "normals" and s.plugin == name]
+            normals[at] = (name, dict(same[0].params) if same else {})
         solve_at = max((i for i in range(1, min(at, len(steps))) if steps[i].get("stage") == "solve"), default=None)
         if solve_at is None:
             continue
@@ -316,7 +327,7 @@ def load_render_data(document: dict, json_path=None) -> RenderData:
         if at not in reduced:
             notes.append(f"{document.get('name', 'run')} / {ev.get('name')}: no reduced weights found "
                          "(add a 'write: out/NAME.npz' step after the solve to render them)")
-    return RenderData(asset, reduced, notes)
+    return RenderData(asset, reduced, notes, normals)
 
 
 def _mismatch(asset, R, evaluation: dict, solve_step: dict) -> str | None:
@@ -378,7 +389,8 @@ class RenderedFrame:
     run: str  # the runs' names
     frame: int
     full: np.ndarray
-    reduced: list  # [(row label, image, heat image, max deviation in degrees)]
+    #: [(row label, image, heat image, max deviation in degrees, RMS deviation in radians)]
+    reduced: list
     levels: list = field(default_factory=list)  # [(level label, faces, image)] of a simplification
 
 
@@ -415,9 +427,13 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
     Full: ``v^j = sum_i w_{v,i} T_i^j [v; 1]`` with the input weights;
     reduced: the same with the reduced weights; simplified levels
     (``asset.extras["levels"]`` of a ``decimate`` step, in-pipeline reports
-    only): each level's rest mesh blended with its own weights. Both are shaded with their
-    own area-weighted normals; the heat map colours the reduced deformation
-    by ``theta_v`` (:func:`normal_deviation_degrees`) between the two.
+    only): each level's rest mesh blended with its own weights. The full
+    deformation is shaded with its area-weighted normals (the reference of
+    the ``normal_rms_rad`` metric), the reduced one with the normals of the
+    normal estimator its evaluation used (``recomputed`` unless a
+    ``normals:`` step chose another); the heat map colours the reduced
+    deformation by ``theta_v`` (:func:`normal_deviation_degrees`) between
+    the two, the per-vertex term of ``normal_rms_rad``.
     All images of one frame share one camera fitted to the full deformation.
     """
     from rigslim.blend import linear_blend, per_vertex_normals
@@ -467,10 +483,11 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
             if R is None:
                 continue
             Xr = linear_blend(asset.mesh.V, R, T)
-            Nr = per_vertex_normals(Xr, F)
+            Nr = _estimated_normals(asset, R, T, Xr, data[id(r.document)].normals.get(r.step))
             img, _ = render_mesh(Xr, F, REDUCED_COLOR, cam, normals=Nr, backend=backend)
             dev = normal_deviation_degrees(N, Nr)
-            reduced.append([r.label, img, (Xr, Nr, dev, cam, F), float(dev.max())])
+            reduced.append([r.label, img, (Xr, Nr, dev, cam, F), float(dev.max()),
+                            float(np.sqrt(np.mean(np.radians(dev) ** 2)))])
         levels = []
         for level in data[id(group[0].document)].asset.extras.get("levels") or []:
             Xl = linear_blend(level.mesh.V, level.weights, T)
@@ -485,6 +502,22 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
             item[2], _ = render_mesh(Xr, F, heat_colors(dev, out.heat_max), cam, normals=Nr, backend=backend)
         out.frames.append(rf)
     return out
+
+
+def _estimated_normals(asset, R, T, Xr, estimator) -> np.ndarray:
+    """Unit normals of a reduced deformation from the named normal estimator (default recomputed)."""
+    from rigslim.blend import per_vertex_normals
+
+    name, params = estimator or ("recomputed", {})
+    if name == "recomputed" and not params:
+        return per_vertex_normals(Xr, asset.mesh.F)
+    from rigslim.host import get_host
+
+    plugin = get_host().get("normal-estimator", name)
+    N = np.asarray(plugin.estimate(asset.mesh, R, asset.handles, T, Xr, plugin.parse_params(params)),
+                   dtype=np.float64)
+    length = np.linalg.norm(N, axis=1, keepdims=True)
+    return np.divide(N, length, out=np.zeros_like(N), where=length > 0)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -684,7 +717,7 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
             renders[f"{base}-full.png"] = png
             figs = [f"<div class=\"pair\"><figure><img alt=\"full frame {rf.frame}\" src=\"{_data_uri(png)}\">"
                     f"<figcaption>full weights</figcaption></figure></div>"]
-            for label, img, heat, dmax in rf.reduced:
+            for label, img, heat, dmax, _ in rf.reduced:
                 p1, p2 = _png_of(img), _png_of(heat)
                 renders[f"{base}-{_slug(label)}-reduced.png"] = p1
                 renders[f"{base}-{_slug(label)}-normals.png"] = p2

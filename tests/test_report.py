@@ -173,8 +173,8 @@ def test_reduced_equal_to_full_gives_a_zero_heat_map(elephant):
     rows = summarize(doc)
     rs = render_rows(rows, {id(doc): RenderData(elephant, {2: R})}, frames=[40], width=48, height=40,
                      backend="numpy", heat_max=10.0)
-    (_, reduced, heat, dmax), = rs.frames[0].reduced
-    assert dmax < 1e-6
+    (_, reduced, heat, dmax, drms), = rs.frames[0].reduced
+    assert dmax < 1e-6 and drms < 1e-8
     assert np.array_equal(reduced, render_rows(rows, {id(doc): RenderData(elephant, {2: R})}, frames=[40],
                                                width=48, height=40, backend="numpy").frames[0].reduced[0][1])
     # every covered pixel of the heat map has the zero colour, shaded
@@ -338,3 +338,41 @@ def test_report_without_readable_inputs_keeps_table_and_plots(run, tmp_path):
     report = build_report([(doc, "")])
     assert any("cannot re-read the inputs" in n for n in report.notes)
     assert report.renders == {} and len(_images(report.html)) == 3
+
+
+@pytest.mark.parametrize("estimator", ["recomputed", "blended-matrix"])
+def test_heat_map_is_the_measured_normal_deviation(write_pipeline, estimator):
+    """The RMS of the rendered per-vertex angles is the run's normal_rms_rad for that frame."""
+    from rigslim.pipeline import run_pipeline
+    from rigslim.report import RenderData, load_render_data
+
+    path = write_pipeline(f"""
+inputs:
+  mesh: data/elephant.obj
+  skeleton: data/elephant.tgf
+  weights: data/elephant-weights.dmat
+  animation: data/elephant-anim.dmat
+poses:
+  examples: "0:457:45"
+  test: "5:457:90"
+steps:
+  - select: k-largest
+    k: 3
+  - solve: k-largest
+  - normals: {estimator}
+  - evaluate: [normal-deviation]
+  - write: out/k3.npz
+""")
+    result = run_pipeline(path, metrics_path=path.parent / "m.json")
+    doc = result.document
+    ev = doc["evaluations"][0]
+    assert result.asset.extras["evaluated_normals"][ev["step"]] == (estimator, {})
+    frames = doc["frames"]["test"][1:3]
+    for data in ({id(doc): RenderData(result.asset, result.asset.extras["evaluated_reduced"],
+                                      normals=result.asset.extras["evaluated_normals"])},
+                 {id(doc): load_render_data(doc, path.parent / "m.json")}):
+        rs = render_rows(summarize(doc), data, frames=frames, width=32, height=24, backend="numpy")
+        for rf in rs.frames:
+            drms = rf.reduced[0][4]
+            assert drms == pytest.approx(ev["metrics"]["normal_rms_rad"]["per_frame"][1 + frames.index(rf.frame)],
+                                         rel=1e-6)

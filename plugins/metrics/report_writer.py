@@ -44,7 +44,8 @@ class ReportWriter(Writer):
         for other in params.compare:
             p = Path(other) if Path(other).is_absolute() else base / other
             documents.append((load_document(p), str(p)))
-        data = {id(document): RenderData(asset, dict(asset.extras.get("evaluated_reduced", {})))}
+        data = {id(document): RenderData(asset, dict(asset.extras.get("evaluated_reduced", {})),
+                                         normals=dict(asset.extras.get("evaluated_normals", {})))}
         report = build_report(documents, data=data, frames=params.frames, width=params.width,
                               height=params.height, backend=params.backend, projection=params.projection,
                               azimuth=params.azimuth, elevation=params.elevation, up_axis=params.up_axis,
