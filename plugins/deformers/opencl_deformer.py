@@ -106,7 +106,8 @@ class OpenCLBound(BoundDeformer):
         import pyopencl as cl
 
         queue = self.runtime.queue
-        cl.enqueue_copy(queue, self._handles, handle_data(T, self.C0), is_blocking=False)
+        self._records = handle_data(T, self.C0)    # kept alive until the non-blocking upload is done
+        cl.enqueue_copy(queue, self._handles, self._records, is_blocking=False)
         kernel = self._kernel(normals)
         global_size = self.n_vertices
         local = None
