@@ -62,3 +62,56 @@ def test_skinned_cage_poses_follow_rigid_motion():
     assert np.allclose(out.T[0, :, :, 3], cage.V)
     assert np.allclose(out.T[1, :, :, 3], cage.V @ R.T + [1, 2, 3])
     assert np.all(out.T[..., :3] == 0)
+
+
+@pytest.mark.parametrize("extra, message", [
+    ("    cage_poses: keep\n", "poses have 24 handles"),
+    ("    cage_poses: from-skeleton\n", None),
+])
+def test_cage_poses_options(write_pipeline, extra, message):
+    """Skeleton poses cannot drive a cage unless skinned; from-skeleton makes cage poses."""
+    from rigslim.pipeline import run_pipeline
+
+    path = write_pipeline("""
+inputs:
+  mesh: data/elephant.obj
+  skeleton: data/elephant.tgf
+  weights: data/elephant-weights.dmat
+  animation: data/elephant-anim.dmat
+steps:
+  - generate: mean-value
+    cage: auto
+    cage_vertices: 30
+    cage_resolution: 24
+""" + extra)
+    if message:
+        with pytest.raises(StepError, match=message):
+            run_pipeline(path)
+    else:
+        asset = run_pipeline(path).asset
+        assert asset.poses.n_handles == asset.handles.n == 30
+        assert asset.extras["skeleton"].n == 24
+
+
+def test_from_skeleton_needs_a_skeleton(write_pipeline, tmp_path):
+    from rigslim.pipeline import run_pipeline
+
+    # a regular tetrahedron far around the elephant, as a user cage
+    V = 1000.0 * np.array([[1, 1, 1], [-1, -1, 1], [-1, 1, -1], [1, -1, -1]])
+    F = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
+    (tmp_path / "tet.obj").write_text("".join(f"v {x} {y} {z}\n" for x, y, z in V)
+                                      + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F))
+    path = write_pipeline("""
+inputs:
+  mesh: data/elephant.obj
+  cage: tet.obj
+steps:
+  - generate: mean-value
+    cage_poses: from-skeleton
+""")
+    with pytest.raises(StepError, match="needs a skeleton"):
+        run_pipeline(path)
+    # without the option the user cage works, and its four coordinates are barycentric (all positive)
+    path.write_text(path.read_text().replace("    cage_poses: from-skeleton\n", ""))
+    asset = run_pipeline(path).asset
+    assert asset.weights.shape[1] == 4 and asset.weights.min() > 0

@@ -51,6 +51,10 @@ def prepare_cage(asset, params: CageParams, ctx, step: str) -> Mesh:
     from rigslim.cage import build_cage, enclosure, skinned_cage_poses, transfer_weights
 
     old = asset.handles
+    skeleton_poses = old is not None and not old.is_cage and asset.poses is not None
+    if params.cage_poses == "from-skeleton" and not skeleton_poses:
+        raise StepError("cage_poses: from-skeleton needs a skeleton and its animation", field=f"{step}.cage_poses",
+                        fix="add inputs.skeleton and inputs.animation, or set cage_poses: keep")
     if params.cage is None:
         if old is None or not old.is_cage:
             raise StepError("no cage to compute coordinates for", field=f"{step}.cage",
@@ -81,13 +85,9 @@ def prepare_cage(asset, params: CageParams, ctx, step: str) -> Mesh:
         return cage
     new = Handles.from_cage(cage, source=origin)
     mode = params.cage_poses
-    skeleton_poses = old is not None and not old.is_cage and asset.poses is not None
     if mode == "auto":
         mode = "from-skeleton" if skeleton_poses else "keep"
     if mode == "from-skeleton":
-        if not skeleton_poses:
-            raise StepError("cage_poses: from-skeleton needs a skeleton and its animation", field=f"{step}.cage_poses",
-                            fix="add inputs.skeleton and inputs.animation, or set cage_poses: keep")
         if asset.weights is None or asset.weights.shape[1] != old.n:
             raise StepError("cage_poses: from-skeleton needs the skeleton's weights to skin the cage",
                             field=f"{step}.cage_poses", fix="add inputs.weights (or a bone-heat step) before it")
