@@ -25,6 +25,7 @@ Usage::
 
     .venv/bin/python -m benchmarks.deform_throughput                # full size, writes docs/results/deform.{json,md}
     .venv/bin/python -m benchmarks.deform_throughput --levels 1 --frames 3 --out /tmp/deform
+    python3 benchmarks/deform_throughput.py --device gpu             # on the GPU machine (shared/device/GPU.md)
 """
 
 from __future__ import annotations
@@ -41,6 +42,10 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+if __package__ in (None, ""):          # run as a script: python3 benchmarks/deform_throughput.py
+    import sys
+
+    sys.path.insert(0, str(ROOT))
 
 #: [P10] section 5, 702,538-polygon model, 137-vertex cage: CPU full weights 1.2 fps,
 #: CPU 8 weights 13.9 fps, GeForce GTX 280 8 weights 142.9 fps.
@@ -82,7 +87,8 @@ def time_bound(bound, poses, normals: bool) -> dict:
             "fps_frame": 1.0 / frame_s, "bytes_per_frame": moved, "gb_per_s": moved / device_s / 1e9}
 
 
-def run(levels: int, frames: int, backends: list[str], ks: list[int | None], log=print) -> dict:
+def run(levels: int, frames: int, backends: list[str], ks: list[int | None], device: str | None = None,
+        log=print) -> dict:
     from benchmarks.datasets import elephant
     from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
     from rigslim.plugins.selection.k_largest import k_largest
@@ -110,9 +116,9 @@ def run(levels: int, frames: int, backends: list[str], ks: list[int | None], log
         from rigslim.plugins.deformers.opencl_deformer import OpenCLDeformer
 
         try:
-            devices["opencl"] = get_runtime().name
+            devices["opencl"] = get_runtime(device).name
             deformers["opencl"] = OpenCLDeformer()
-            params["opencl"] = {}
+            params["opencl"] = {} if device is None else {"device": device}
         except OpenCLUnavailable as e:
             log(f"opencl skipped: {e}")
     if "opengl" in backends:
@@ -145,7 +151,7 @@ def run(levels: int, frames: int, backends: list[str], ks: list[int | None], log
                     f"{r['gb_per_s']:6.2f} GB/s")
             bound.close()
             if backend == "opencl" and label != "full":      # the compact 16-bit layout too
-                bound = deformer.bind(mesh, weights, deformer.parse_params({"layout": "compact"}),
+                bound = deformer.bind(mesh, weights, deformer.parse_params({**raw, "layout": "compact"}),
                                       handles=asset.handles)
                 for normals in (False, True):
                     r = time_bound(bound, poses, normals)
@@ -261,6 +267,7 @@ def main(argv=None) -> int:
     ap.add_argument("--k", default="full,8,4", help="weight sets: full and/or k values")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "results" / "deform",
                     help="output path without suffix (.json and .md are written)")
+    ap.add_argument("--device", default=None, help="OpenCL device spec: auto, gpu, cpu, or part of a name")
     ap.add_argument("--markdown-only", action="store_true",
                     help="rewrite OUT.md from an existing OUT.json without timing anything")
     args = ap.parse_args(argv)
@@ -270,7 +277,7 @@ def main(argv=None) -> int:
         print(markdown(doc))
         return 0
     ks = [None if x.strip() == "full" else int(x) for x in args.k.split(",")]
-    doc = run(args.levels, args.frames, [b.strip() for b in args.backends.split(",")], ks)
+    doc = run(args.levels, args.frames, [b.strip() for b in args.backends.split(",")], ks, device=args.device)
     write(doc, args.out)
     print()
     print(markdown(doc))
