@@ -72,6 +72,14 @@ class NumpyBound(BoundDeformer):
 
 
 class NumpyDeformer(Deformer):
+    """The float64 reference every other deformer is tested against.
+
+    Notes
+    -----
+    ``v' = X_v [v; 1]`` with ``X_v = sum_i a_{v,i} T_i`` computed as one sparse
+    product ``A @ T.reshape(n, 12)``.
+    """
+
     name = "numpy"
     summary = "reference linear blend in numpy/scipy (sparse input weights or fixed-k weights), float64"
 

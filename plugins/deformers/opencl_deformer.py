@@ -145,6 +145,18 @@ class OpenCLBound(BoundDeformer):
 
 
 class OpenCLDeformer(Deformer):
+    """Linear blend skinning in an OpenCL kernel, one work-item per vertex.
+
+    Notes
+    -----
+    Work-item v computes ``X_v = sum_l w_l T_{i_l}`` (three float4 rows) and
+    ``v' = X_v [v; 1]``; with normals, ``n' = sign(det R) normalize(cof(R) n)``
+    (blended matrix, ``R`` the 3x3 part of ``X_v``) or
+    ``n' = sign(det X) normalize(adj(X) (P + lambda I) n)`` (approximate affine,
+    see :mod:`rigslim.plugins.normals.approximate_affine`). The numpy
+    reference is :class:`rigslim.plugins.deformers.numpy_deformer.NumpyDeformer`.
+    """
+
     name = "opencl"
     summary = ("OpenCL kernel (kernels/blend.cl), one work-item per vertex; fixed-k, compact 16-bit or "
                "full CSR weights; optional normals in the same kernel; buffers reused across frames")

@@ -260,6 +260,16 @@ class OpenGLBound(BoundDeformer):
 
 
 class OpenGLDeformer(Deformer):
+    """Linear blend skinning in a GLSL vertex shader, read back with transform feedback.
+
+    Notes
+    -----
+    The shader evaluates ``v' = (sum_l w_l T_{i_l}) [v; 1]`` per vertex, with
+    the same normal formulas as the OpenCL kernel (``kernels/blend_vertex.glsl``
+    is its twin); the numpy reference is
+    :class:`rigslim.plugins.deformers.numpy_deformer.NumpyDeformer`.
+    """
+
     name = "opengl"
     summary = ("GLSL vertex shader (kernels/blend_vertex.glsl) with transform feedback in a headless EGL "
                "context; weights/indices as vertex attributes, transforms in a texture buffer")
