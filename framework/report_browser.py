@@ -296,6 +296,8 @@ def main(argv=None) -> int:
     parser.add_argument("--width", type=int, default=1200, help="viewport width in CSS pixels")
     parser.add_argument("--shrink", type=int, default=0, metavar="PX",
                         help="scale the saved screenshot down to this width (palette PNG, for docs)")
+    parser.add_argument("--crop-height", type=int, default=0, metavar="PX",
+                        help="keep only the top of the page, this many CSS pixels (before --shrink)")
     args = parser.parse_args(argv)
     check = check_page(args.html, width=args.width)
     print(f"title: {check.title}")
@@ -307,13 +309,15 @@ def main(argv=None) -> int:
         from rigslim.io.atomic import atomic_path
 
         data = check.screenshot
-        if args.shrink:
+        if args.shrink or args.crop_height:
             import io
 
             from PIL import Image
 
             img = Image.open(io.BytesIO(data)).convert("RGB")
-            if img.width > args.shrink:
+            if args.crop_height and img.height > args.crop_height:
+                img = img.crop((0, 0, img.width, args.crop_height))
+            if args.shrink and img.width > args.shrink:
                 img = img.resize((args.shrink, round(img.height * args.shrink / img.width)), Image.LANCZOS)
             buf = io.BytesIO()
             img.quantize(colors=256, method=Image.Quantize.MEDIANCUT).save(buf, format="PNG", optimize=True)
