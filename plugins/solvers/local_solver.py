@@ -17,7 +17,8 @@ so they are solved as one batch; afterwards ``Q R`` is updated by
 
 Convergence is measured: the energy decrease of each sweep is exact
 (``sum_v 2 delta^T h_v + delta^T H_v delta``), and sweeps stop when the
-relative decrease falls below ``tolerance`` or after ``max_sweeps``.
+relative decrease falls below ``tolerance``, when no weight moves by more
+than 1e-12 in a sweep (a fixed point), or after ``max_sweeps``.
 """
 
 from __future__ import annotations
@@ -174,6 +175,8 @@ def local_solve(prob, adjacency, alpha=None, *, tolerance: float = 1e-8, max_swe
         if dropped:
             report["linear_precision_dropped"] = dropped
     alpha = np.array(alpha, dtype=np.float64, copy=True)
+    if not prob.coupled:
+        relaxation = 1.0  # independent vertices: the exact local step is the optimum
     H = prob.local_hessians()
     classes = vertex_classes(prob, adjacency)
     order = np.concatenate(classes)
@@ -228,7 +231,8 @@ def local_solve(prob, adjacency, alpha=None, *, tolerance: float = 1e-8, max_swe
         rel = (energy - new) / max(abs(new), 1e-300)
         energy = new
         history.append(energy)
-        if sweeps >= min_sweeps and (rel <= tolerance or not prob.coupled):
+        # Weights are dimensionless: a sweep that moves none by more than 1e-12 is a fixed point.
+        if sweeps >= min_sweeps and (rel <= tolerance or max_step <= 1e-12 or not prob.coupled):
             converged = True
             break
     exact = prob.energy(alpha)

@@ -154,6 +154,14 @@ def constraints(asset, influences, linear_precision: bool) -> tuple[np.ndarray, 
         C = np.ones((m, 1, k))
         d = np.ones((m, 1))
     C = np.where(valid[:, None, :], C, 0.0)
+    if C.shape[1] > 1:
+        # Influence sets that cannot reproduce their vertex (e.g. 4 coplanar cage vertices
+        # for a point off their plane) keep only the sum-to-one row.
+        x = np.einsum("mkq,mq->mk", np.linalg.pinv(C), d)
+        miss = np.linalg.norm(np.einsum("mqk,mk->mq", C, x) - d, axis=1)
+        bad = miss > 1e-9 * (1.0 + np.linalg.norm(d, axis=1))
+        C[bad, 1:] = 0.0
+        d[bad, 1:] = 0.0
     return C, d
 
 
@@ -193,6 +201,8 @@ def build_problem(asset, method: str, *, nonnegative: bool | None = None, laplac
     alpha0 = initial_weights(A, influences)
     C, d = constraints(asset, influences, linear_precision)
     info = {"energy": method, "constraints": int(C.shape[1])}
+    if C.shape[1] > 1:
+        info["linear_precision_dropped"] = int((np.abs(C[:, 1:]).sum(axis=(1, 2)) == 0).sum())
     if method == "smooth":
         B, Y = handle_basis(asset, influences)
     else:
