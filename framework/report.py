@@ -261,6 +261,12 @@ def load_render_data(document: dict, json_path=None) -> RenderData:
     else from the absolute paths under ``inputs``. The test split is the
     document's ``frames``. Reduced weights come from ``.npz`` files written by
     ``write:`` steps between an evaluation's ``solve`` and the next one.
+
+    Raises
+    ------
+    InputError
+        For runs that generated their weights (``generate`` steps): those
+        are not among the inputs; a ``report:`` step renders such runs.
     """
     from types import SimpleNamespace
 
@@ -272,6 +278,10 @@ def load_render_data(document: dict, json_path=None) -> RenderData:
 
     json_path = Path(json_path) if json_path else None
     notes = []
+    if any(s.get("stage") == "generate" for s in document.get("steps") or []):
+        raise InputError("the run generated its weights (a 'generate' step), so they cannot be re-read",
+                         source=json_path, field="steps",
+                         fix="render it with a 'report: out/report.html' step at the end of the pipeline")
     pipeline = _pipeline_path(document, json_path)
     host = get_host()
     pipeline_steps = []

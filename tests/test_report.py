@@ -376,3 +376,15 @@ steps:
             drms = rf.reduced[0][4]
             assert drms == pytest.approx(ev["metrics"]["normal_rms_rad"]["per_frame"][1 + frames.index(rf.frame)],
                                          rel=1e-6)
+
+
+def test_runs_with_generated_weights_are_not_rendered_from_their_inputs():
+    from rigslim.report import load_render_data
+
+    doc = {"name": "cage", "frames": {"test": [1]}, "inputs": {"mesh": "/nonexistent.off"},
+           "steps": [{"stage": "read"}, {"stage": "generate", "plugin": "mean-value"}, {"stage": "evaluate"}],
+           "evaluations": [{"name": "e", "step": 2, "metrics": {}}]}
+    with pytest.raises(InputError, match="generate"):
+        load_render_data(doc)
+    report = build_report([(doc, "")])
+    assert report.renders == {} and any("report: out/report.html" in n for n in report.notes)
