@@ -171,7 +171,8 @@ def markdown(doc: dict) -> str:
              f"Python {doc['machine']['python']}. One run each, wall-clock seconds.", "",
              "| task | model | size | backend | seconds | check |", "|---|---|---|---|---:|---|"]
     for r in doc["timings"]:
-        lines.append(f"| {r['task']} | {r['model']} | {r['size']} | {r['backend']} | {r['seconds']:.2f} | {r['check']} |")
+        check = r["check"].replace("|", "\\|")
+        lines.append(f"| {r['task']} | {r['model']} | {r['size']} | {r['backend']} | {r['seconds']:.2f} | {check} |")
     cl = [r for r in doc["timings"] if r.get("speedup_vs_numpy")]
     if cl:
         lines += [""] + [f"OpenCL ({r['backend']}) / numpy MVC speed ratio: {r['speedup_vs_numpy']:.2f}x" for r in cl]
@@ -206,7 +207,13 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "results" / "coordinates",
                     help="output path without suffix (.json and .md are written)")
     ap.add_argument("--skip", default="", help="comma list of parts to skip: mvc,cheb,hand,quality")
+    ap.add_argument("--markdown-only", action="store_true", help="rewrite the .md from the existing .json")
     args = ap.parse_args(argv)
+    if args.markdown_only:
+        doc = json.loads(args.out.with_suffix(".json").read_text())
+        write(doc, args.out)
+        print(markdown(doc))
+        return 0
     skip = {s.strip() for s in args.skip.split(",") if s.strip()}
 
     def log(msg):
