@@ -388,3 +388,22 @@ def test_runs_with_generated_weights_are_not_rendered_from_their_inputs():
         load_render_data(doc)
     report = build_report([(doc, "")])
     assert report.renders == {} and any("report: out/report.html" in n for n in report.notes)
+
+
+def test_report_step_compares_with_earlier_runs(run, tmp_path):
+    """The writer's 'compare' adds other runs' metrics; equal evaluation names get the run's name."""
+    from rigslim.plugin import StepContext
+    from rigslim.plugins.metrics.report_writer import ReportWriter
+
+    folder, result = run
+    writer = ReportWriter()
+    params = writer.parse_params({"compare": [str(folder / "out" / "m.json")], "render": False})
+    ctx = StepContext(base_dir=tmp_path, document=result.document)
+    writer.write(tmp_path / "cmp.html", result.asset, params, ctx)
+    text = (tmp_path / "cmp.html").read_text()
+    assert ctx.report["evaluations"] == 4 and ctx.report["renders"] == 0
+    assert text.count('<td class="l">elephant-small / k-largest-k2</td>') == 1
+    assert text.count('<td class="l">elephant-small / k-largest-k2 (2)</td>') == 1
+    with pytest.raises(InputError):
+        writer.write(tmp_path / "x.html", result.asset,
+                     writer.parse_params({"compare": ["missing.json"], "render": False}), ctx)
