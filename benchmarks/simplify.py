@@ -112,6 +112,79 @@ def run_method(asset, method: str, min_faces: int, max_bones, test_stride: int, 
             "test_frames": [ev.frames[j] for j in frames]}
 
 
+def gltfpack_comparison(gltfpack: str, samples: int, ratios=(0.1, 0.02)):
+    """gltfpack (meshoptimizer) against quartic and static QSlim at gltfpack's face counts, 4 bones per vertex.
+
+    The elephant is exported as a skinned glTF (4 weights per vertex, the glTF
+    norm) and simplified with ``gltfpack -si RATIO -sa -noq`` (aggressive, so
+    that it gets near the ratio; no quantisation, so positions stay exact).
+    meshoptimizer keeps a subset of the original vertices with their
+    attributes, so each output vertex is matched to its original vertex
+    (distance checked) and keeps that vertex's 4 weights.
+    """
+    import subprocess
+    import tempfile
+
+    import scipy.sparse as sp
+    from scipy.spatial import cKDTree
+
+    from rigslim.evaluation import Evaluation
+    from rigslim.hierarchy import SimplifiedLevel
+    from rigslim.host import get_host
+    from rigslim.io.gltf import load_gltf, read_accessor
+    from rigslim.io.gltf_write import export_skinned
+    from rigslim.mesh import Mesh
+    from rigslim.plugin import StepContext
+    from rigslim.plugins.decimation.articulated import limited_weights
+    from rigslim.plugins.decimation.static_qslim import nearest_vertex_weights
+    from rigslim.plugins.metrics.metro import metro_distance
+
+    asset = elephant(0)
+    W4 = limited_weights(asset.weights, 4)
+    tmp = Path(tempfile.mkdtemp())
+    export_skinned(tmp / "elephant.glb", asset.mesh, asset.handles, sp.csr_matrix(W4))
+    r = subprocess.run([gltfpack, "-h"], capture_output=True, text=True)
+    version = ((r.stdout or r.stderr).splitlines() or ["gltfpack"])[0]
+    levels = {"gltfpack": []}
+    for r in ratios:
+        t0 = time.perf_counter()
+        subprocess.run([gltfpack, "-i", str(tmp / "elephant.glb"), "-o", str(tmp / "out.glb"), "-si", str(r), "-sa",
+                        "-noq"], check=True, capture_output=True)
+        secs = time.perf_counter() - t0
+        doc = load_gltf(tmp / "out.glb")
+        prim = doc.json["meshes"][0]["primitives"][0]
+        P = np.asarray(read_accessor(doc, prim["attributes"]["POSITION"]), float)
+        F = np.asarray(read_accessor(doc, prim["indices"]), np.int64).reshape(-1, 3)
+        dist, nearest = cKDTree(asset.mesh.V).query(P)
+        assert dist.max() < 1e-4 * asset.mesh.bbox_diagonal, "gltfpack moved vertices"
+        lv = SimplifiedLevel(Mesh(asset.mesh.V[nearest], F), nearest_vertex_weights(asset.mesh.V, W4, asset.mesh.V[nearest]),
+                             f"gltfpack-si{r:g}", None, float("nan"), "gltfpack")
+        levels["gltfpack"].append((lv, secs))
+    faces = [lv.n_faces for lv, _ in levels["gltfpack"]]
+    host = get_host()
+    for method in ("quartic", "static-qslim"):
+        plugin = host.get("articulated-decimation", method)
+        asset.extras.clear()
+        t0 = time.perf_counter()
+        plugin.decimate(asset, plugin.parse_params({"targets": faces, "max_bones": 4}), StepContext())
+        secs = time.perf_counter() - t0
+        levels[method] = [(lv, secs) for lv in asset.extras["levels"]]
+    rows = []
+    for method, lvs in levels.items():
+        asset.extras["levels"] = [lv for lv, _ in lvs]
+        ev = Evaluation(asset, host)
+        scale = 100.0 / asset.mesh.bbox_diagonal
+        for i, (lv, secs) in enumerate(lvs):
+            d = [metro_distance(ev.level_positions(i, j), lv.mesh.F, ev.full_positions(j), asset.mesh.F, samples)
+                 for j in range(len(ev))]
+            rows.append({"method": method, "label": lv.label, "faces": lv.n_faces, "seconds": secs,
+                         "rms_pct_mean": float(np.mean([scale * x["rms"] for x in d])),
+                         "max_pct_mean": float(np.mean([scale * x["max"] for x in d]))})
+            print(f"gltfpack comparison {method:14s} {lv.n_faces:6d} faces  rms {rows[-1]['rms_pct_mean']:.4f} "
+                  f"max {rows[-1]['max_pct_mean']:.4f}", flush=True)
+    return {"gltfpack": version, "dataset": "elephant-12k, 4 bones", "rows": rows}
+
+
 def at(result, frac, n_faces):
     want = max(1, int(round(frac * n_faces)))
     return min(result["levels"], key=lambda lv: abs(lv["faces"] - want))
@@ -122,7 +195,16 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="the 12k elephant only")
     ap.add_argument("--samples", type=int, default=20000)
     ap.add_argument("--out", default=str(OUT))
+    ap.add_argument("--gltfpack", metavar="PATH", help="also compare with gltfpack (npm install gltfpack)")
+    ap.add_argument("--merge", action="store_true",
+                    help="with --gltfpack: add the comparison to the existing simplify.json instead of rerunning")
     args = ap.parse_args(argv)
+    out = Path(args.out)
+    if args.merge:
+        doc = json.loads((out / "simplify.json").read_text())
+        doc["gltfpack"] = gltfpack_comparison(args.gltfpack, args.samples)
+        finish(doc, out)
+        return
 
     datasets = [("elephant-12k", lambda: elephant(0), None, 1),
                 ("elephant-12k-4bones", lambda: elephant(0), 4, 1)]
@@ -148,12 +230,21 @@ def main(argv=None):
                   f"max {l10['max_pct_mean']:.4f}   2%: rms {l2['rms_pct_mean']:.4f} max {l2['max_pct_mean']:.4f}",
                   flush=True)
         results.append(info)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     doc = {"machine": machine, "fractions": FRACTIONS, "results": results}
-    (out / "simplify.json").write_text(json.dumps(doc, indent=2) + "\n")
+    if args.gltfpack:
+        doc["gltfpack"] = gltfpack_comparison(args.gltfpack, args.samples)
+    finish(doc, out)
+
+
+def finish(doc, out: Path) -> None:
+    from rigslim.io.atomic import atomic_path
+
+    out.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out / "simplify.json") as tmp:
+        tmp.write_text(json.dumps(doc, indent=2) + "\n")
     md = markdown(doc)
-    (out / "simplify.md").write_text(md)
+    with atomic_path(out / "simplify.md") as tmp:
+        tmp.write_text(md)
     print(md)
     plot(doc, out / "simplify.png")
 
@@ -180,6 +271,18 @@ def markdown(doc) -> str:
                          f"{l2['rms_pct_mean']:.4f} | {l2['max_pct_mean']:.3f} | "
                          f"{q10['rms_pct_mean'] / l10['rms_pct_mean']:.2f} | {q2['rms_pct_mean'] / l2['rms_pct_mean']:.2f} |")
         lines.append("")
+    g = doc.get("gltfpack")
+    if g:
+        lines += [f"## gltfpack ({g['gltfpack']}) on {g['dataset']}", "",
+                  "`gltfpack -si R -sa -noq` on a skinned glTF of the elephant (4 weights per vertex); "
+                  "quartic and static QSlim (max_bones 4) extracted at gltfpack's face counts; all 64 test poses.", "",
+                  "| method | level | faces | time (s) | RMS | max |", "|---|---|---|---|---|---|"]
+        for r in g["rows"]:
+            lines.append(f"| {r['method']} | {r['label']} | {r['faces']} | {r['seconds']:.2f} | "
+                         f"{r['rms_pct_mean']:.4f} | {r['max_pct_mean']:.3f} |")
+        lines.append("")
+    else:
+        lines += ["gltfpack: not run (pass `--gltfpack PATH`).", ""]
     lines += ["![error against face count](simplify.png)", ""]
     return "\n".join(lines)
 
