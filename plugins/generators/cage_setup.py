@@ -78,6 +78,9 @@ def prepare_cage(asset, params: CageParams, ctx, step: str) -> Mesh:
                           "vertices_outside": int((enc.winding < 0.5).sum()),
                           "min_clearance": float(enc.clearance.min()),
                           "min_clearance_relative": float(enc.clearance.min() / asset.mesh.bbox_diagonal)}
+    if ctx.report["cage"]["vertices_outside"]:
+        ctx.log(f"{ctx.report['cage']['vertices_outside']} mesh vertices lie outside the cage: mean value "
+                "coordinates extend there (possibly negative), harmonic ones take the nearest boundary values")
     if params.save_cage:
         _save_mesh(cage, params.save_cage, ctx)
 
