@@ -477,7 +477,7 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
             if group[0].frames and int(f) not in group[0].frames:
                 out.notes.append(f"{name}: frame {f} is not a test frame")
             jobs.append((group, name, asset, int(f)))
-    pending = []
+    heat_jobs = []  # (reduced entry, positions, normals, per-vertex deviation, camera, faces)
     for group, name, asset, f in progress(jobs, total=len(jobs), description="rendering frames"):
         F = asset.mesh.F
         T = asset.poses.T[f]
@@ -487,7 +487,7 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
                          up_axis=up_axis, tight=True)
         full, used = render_mesh(X, F, FULL_COLOR, cam, normals=N, backend=backend)
         out.backend = used
-        reduced = []
+        rf = RenderedFrame(name, f, full, [])
         for r in group:
             R = data[id(r.document)].reduced.get(r.step)
             if R is None:
@@ -496,21 +496,19 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
             Nr = _estimated_normals(asset, R, T, Xr, data[id(r.document)].normals.get(r.step))
             img, _ = render_mesh(Xr, F, REDUCED_COLOR, cam, normals=Nr, backend=backend)
             dev = normal_deviation_degrees(N, Nr)
-            reduced.append([r.label, img, (Xr, Nr, dev, cam, F), float(dev.max()),
-                            float(np.sqrt(np.mean(np.radians(dev) ** 2)))])
-        levels = []
+            entry = [r.label, img, None, float(dev.max()), float(np.sqrt(np.mean(np.radians(dev) ** 2)))]
+            rf.reduced.append(entry)
+            heat_jobs.append((entry, Xr, Nr, dev, cam, F))
         for level in data[id(group[0].document)].asset.extras.get("levels") or []:
             Xl = linear_blend(level.mesh.V, level.weights, T)
             img, _ = render_mesh(Xl, level.mesh.F, LEVEL_COLOR, cam, backend=backend)
-            levels.append((str(level.label), int(level.mesh.n_faces), img))
-        pending.append(RenderedFrame(name, f, full, reduced, levels))
-    devs = [np.percentile(item[2][2], 99) for rf in pending for item in rf.reduced]
-    out.heat_max = float(heat_max) if heat_max else max([float(d) for d in devs] + [1e-3])
-    for rf in pending:
-        for item in rf.reduced:
-            Xr, Nr, dev, cam, F = item[2]
-            item[2], _ = render_mesh(Xr, F, heat_colors(dev, out.heat_max), cam, normals=Nr, backend=backend)
+            rf.levels.append((str(level.label), int(level.mesh.n_faces), img))
         out.frames.append(rf)
+    # heat maps last: their colour scale is shared by every render of the report
+    tops = [float(np.percentile(dev, 99)) for _, _, _, dev, _, _ in heat_jobs]
+    out.heat_max = float(heat_max) if heat_max else max(tops + [1e-3])
+    for entry, Xr, Nr, dev, cam, F in heat_jobs:
+        entry[2], _ = render_mesh(Xr, F, heat_colors(dev, out.heat_max), cam, normals=Nr, backend=backend)
     return out
 
 
