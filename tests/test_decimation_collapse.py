@@ -150,6 +150,20 @@ def test_adaptive_extraction_refines_only_where_the_budget_is_small(quartic_run,
     assert err.error <= np.median(hier.errors)
 
 
+def test_error_and_adaptive_targets_from_parameters(asset):
+    hier, levels = decimate(asset, "quartic", targets=[200], error_targets=[1e-6],
+                            adaptive_targets=[{"center": [0, 0, 0], "radius": 1.2, "error_inside": -1.0,
+                                               "error_outside": 1e30, "label": "near-origin"}])
+    by = {lv.label: lv for lv in levels}
+    assert set(by) == {"quartic-200f", "quartic-err1e-06", "near-origin"}
+    assert by["quartic-err1e-06"].error <= 1e-6
+    near = by["near-origin"]
+    inside = np.flatnonzero(np.linalg.norm(asset.mesh.V, axis=1) <= 1.2)
+    assert np.isin(inside, near.vertex_ids).all()
+    assert by["quartic-200f"].n_faces < near.n_faces < asset.mesh.n_faces
+    assert_closed_manifold(near.mesh)
+
+
 def test_boundary_vertices_are_kept():
     open_tube = tube(n_around=12, n_along=12, caps=False)
     hier, levels = decimate(open_tube, "quartic", targets=[60], max_bones=3)

@@ -17,6 +17,20 @@ from rigslim.errors import StepError
 from rigslim.plugin import Decimator, Params
 
 
+class AdaptiveTarget(Params):
+    """A level refined by region ([S09] fig. 3): a small error budget inside a ball, a large one outside."""
+
+    center: tuple[float, float, float]
+    radius: float = Field(gt=0)
+    error_inside: float
+    error_outside: float
+    label: str | None = None
+
+    def budget(self, V: np.ndarray) -> np.ndarray:
+        inside = np.linalg.norm(V - np.asarray(self.center), axis=1) <= self.radius
+        return np.where(inside, self.error_inside, self.error_outside)
+
+
 class DecimationParams(Params):
     """Parameters every articulated decimator shares."""
 
@@ -24,6 +38,8 @@ class DecimationParams(Params):
     """Levels to extract: a number below 1 is a fraction of the input faces, else a face count."""
     error_targets: list[float] = Field(default_factory=list)
     """Levels to extract by collapse error: the longest prefix of collapses with errors at most this."""
+    adaptive_targets: list[AdaptiveTarget] = Field(default_factory=list)
+    """Levels by region: per-vertex error budgets (``hierarchy.adaptive``) from a ball around a point."""
     min_faces: int | None = None
     """Build the hierarchy down to this many faces (default: the smallest target, or 70)."""
     max_bones: int | None = Field(default=None, ge=1)
@@ -85,6 +101,8 @@ class ArticulatedDecimator(Decimator):
                         params=params.model_dump())
         levels = [hier.at_faces(f, target_label(self.name, t, f)) for t, f in zip(params.targets, faces)]
         levels += [hier.at_error(e, f"{self.name}-err{e:g}") for e in params.error_targets]
+        levels += [hier.adaptive(a.budget(mesh.V), a.label or f"{self.name}-adaptive{i + 1}")
+                   for i, a in enumerate(params.adaptive_targets)]
         levels.sort(key=lambda lv: -lv.n_faces)
         asset.extras["hierarchy"] = hier
         asset.extras["levels"] = levels
