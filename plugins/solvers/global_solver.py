@@ -30,15 +30,23 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 
-def assemble_hessian(prob) -> sp.csr_matrix:
-    """The (m k, m k) sparse Hessian ``H`` of the module docstring."""
+def assemble_hessian(prob, chunk: int = 100_000) -> sp.csr_matrix:
+    """The (m k, m k) sparse Hessian ``H`` of the module docstring.
+
+    Blocks ``Q_vw B_v^T B_w`` are formed ``chunk`` vertex pairs at a time, so
+    memory stays at ``chunk * k * D`` doubles beyond the result.
+    """
     m, k = prob.m, prob.k
     Q = sp.coo_matrix(prob.Q)
-    rows, cols, q = Q.row, Q.col, Q.data
-    blocks = np.einsum("pkd,pld->pkl", prob.B[rows], prob.B[cols]) * q[:, None, None]
-    r = (rows[:, None, None] * k + np.arange(k)[None, :, None]).repeat(k, axis=2)
-    c = (cols[:, None, None] * k + np.arange(k)[None, None, :]).repeat(k, axis=1)
-    H = sp.csr_matrix((blocks.ravel(), (r.ravel(), c.ravel())), shape=(m * k, m * k))
+    parts = []
+    kk = np.arange(k)
+    for lo in range(0, Q.nnz, chunk):
+        rows, cols, q = Q.row[lo:lo + chunk], Q.col[lo:lo + chunk], Q.data[lo:lo + chunk]
+        blocks = np.einsum("pkd,pld->pkl", prob.B[rows], prob.B[cols]) * q[:, None, None]
+        r = np.broadcast_to(rows[:, None, None] * k + kk[None, :, None], blocks.shape)
+        c = np.broadcast_to(cols[:, None, None] * k + kk[None, None, :], blocks.shape)
+        parts.append(sp.csr_matrix((blocks.ravel(), (r.ravel(), c.ravel())), shape=(m * k, m * k)))
+    H = parts[0] if len(parts) == 1 else sp.csr_matrix(sum(parts[1:], parts[0]))
     pad = (~prob.valid).ravel()
     diag = np.where(pad, 1.0, prob.eps)
     return (H + sp.diags(diag)).tocsr()

@@ -1,0 +1,171 @@
+"""Reduction speed: every method and solver path on the elephant at three sizes, and Dem Bones.
+
+Meshes: the elephant (6,034 vertices) and the elephant midpoint-subdivided
+2x (~96.5k) and 3x (~386k) with weights interpolated
+(:mod:`benchmarks.datasets`). k = 4 from the k-largest influence sets;
+example frames ``0:457:45`` (11 poses); skeleton default ``nonnegative: true``
+except on the ``global`` rows (equality constraints only, by definition).
+
+Rows (seconds of wall time, including building the energy):
+- ``k-largest``: renormalised selected weights;
+- ``geometric local`` (numpy / OpenCL): one exact pass (independent vertices);
+- ``smooth`` / ``poisson`` ``global``: the sparse equality-constrained solve;
+- ``smooth`` / ``poisson`` ``local`` (numpy / OpenCL on PoCL): block-SOR sweeps
+  (relaxation 1.85) of exact per-vertex QPs with non-negativity from the
+  k-largest weights: to convergence (``tolerance`` 1e-5) on the 6k mesh, a
+  fixed budget of sweeps on the larger meshes (energy decrease reported);
+- ``poisson auto``: global optimum, projection, local sweeps (tolerance 1e-5);
+- Dem Bones (py-dem-bones 0.13, ``DemBones.computeWeights``): its weight
+  update only, bone transforms fixed to the true ones, nnz = 4, 11 example
+  frames, default smoothness (weightsSmooth 1e-4, 3 inner iterations).
+Test-frame errors (``5:457:7``) on the 6k mesh.
+
+Run: ``PYTHONPATH=. .venv/bin/python benchmarks/reduction_speed.py [--levels 0 2 3]``
+Writes docs/results/reduction_speed.{json,md}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.datasets import elephant
+from benchmarks.reduction_quality import OUT, frame_errors, machine
+
+K = 4
+SWEEP_BUDGET = {2: 10, 3: 5}
+
+
+def dem_bones_weights(asset, k):
+    """Dem Bones' weight update with the true bone transforms held fixed; returns (csr, seconds)."""
+    import py_dem_bones as pdb
+    import scipy.sparse as sp
+
+    from rigslim.blend import linear_blend
+
+    V = asset.mesh.V
+    T = asset.example_poses().T
+    nF, nB = T.shape[:2]
+    w = pdb.DemBonesWrapper()
+    w.set_rest_pose(V.T.copy())
+    M = np.zeros((nF, nB, 4, 4))
+    M[:, :, :3, :] = T
+    M[:, :, 3, 3] = 1.0
+    w.set_transformations(M)
+    w.set_weights(asset.weights.toarray().T.copy())
+    d = w._dem_bones
+    d.nS = 1
+    d.fStart = np.array([0, nF])
+    d.subjectID = np.zeros(nF, dtype=int)
+    d.nnz = k
+    d.set_rest_pose(V.T.copy())
+    d.set_animated_poses(np.concatenate([linear_blend(V, asset.weights, T[j]).T for j in range(nF)], axis=0))
+    t0 = time.perf_counter()
+    d.computeWeights()
+    seconds = time.perf_counter() - t0
+    return sp.csr_matrix(np.asarray(d.get_weights()).T), seconds
+
+
+def run_method(asset, method, **params):
+    from rigslim.plugins.solvers.k_largest import k_largest_weights
+    from rigslim.plugins.solvers.methods import LaplacianParams, PoissonParams, ReductionParams, reduce_weights
+
+    t0 = time.perf_counter()
+    if method == "k-largest":
+        red = k_largest_weights(asset.weights, asset.influences)
+        return red, {"seconds": time.perf_counter() - t0}
+    cls = {"geometric": ReductionParams, "smooth": LaplacianParams, "poisson": PoissonParams}[method]
+    red, rep = reduce_weights(asset, method, cls(**params))
+    rep["seconds"] = time.perf_counter() - t0
+    return red, rep
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--levels", type=int, nargs="*", default=[0, 2, 3])
+    ap.add_argument("--no-global-above", type=int, default=2,
+                    help="skip the global rows above this subdivision level (SuperLU fill)")
+    args = ap.parse_args()
+    from rigslim.opencl import get_runtime
+    from rigslim.plugins.selection.k_largest import k_largest
+
+    try:
+        cl_name = get_runtime(None).name
+    except Exception as e:  # noqa: BLE001 - recorded in the results
+        cl_name = f"unavailable: {e}"
+    results = {"machine": machine(), "opencl_device": cl_name, "k": K, "rows": []}
+    table = []
+    for level in args.levels:
+        asset = elephant(level)
+        asset.influences = k_largest(asset.weights, K)
+        m = asset.mesh.n_vertices
+        budget = SWEEP_BUDGET.get(level)
+        sweep = {} if budget is None else {"max_sweeps": budget, "tolerance": 1e-30}
+        plan = [("k-largest", "k-largest", {}),
+                ("geometric local numpy", "geometric", {}),
+                ("geometric local opencl", "geometric", {"device": "opencl"})]
+        for method in ("smooth", "poisson"):
+            if level <= args.no_global_above:
+                plan.append((f"{method} global", method, {"solver": "global", "nonnegative": False}))
+            plan.append((f"{method} local numpy", method, {"solver": "local", **sweep}))
+            plan.append((f"{method} local opencl", method, {"solver": "local", "device": "opencl", **sweep}))
+        if level <= args.no_global_above:
+            plan.append(("poisson auto", "poisson", {"solver": "auto", **sweep}))
+        for name, method, params in plan:
+            gc.collect()
+            red, rep = run_method(asset, method, **params)
+            row = {"vertices": m, "level": level, "row": name, "params": params, "seconds": rep["seconds"],
+                   "sweeps": rep.get("sweeps"), "energy": rep.get("energy"), "energy_start": rep.get("energy_start"),
+                   "converged": rep.get("converged"), "gap_above_equality_optimum": rep.get("gap_above_equality_optimum"),
+                   "colors": rep.get("colors"), "backend": rep.get("backend")}
+            if level == 0:
+                p, n = frame_errors(asset, red, asset.split.test)
+                row.update(position_pct=float(p.mean()), normal_rad=float(n.mean()))
+            results["rows"].append(row)
+            table.append(row)
+            extra = "" if row.get("sweeps") is None else f" sweeps {row['sweeps']}"
+            print(f"{m:>7} {name:<24} {rep['seconds']:8.2f} s{extra}", flush=True)
+            del red
+        try:
+            W, secs = dem_bones_weights(asset, K)
+            row = {"vertices": m, "level": level, "row": "Dem Bones computeWeights", "seconds": secs}
+            if level == 0:
+                p, n = frame_errors(asset, W, asset.split.test)
+                row.update(position_pct=float(p.mean()), normal_rad=float(n.mean()))
+        except ImportError as e:
+            row = {"vertices": m, "level": level, "row": "Dem Bones computeWeights", "error": str(e)}
+        results["rows"].append(row)
+        table.append(row)
+        print(f"{m:>7} {'Dem Bones computeWeights':<24} {row.get('seconds', float('nan')):8.2f} s", flush=True)
+        del asset
+    from rigslim.io.atomic import atomic_path
+
+    with atomic_path(OUT / "reduction_speed.json") as tmp:
+        Path(tmp).write_text(json.dumps(results, indent=1, default=float))
+    mach = results["machine"]
+    lines = ["# Reduction speed: elephant, k = 4", "",
+             f"Machine: {mach['cpu']}, nproc {mach['nproc']} (shared with other jobs). OpenCL: {cl_name}.", "",
+             "Energies are each method's own (not comparable across methods). `sweeps` on the larger meshes is a fixed "
+             "budget, not convergence: see `energy / start`.", "",
+             "| vertices | method / solver | seconds | sweeps | energy / start | test position (% diag) | "
+             "test normal (rad) |", "|---|---|---|---|---|---|---|"]
+    for r in table:
+        ratio = (f"{r['energy'] / r['energy_start']:.4f}" if r.get("energy") is not None and r.get("energy_start")
+                 else "")
+        pos = f"{r['position_pct']:.4f}" if "position_pct" in r else ""
+        nrm = f"{r['normal_rad']:.4f}" if "normal_rad" in r else ""
+        sw = "" if r.get("sweeps") is None else str(r["sweeps"])
+        secs = f"{r['seconds']:.2f}" if "seconds" in r else r.get("error", "")
+        lines.append(f"| {r['vertices']:,} | {r['row']} | {secs} | {sw} | {ratio} | {pos} | {nrm} |")
+    with atomic_path(OUT / "reduction_speed.md") as tmp:
+        Path(tmp).write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
