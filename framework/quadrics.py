@@ -325,11 +325,6 @@ def alternate(Q, Tb, a0, mask, fallback, *, iterations: int = 10, tol: float = 1
     if max_bones is not None and (np.count_nonzero(np.abs(a) > 0, axis=1) > max_bones).any():
         over = np.count_nonzero(np.abs(a) > 0, axis=1) > max_bones
         a_lim, m_lim = bone_limit(a[over], mask[over], max_bones)
-        sub = (Q[over], Tb[over], a_lim, m_lim, fallback[over])
-        v2, a2, E2 = _alternate_restricted(*sub, iterations=iterations, tol=tol)
+        v2, a2, E2 = alternate(Q[over], Tb[over], a_lim, m_lim, fallback[over], iterations=iterations, tol=tol)
         v[over], a[over], E[over] = v2, a2, E2
     return v, a, E
-
-
-def _alternate_restricted(Q, Tb, a0, mask, fallback, *, iterations, tol):
-    return alternate(Q, Tb, a0, mask, fallback, iterations=iterations, tol=tol, max_bones=None)
