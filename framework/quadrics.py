@@ -102,9 +102,9 @@ def per_pose_quadrics(V: np.ndarray, F: np.ndarray, weights, T: np.ndarray, area
 
 
 def _blend(a: np.ndarray, Tb: np.ndarray) -> np.ndarray:
-    """(B, P, 3, 4) blended transforms ``sum_k a_k T_k`` from a (B, K) and Tb (B, P, K, 3, 4)."""
-    B, P, K = Tb.shape[:3]
-    return (a[:, None, None, :] @ Tb.reshape(B, P, K, 12)).reshape(B, P, 3, 4)
+    """(B, P, 3, 4) blended transforms ``sum_k a_k T_k`` from a (B, K) and Tb (B, K, P, 3, 4)."""
+    B, K, P = Tb.shape[:3]
+    return (a[:, None, :] @ Tb.reshape(B, K, P * 12)).reshape(B, P, 3, 4)
 
 
 def _posed(X: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -125,8 +125,9 @@ def quartic_error(Q: np.ndarray, Tb: np.ndarray, a: np.ndarray, v: np.ndarray) -
     ----------
     Q : (B, P, 4, 4) array
         Per-pose quadrics of each edge (``Q_v1^j + Q_v2^j``).
-    Tb : (B, P, K, 3, 4) array
-        Transforms of each edge's bones in each pose.
+    Tb : (B, K, P, 3, 4) array
+        Transforms of each edge's bones in each pose (bone-major, so that
+        blending and the weight step's products work on contiguous blocks).
     a : (B, K) array
         Weights over those bones (rows sum to one).
     v : (B, 3) array
@@ -149,7 +150,7 @@ def position_step(Q: np.ndarray, Tb: np.ndarray, a: np.ndarray, fallback: np.nda
 
     Parameters
     ----------
-    Q : (B, P, 4, 4), Tb : (B, P, K, 3, 4), a : (B, K)
+    Q : (B, P, 4, 4), Tb : (B, K, P, 3, 4), a : (B, K)
     fallback : (B, c, 3) array
         Candidate points (e.g. the edge's endpoints and midpoint) used where
         the 3x3 system is singular, as QSlim does.
@@ -190,7 +191,7 @@ def weight_step(Q: np.ndarray, Tb: np.ndarray, v: np.ndarray, a0: np.ndarray, ma
 
     Parameters
     ----------
-    Q : (B, P, 4, 4), Tb : (B, P, K, 3, 4), v : (B, 3)
+    Q : (B, P, 4, 4), Tb : (B, K, P, 3, 4), v : (B, 3)
     a0 : (B, K) array
         Starting weights (a vertex's own, or the mean of an edge's endpoints').
     mask : (B, K) bool array
@@ -221,12 +222,12 @@ def weight_step(Q: np.ndarray, Tb: np.ndarray, v: np.ndarray, a0: np.ndarray, ma
     ``1^T da = 0``. H is scaled to unit mean diagonal first (this does not
     change da) so one relative pseudo-inverse threshold fits every edge.
     """
-    B, P, K = Tb.shape[:3]
+    B, K, P = Tb.shape[:3]
     vh = np.concatenate([v, np.ones((B, 1))], axis=1)
-    Y = (Tb.reshape(B, -1, 4) @ vh[:, :, None]).reshape(B, P, K, 3)      # M_k^j v
-    Yh = np.concatenate([Y, np.ones(Y.shape[:-1] + (1,))], axis=-1) * mask[:, None, :, None]
-    QY = Yh @ Q                                                           # (B, P, K, 4)
-    H = np.swapaxes(QY, 1, 2).reshape(B, K, -1) @ np.swapaxes(Yh, 1, 2).reshape(B, K, -1).transpose(0, 2, 1)
+    Yh = np.ones((B, P, K, 4))                                          # rows: (M_k^j v)^T, homogeneous
+    Yh[..., :3] = (Tb.reshape(B, -1, 4) @ vh[:, :, None]).reshape(B, K, P, 3).transpose(0, 2, 1, 3)
+    Yh *= mask[:, None, :, None]
+    H = ((Yh @ Q) @ Yh.transpose(0, 1, 3, 2)).sum(axis=1)
     H = 0.5 * (H + np.swapaxes(H, 1, 2))
     kk = np.maximum(mask.sum(axis=1), 1)
     s = np.trace(H, axis1=1, axis2=2) / kk
@@ -281,7 +282,7 @@ def alternate(Q, Tb, a0, mask, fallback, *, iterations: int = 10, tol: float = 1
     Parameters
     ----------
     Q : (B, P, 4, 4) per-pose quadrics of each edge
-    Tb : (B, P, K, 3, 4) transforms of each edge's bones
+    Tb : (B, K, P, 3, 4) transforms of each edge's bones
     a0 : (B, K) starting weights (rows sum to one)
     mask : (B, K) bool, the restricted bone sets
     fallback : (B, c, 3) candidate points for singular position steps

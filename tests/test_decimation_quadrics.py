@@ -93,7 +93,7 @@ def edge_inputs(Q, W, T, V, E):
     bones = np.argsort(~mask_full, axis=1, kind="stable")[:, :K]
     mask = np.take_along_axis(mask_full, bones, axis=1)
     a0 = np.take_along_axis(0.5 * (W[E[:, 0]] + W[E[:, 1]]), bones, axis=1) * mask
-    Tb = np.transpose(T[:, bones], (1, 0, 2, 3, 4))
+    Tb = np.ascontiguousarray(np.transpose(T[:, bones], (1, 2, 0, 3, 4)))       # (B, K, P, 3, 4)
     Qe = Q[E[:, 0]] + Q[E[:, 1]]
     fb = np.stack([V[E[:, 0]], V[E[:, 1]], 0.5 * (V[E[:, 0]] + V[E[:, 1]])], axis=1)
     return Qe, Tb, a0, mask, fb, bones

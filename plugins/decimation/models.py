@@ -46,7 +46,7 @@ class QuarticModel(EdgeCostModel):
             K = int(Kb[idx].max())
             bones, mask = _restricted_bones(mask_full[idx], K)
             a0 = np.take_along_axis(0.5 * (Wa[idx] + Wb[idx]), bones, axis=1) * mask
-            Tb = np.transpose(st.T[:, bones], (1, 0, 2, 3, 4))          # (b, P, K, 3, 4)
+            Tb = np.ascontiguousarray(np.transpose(st.T[:, bones], (1, 2, 0, 3, 4)))   # (b, K, P, 3, 4)
             Qe = self.Q[ea[idx]] + self.Q[eb[idx]]
             pa, pb = st.V[ea[idx]], st.V[eb[idx]]
             fallback = np.stack([pa, pb, 0.5 * (pa + pb)], axis=1)
