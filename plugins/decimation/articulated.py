@@ -121,6 +121,8 @@ class QuarticParams(DecimationParams):
     """Most alternations of the position and weight steps per edge."""
     tol: float = Field(default=1e-4, ge=0.0)
     """Stop alternating once the error falls by less than this (relative)."""
+    endpoint_candidates: bool = False
+    """Keep an endpoint (its position and weights) when it has a lower quartic error than the alternation's result."""
 
 
 class Quartic(ArticulatedDecimator):
@@ -133,7 +135,8 @@ class Quartic(ArticulatedDecimator):
     def model(self, Q, W, T, params):
         from rigslim.plugins.decimation.models import QuarticModel
 
-        return QuarticModel(Q, iterations=params.iterations, tol=params.tol, max_bones=params.max_bones)
+        return QuarticModel(Q, iterations=params.iterations, tol=params.tol, max_bones=params.max_bones,
+                            endpoints=params.endpoint_candidates)
 
 
 class MohrGleicher(ArticulatedDecimator):

@@ -19,6 +19,13 @@ def _restricted_bones(mask_full: np.ndarray, K: int) -> tuple[np.ndarray, np.nda
     return bones, np.take_along_axis(mask_full, bones, axis=1)
 
 
+def endpoint_errors(st: SimplifyState, Qe: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """Quartic error of keeping vertex e (its position and weights) under the edge quadrics Qe (B, P, 4, 4)."""
+    X = blended_transforms(st.W[e], st.T)                                 # (B, P, 3, 4)
+    p = np.einsum("bprc,bc->bpr", X[..., :3], st.V[e]) + X[..., 3]
+    return quadric_error(Qe, p).sum(axis=1)
+
+
 class QuarticModel(EdgeCostModel):
     """[S09]: per-pose quadrics summed over the edge; alternate position and weight solves.
 
@@ -26,13 +33,17 @@ class QuarticModel(EdgeCostModel):
     ----------
     Q : (m, P, 4, 4) per-pose quadrics of the original vertices.
     iterations, tol, max_bones : see :func:`rigslim.quadrics.alternate`.
+    endpoints : bool
+        Also consider keeping either endpoint (position and weights) and take
+        whichever of the three candidates has the least quartic error.
     """
 
-    def __init__(self, Q, *, iterations=10, tol=1e-6, max_bones=None):
+    def __init__(self, Q, *, iterations=10, tol=1e-6, max_bones=None, endpoints=False):
         m = len(Q)
         self.Q = np.zeros((2 * m,) + Q.shape[1:])
         self.Q[:m] = Q
         self.iterations, self.tol, self.max_bones = iterations, tol, max_bones
+        self.endpoints = endpoints
 
     def costs(self, st: SimplifyState, ea, eb):
         Wa, Wb = st.W[ea], st.W[eb]
@@ -55,6 +66,14 @@ class QuarticModel(EdgeCostModel):
             w = np.zeros((len(idx), n))
             np.put_along_axis(w, bones, np.where(mask, a, 0.0), axis=1)   # bones are distinct per row
             v_out[idx], w_out[idx], E_out[idx] = v, w, np.maximum(E, 0.0)
+        if self.endpoints:
+            # the alternation is a local method started from the mean weights; keep an endpoint
+            # (its own position and weights) where that is better, so E never exceeds Mohr-Gleicher's
+            Qe = self.Q[ea] + self.Q[eb]
+            for e in (ea, eb):
+                E_end = np.maximum(endpoint_errors(st, Qe, e), 0.0)
+                better = E_end < E_out
+                v_out[better], w_out[better], E_out[better] = st.V[e][better], st.W[e][better], E_end[better]
         return v_out, w_out, E_out
 
     def merge(self, st, a, b, c):
@@ -73,11 +92,7 @@ class MohrGleicherModel(QuarticModel):
 
     def costs(self, st, ea, eb):
         Qe = self.Q[ea] + self.Q[eb]
-        out = []
-        for e in (ea, eb):
-            X = blended_transforms(st.W[e], st.T)                         # (B, P, 3, 4)
-            p = np.einsum("bprc,bc->bpr", X[..., :3], st.V[e]) + X[..., 3]
-            out.append(quadric_error(Qe, p).sum(axis=1))
+        out = [endpoint_errors(st, Qe, e) for e in (ea, eb)]
         take_b = out[1] < out[0]
         v = np.where(take_b[:, None], st.V[eb], st.V[ea])
         w = np.where(take_b[:, None], st.W[eb], st.W[ea])
