@@ -52,3 +52,12 @@ def test_failed_write_leaves_no_file(tmp_path):
     with pytest.raises(Exception):
         write_dmat(tmp_path / "x.dmat", Boom())
     assert list(tmp_path.iterdir()) == []
+
+
+def test_outputs_get_umask_permissions(tmp_path):
+    import os
+
+    write_dmat(tmp_path / "p.dmat", np.eye(2))
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (tmp_path / "p.dmat").stat().st_mode & 0o777 == 0o666 & ~mask
