@@ -150,3 +150,12 @@ def test_bad_parameter_is_a_one_line_error(write_pipeline):
     with pytest.raises(RigslimError) as err:
         run_pipeline(path, console=None)
     assert "\n" not in str(err.value)
+
+
+def test_auto_skips_direct_solve_above_limit():
+    asset = tube_asset()
+    asset.influences = k_largest(asset.weights, 2)
+    red, rep = reduce_weights(asset, "poisson", PoissonParams(global_max_unknowns=10, nonnegative=False,
+                                                              max_sweeps=20))
+    assert rep["path"].startswith("auto: local") and rep["sweeps"] >= 1
+    _check_invariants(red, 2, False)
