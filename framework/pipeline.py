@@ -374,6 +374,8 @@ def run_pipeline(path, *, overrides: list[str] = (), metrics_path=None, host: Pl
         document["steps"].append(entry)
         if step.key == "evaluate" and on_evaluation:
             on_evaluation(document["evaluations"][-1])
+    if asset.handles is not None:  # a generate step may have replaced the skeleton by a cage
+        document["handles"] = {"kind": asset.handles.kind, "count": asset.handles.n}
     document["seconds"] = time.perf_counter() - t0
     if metrics_path is not None:
         write_metrics(metrics_path, document)
