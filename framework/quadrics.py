@@ -186,7 +186,7 @@ def position_step(Q: np.ndarray, Tb: np.ndarray, a: np.ndarray, fallback: np.nda
 
 
 def weight_step(Q: np.ndarray, Tb: np.ndarray, v: np.ndarray, a0: np.ndarray, mask: np.ndarray,
-                method: str = "tikhonov", ridge: float = 1e-9) -> np.ndarray:
+                method: str = "tikhonov", ridge: float = 1e-9, nonnegative: bool = False) -> np.ndarray:
     """Minimum-norm weight offset for a fixed position ([S09] sec. 3.2), batched.
 
     Parameters
@@ -206,6 +206,11 @@ def weight_step(Q: np.ndarray, Tb: np.ndarray, v: np.ndarray, a0: np.ndarray, ma
         directions whose curvature is below ``ridge`` (tested).
     ridge : float
         Tikhonov weight relative to H's mean diagonal.
+    nonnegative : bool
+        Also require ``a >= 0`` (skin weights engines accept). The step is then
+        the small QP ``min a^T H a + ridge |a - a0|^2`` s.t. ``1^T a = 1``,
+        ``a >= 0``, solved exactly by the batched active-set method
+        (:func:`rigslim.qp.solve_small_qps`); ``method`` is ignored.
 
     Returns
     -------
@@ -236,6 +241,8 @@ def weight_step(Q: np.ndarray, Tb: np.ndarray, v: np.ndarray, a0: np.ndarray, ma
     KKT[:, :K, :K] = H
     KKT[:, :K, K] = mask
     KKT[:, K, :K] = mask
+    if nonnegative:
+        return _nonnegative_weight_step(H, a0, mask, ridge)
     rhs = np.zeros((B, K + 1))
     rhs[:, :K] = (H @ a0[..., None])[..., 0]
     if method == "pinv":
@@ -247,6 +254,25 @@ def weight_step(Q: np.ndarray, Tb: np.ndarray, v: np.ndarray, a0: np.ndarray, ma
         raise ValueError(f"unknown weight-step method {method!r}")
     a = (a0 + sol[:, :K]) * mask
     return a
+
+
+def _nonnegative_weight_step(H: np.ndarray, a0: np.ndarray, mask: np.ndarray, ridge: float) -> np.ndarray:
+    """``min a^T H a + ridge |a - a0|^2`` s.t. ``1^T a = 1``, ``a >= 0``, ``a = 0`` off the mask."""
+    from rigslim.qp import solve_small_qps
+
+    B, K = a0.shape
+    eye = np.eye(K)[None]
+    pad = ~mask
+    # Padding slots: cost x^2/2 + x on x >= 0 has its minimum at x = 0 and no coupling (H is zero there).
+    Hq = H * (mask[:, :, None] & mask[:, None, :]) + ridge * eye * mask[:, None, :] + eye * pad[:, None, :]
+    g = np.where(mask, -ridge * a0, 1.0)
+    C = mask[:, None, :].astype(np.float64)
+    d = np.ones((B, 1))
+    x0 = np.where(mask, np.clip(a0, 0.0, None), 0.0)
+    sums = x0.sum(axis=1, keepdims=True)
+    uniform = mask / np.maximum(mask.sum(axis=1, keepdims=True), 1)
+    x0 = np.where(sums > 1e-12, x0 / np.where(sums > 1e-12, sums, 1.0), uniform)
+    return solve_small_qps(Hq, g, C, d, nonneg=True, x0=x0).x * mask
 
 
 def bone_limit(a: np.ndarray, mask: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -276,7 +302,8 @@ def bone_limit(a: np.ndarray, mask: np.ndarray, n: int) -> tuple[np.ndarray, np.
     return out / sums, keep
 
 
-def alternate(Q, Tb, a0, mask, fallback, *, iterations: int = 10, tol: float = 1e-6, max_bones: int | None = None):
+def alternate(Q, Tb, a0, mask, fallback, *, iterations: int = 10, tol: float = 1e-6, max_bones: int | None = None,
+              nonnegative: bool = False):
     """Alternating minimisation of the quartic error over position and weights, batched.
 
     Parameters
@@ -293,6 +320,8 @@ def alternate(Q, Tb, a0, mask, fallback, *, iterations: int = 10, tol: float = 1
     max_bones : int, optional
         Bone limit: after the alternation keep the n largest weights,
         renormalise, and alternate again on that set.
+    nonnegative : bool
+        Weight steps keep ``a >= 0`` (see :func:`weight_step`).
 
     Returns
     -------
@@ -310,7 +339,7 @@ def alternate(Q, Tb, a0, mask, fallback, *, iterations: int = 10, tol: float = 1
             if act.size == 0:
                 break
             q, tb, fb = Q[act], Tb[act], fallback[act]
-            a = weight_step(q, tb, v_act, a0=a_start[act], mask=m[act])
+            a = weight_step(q, tb, v_act, a0=a_start[act], mask=m[act], nonnegative=nonnegative)
             v_act, _ = position_step(q, tb, a, fb)
             E_new = quartic_error(q, tb, a, v_act)
             old = best_E[act]
@@ -326,6 +355,7 @@ def alternate(Q, Tb, a0, mask, fallback, *, iterations: int = 10, tol: float = 1
     if max_bones is not None and (np.count_nonzero(np.abs(a) > 0, axis=1) > max_bones).any():
         over = np.count_nonzero(np.abs(a) > 0, axis=1) > max_bones
         a_lim, m_lim = bone_limit(a[over], mask[over], max_bones)
-        v2, a2, E2 = alternate(Q[over], Tb[over], a_lim, m_lim, fallback[over], iterations=iterations, tol=tol)
+        v2, a2, E2 = alternate(Q[over], Tb[over], a_lim, m_lim, fallback[over], iterations=iterations, tol=tol,
+                               nonnegative=nonnegative)
         v[over], a[over], E[over] = v2, a2, E2
     return v, a, E

@@ -251,3 +251,10 @@ def test_endpoint_candidates_never_cost_more_than_mohr_gleicher(asset):
     assert (eq <= em * (1 + 1e-12) + 1e-15).all()
     assert (eq <= ep * (1 + 1e-12) + 1e-15).all()
     assert (ep < em).mean() > 0.5            # the alternation alone already beats keeping an endpoint mostly
+
+
+def test_quartic_weights_are_nonnegative_by_default_for_skinning_input(quartic_run, asset):
+    hier, _ = quartic_run
+    assert (hier.weights.values >= 0).all()           # every vertex of every level
+    free, _ = decimate(asset, "quartic", targets=[100], min_faces=100, max_bones=2, nonnegative=False)
+    assert np.allclose(free.weights.values.sum(axis=1), 1.0, atol=1e-9)

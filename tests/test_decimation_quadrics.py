@@ -191,3 +191,39 @@ def test_alternate_with_bone_limit_restricts_the_result(elephant_edges):
     assert (np.count_nonzero(a, axis=1) <= 3).all()
     assert np.allclose(a.sum(axis=1), 1.0)
     assert np.allclose(quartic_error(Qe, Tb, a, v), e)
+
+
+def test_nonnegative_weight_step_matches_a_general_qp_solver(elephant_edges):
+    """The non-negative weight step is the optimum of its QP (checked against Clarabel)."""
+    import clarabel
+
+    asset, Q, W, T, E = elephant_edges
+    Qe, Tb, a0, mask, fb, _ = edge_inputs(Q, W, T, asset.mesh.V, E[:6])
+    v, _ = position_step(Qe, Tb, a0, fb)
+    ridge = 1e-9
+    a = weight_step(Qe, Tb, v, a0, mask, nonnegative=True, ridge=ridge)
+    assert (a >= 0).all() and np.allclose(a.sum(axis=1), 1.0) and (a[~mask] == 0).all()
+    for b in range(len(v)):
+        k = np.flatnonzero(mask[b])
+        # H of the edge on its bones, from the error at feasible points (weights summing to one):
+        # E(e_i) = H_ii and E((e_i + e_j) / 2) = (H_ii + 2 H_ij + H_jj) / 4.
+        def err(a, b=b):
+            return quartic_error(Qe[b:b + 1], Tb[b:b + 1], a[None], v[b:b + 1])[0]
+
+        unit = np.eye(mask.shape[1])[k]
+        diag = np.array([err(e) for e in unit])
+        H = np.array([[2 * err(0.5 * (x + y)) - 0.5 * (diag[i] + diag[j]) for j, y in enumerate(unit)]
+                      for i, x in enumerate(unit)])
+        H /= np.trace(H) / len(k)
+        P = sp.csc_matrix(2 * (H + ridge * np.eye(len(k))))
+        q = -2 * ridge * a0[b, k]
+        A = sp.csc_matrix(np.vstack([np.ones((1, len(k))), -np.eye(len(k))]))
+        rhs = np.r_[1.0, np.zeros(len(k))]
+        cones = [clarabel.ZeroConeT(1), clarabel.NonnegativeConeT(len(k))]
+        settings = clarabel.DefaultSettings()
+        settings.verbose = False
+        settings.tol_gap_abs = settings.tol_gap_rel = 1e-12
+        sol = clarabel.DefaultSolver(P, q, A, rhs, cones, settings).solve()
+        x = np.array(sol.x)
+        obj = lambda z: z @ (H + ridge * np.eye(len(k))) @ z - 2 * ridge * a0[b, k] @ z  # noqa: E731
+        assert obj(a[b, k]) <= obj(x) + 1e-8 * max(1.0, abs(obj(x)))

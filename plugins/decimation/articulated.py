@@ -123,6 +123,9 @@ class QuarticParams(DecimationParams):
     """Stop alternating once the error falls by less than this (relative)."""
     endpoint_candidates: bool = False
     """Keep an endpoint (its position and weights) when it has a lower quartic error than the alternation's result."""
+    nonnegative: bool | None = None
+    """Weight steps keep every weight >= 0 (glTF and engines require it). Default: on when the
+    input weights have no negative entry; ``false`` is [S09]'s unconstrained step."""
 
 
 class Quartic(ArticulatedDecimator):
@@ -135,8 +138,9 @@ class Quartic(ArticulatedDecimator):
     def model(self, Q, W, T, params):
         from rigslim.plugins.decimation.models import QuarticModel
 
+        nonnegative = params.nonnegative if params.nonnegative is not None else bool((W >= 0).all())
         return QuarticModel(Q, iterations=params.iterations, tol=params.tol, max_bones=params.max_bones,
-                            endpoints=params.endpoint_candidates)
+                            endpoints=params.endpoint_candidates, nonnegative=nonnegative)
 
 
 class MohrGleicher(ArticulatedDecimator):

@@ -32,18 +32,19 @@ class QuarticModel(EdgeCostModel):
     Parameters
     ----------
     Q : (m, P, 4, 4) per-pose quadrics of the original vertices.
-    iterations, tol, max_bones : see :func:`rigslim.quadrics.alternate`.
+    iterations, tol, max_bones, nonnegative : see :func:`rigslim.quadrics.alternate`.
     endpoints : bool
         Also consider keeping either endpoint (position and weights) and take
         whichever of the three candidates has the least quartic error.
     """
 
-    def __init__(self, Q, *, iterations=10, tol=1e-6, max_bones=None, endpoints=False):
+    def __init__(self, Q, *, iterations=10, tol=1e-6, max_bones=None, endpoints=False, nonnegative=False):
         m = len(Q)
         self.Q = np.zeros((2 * m,) + Q.shape[1:])
         self.Q[:m] = Q
         self.iterations, self.tol, self.max_bones = iterations, tol, max_bones
         self.endpoints = endpoints
+        self.nonnegative = nonnegative
 
     def costs(self, st: SimplifyState, ea, eb):
         Wa, Wb = st.W[ea], st.W[eb]
@@ -62,7 +63,7 @@ class QuarticModel(EdgeCostModel):
             pa, pb = st.V[ea[idx]], st.V[eb[idx]]
             fallback = np.stack([pa, pb, 0.5 * (pa + pb)], axis=1)
             v, a, E = alternate(Qe, Tb, a0, mask, fallback, iterations=self.iterations, tol=self.tol,
-                                max_bones=self.max_bones)
+                                max_bones=self.max_bones, nonnegative=self.nonnegative)
             w = np.zeros((len(idx), n))
             np.put_along_axis(w, bones, np.where(mask, a, 0.0), axis=1)   # bones are distinct per row
             v_out[idx], w_out[idx], E_out[idx] = v, w, np.maximum(E, 0.0)
