@@ -21,12 +21,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
+
+from benchmarks.datasets import machine
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "examples" / "data"
@@ -37,15 +37,6 @@ PAPER = [("Buddha", 427_616, "MVC", 45, 12), ("Bunny", 35_947, "MVC", 47, 8), ("
          ("Horse", 48_485, "MVC", 51, 8), ("Armadillo", 15_002, "HC", 110, 8), ("Horse", 48_485, "HC", 51, 8),
          ("Cheb", 6_669, "SD", 17, 5), ("Human", 120_226, "SD", 17, 5)]
 
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def timed(fn, *args, **kwargs):
@@ -227,7 +218,7 @@ def main(argv=None) -> int:
     if "hand" not in skip:
         timings += bench_hand(log)
     quality = bench_quality(log) if "quality" not in skip else []
-    doc = {"machine": {"cpu": cpu_model(), "nproc": os.cpu_count(), "python": platform.python_version()},
+    doc = {"machine": machine(),
            "timings": timings, "quality": quality,
            "paper": [dict(zip(("model", "vertices", "deformation", "max_weights", "optimized_weights"), p))
                      for p in PAPER]}

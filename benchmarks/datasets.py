@@ -20,6 +20,8 @@ Example
 
 from __future__ import annotations
 
+import os
+import platform
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +44,6 @@ def elephant(levels: int = 0, examples: str = EXAMPLES, test: str = TEST):
     """
     from rigslim.asset import Asset
     from rigslim.io import read_dmat, read_mesh, read_stacked_animation, read_tgf
-    from rigslim.mesh import Mesh
     from rigslim.poses import FrameSplit
     from rigslim.weights import validate_weights
 
@@ -70,3 +71,19 @@ def subdivide(mesh, W, levels: int):
     V2, W2 = S[:, :3], S[:, 3:]
     W2[np.abs(W2) < 1e-12] = 0.0
     return Mesh(V2, F2, source=f"{mesh.source} (subdivided {levels}x)"), sp.csr_matrix(W2)
+
+
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo``), for the machine line of every results table."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def machine() -> dict:
+    """``{"cpu", "nproc", "python"}`` of this machine."""
+    return {"cpu": cpu_model(), "nproc": os.cpu_count(), "python": platform.python_version()}

@@ -47,19 +47,11 @@ if __package__ in (None, ""):          # run as a script: python3 benchmarks/def
 
     sys.path.insert(0, str(ROOT))
 
+from benchmarks.datasets import cpu_model  # noqa: E402
+
 #: [P10] section 5, 702,538-polygon model, 137-vertex cage: CPU full weights 1.2 fps,
 #: CPU 8 weights 13.9 fps, GeForce GTX 280 8 weights 142.9 fps.
 PAPER = {"cpu_full_fps": 1.2, "cpu_k8_fps": 13.9, "gtx280_k8_fps": 142.9}
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def gpu_names() -> list[str]:

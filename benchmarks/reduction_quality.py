@@ -22,14 +22,12 @@ reduction_quality_fig12.png.
 from __future__ import annotations
 
 import json
-import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.datasets import elephant
+from benchmarks.datasets import elephant, machine
 
 OUT = Path(__file__).resolve().parents[1] / "docs" / "results"
 KS = (4, 5, 6, 8)
@@ -37,16 +35,6 @@ LAMBDAS = (1e-3, 1e-2, 1e-1, 1.0, 10.0)
 VALIDATION = "2:457:7"
 
 
-def machine() -> dict:
-    cpu = "unknown"
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"nproc": os.cpu_count(), "cpu": cpu, "python": platform.python_version()}
 
 
 def frame_errors(asset, reduced, frames):

@@ -30,7 +30,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.datasets import DATA, elephant  # noqa: E402
+from benchmarks.datasets import DATA, cpu_model, elephant  # noqa: E402
 
 METHODS = ["quartic", "mohr-gleicher", "decoro-rusinkiewicz", "static-qslim"]
 FRACTIONS = [0.2, 0.1, 0.05, 0.02, 0.01]
@@ -213,7 +213,7 @@ def main(argv=None):
                      ("armadillo-86k", armadillo, None, 1)]
     import os
 
-    cpu = next((ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo") if ln.startswith("model name")), "?")
+    cpu = cpu_model()
     machine = {"nproc": os.cpu_count(), "cpu": cpu, "python": platform.python_version(),
                "note": "shared 2-core machine; other jobs ran at the same time, so timings are upper bounds"}
     results = []

@@ -128,7 +128,6 @@ class DeCoroModel(EdgeCostModel):
     def costs(self, st, ea, eb):
         Qe = (self.Q[ea] + self.Q[eb])[:, None]                         # one "pose": identity
         B = len(ea)
-        n = st.W.shape[1]
         ident = np.zeros((B, 1, 1, 3, 4))
         ident[..., :3, :3] = np.eye(3)
         pa, pb = st.V[ea], st.V[eb]

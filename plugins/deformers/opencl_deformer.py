@@ -32,7 +32,7 @@ class OpenCLBound(BoundDeformer):
                  local_size: int | None, fit_precision: str = "auto"):
         import pyopencl as cl
 
-        from rigslim.opencl import build_program, get_runtime
+        from rigslim.opencl import get_runtime
 
         n = n_handles_of(weights)
         super().__init__(mesh.n_vertices, n, normals_mode)
