@@ -264,3 +264,16 @@ class BoundDeformer:
 
     def __exit__(self, *exc):
         self.close()
+
+
+class DeviceBound(BoundDeformer):
+    """A bound deformer on a device (OpenCL, OpenGL): ``launch`` runs one frame and, with
+    ``read=True``, reads float32 results into ``_host_positions`` / ``_host_normals``."""
+
+    def launch(self, T: np.ndarray, normals: bool = False, read: bool = True):
+        raise NotImplementedError
+
+    def _deform(self, T, normals):
+        self.launch(T, normals, read=True)
+        P = self._host_positions.astype(np.float64)
+        return (P, self._host_normals.astype(np.float64)) if normals else P

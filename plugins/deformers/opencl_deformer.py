@@ -16,14 +16,14 @@ import numpy as np
 from rigslim.errors import StepError
 from rigslim.plugin import Deformer
 
-from rigslim.plugins.deformers.base import (BoundDeformer, DeformerParams, Layout, check_weights, handle_data,
+from rigslim.plugins.deformers.base import (DeviceBound, DeformerParams, Layout, check_weights, handle_data,
                                             n_handles_of, pack_weights, resolve_normals, rest_normal_data)
 
 _NORMALS_CODE = {None: 0, "blended-matrix": 1, "approximate-affine": 2}
 _LAYOUT_CODE = {"fixed": 0, "compact": 1, "csr": 2}
 
 
-class OpenCLBound(BoundDeformer):
+class OpenCLBound(DeviceBound):
     """Device buffers for one mesh and weights, reused across frames."""
 
     backend = "opencl"
@@ -122,11 +122,6 @@ class OpenCLBound(BoundDeformer):
         event.wait()
         self.last_seconds = (event.profile.end - event.profile.start) * 1e-9
         return event
-
-    def _deform(self, T, normals):
-        self.launch(T, normals, read=True)
-        P = self._host_positions.astype(np.float64)
-        return (P, self._host_normals.astype(np.float64)) if normals else P
 
     def bytes_per_frame(self, normals: bool) -> int:
         m = self.n_vertices

@@ -26,7 +26,7 @@ import rigslim.egl  # noqa: F401  (light; sets PYOPENGL_PLATFORM=egl unless set,
 from rigslim.errors import StepError
 from rigslim.plugin import Deformer
 
-from rigslim.plugins.deformers.base import (BoundDeformer, DeformerParams, Layout, check_weights, handle_data,
+from rigslim.plugins.deformers.base import (DeviceBound, DeformerParams, Layout, check_weights, handle_data,
                                             n_handles_of, pack_weights, resolve_normals, rest_normal_data)
 
 _NORMALS_CODE = {None: 0, "blended-matrix": 1, "approximate-affine": 2}
@@ -61,7 +61,7 @@ def compile_program(source: str, defines: dict, varyings: list[str]):
     return program
 
 
-class OpenGLBound(BoundDeformer):
+class OpenGLBound(DeviceBound):
     """Vertex buffers, a handle texture buffer and feedback buffers for one mesh and weights."""
 
     backend = "opengl"
@@ -227,11 +227,6 @@ class OpenGLBound(BoundDeformer):
         GL.glBindBufferBase(GL.GL_TRANSFORM_FEEDBACK_BUFFER, 1, 0)
         GL.glBindVertexArray(0)
         GL.glUseProgram(0)
-
-    def _deform(self, T, normals):
-        self.launch(T, normals, read=True)
-        P = self._host_positions.astype(np.float64)
-        return (P, self._host_normals.astype(np.float64)) if normals else P
 
     def bytes_per_frame(self, normals: bool) -> int:
         m = self.n_vertices
