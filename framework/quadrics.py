@@ -141,8 +141,12 @@ def quartic_error(Q: np.ndarray, Tb: np.ndarray, a: np.ndarray, v: np.ndarray) -
     -----
     ``E(v, a) = sum_j (sum_k a_k M_k^j v)^T Q^j (sum_k a_k M_k^j v)``.
     """
-    p = _posed(_blend(a, Tb), v)
-    return quadric_error(Q, p).sum(axis=1)
+    return _quartic_error_blended(Q, _blend(a, Tb), v)
+
+
+def _quartic_error_blended(Q: np.ndarray, X: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """:func:`quartic_error` from the blended transforms ``X = sum_k a_k M_k`` (B, P, 3, 4)."""
+    return quadric_error(Q, _posed(X, v)).sum(axis=1)
 
 
 def position_step(Q: np.ndarray, Tb: np.ndarray, a: np.ndarray, fallback: np.ndarray):
@@ -165,7 +169,11 @@ def position_step(Q: np.ndarray, Tb: np.ndarray, a: np.ndarray, fallback: np.nda
     With ``L_j = [[X_j], [0 0 0 1]]`` the blended 4x4 transform of pose j,
     ``G = sum_j L_j^T Q^j L_j = [[A, b], [b^T, c]]`` and ``A v = -b``.
     """
-    X = _blend(a, Tb)
+    return _position_step_blended(Q, _blend(a, Tb), fallback)
+
+
+def _position_step_blended(Q: np.ndarray, X: np.ndarray, fallback: np.ndarray):
+    """:func:`position_step` from the blended transforms ``X = sum_k a_k M_k`` (B, P, 3, 4)."""
     L = np.zeros(X.shape[:2] + (4, 4))
     L[..., :3, :] = X
     L[..., 3, 3] = 1.0
@@ -237,12 +245,12 @@ def weight_step(Q: np.ndarray, Tb: np.ndarray, v: np.ndarray, a0: np.ndarray, ma
     kk = np.maximum(mask.sum(axis=1), 1)
     s = np.trace(H, axis1=1, axis2=2) / kk
     H = H / np.where(s > 0, s, 1.0)[:, None, None]
+    if nonnegative:
+        return _nonnegative_weight_step(H, a0, mask, ridge)
     KKT = np.zeros((B, K + 1, K + 1))
     KKT[:, :K, :K] = H
     KKT[:, :K, K] = mask
     KKT[:, K, :K] = mask
-    if nonnegative:
-        return _nonnegative_weight_step(H, a0, mask, ridge)
     rhs = np.zeros((B, K + 1))
     rhs[:, :K] = (H @ a0[..., None])[..., 0]
     if method == "pinv":
@@ -330,18 +338,23 @@ def alternate(Q, Tb, a0, mask, fallback, *, iterations: int = 10, tol: float = 1
         the error of the first position step with ``a0``.
     """
     def run(a_start, m):
-        v, _ = position_step(Q, Tb, a_start, fallback)
-        E = quartic_error(Q, Tb, a_start, v)
+        X = _blend(a_start, Tb)                # shared by the position step and the error
+        v, _ = _position_step_blended(Q, X, fallback)
+        E = _quartic_error_blended(Q, X, v)
         best_v, best_a, best_E = v, a_start.copy(), E
         act = np.arange(len(a_start))          # edges still improving
         v_act = v
         for _ in range(iterations):
             if act.size == 0:
                 break
-            q, tb, fb = Q[act], Tb[act], fallback[act]
+            if act.size == len(a_start):           # all edges still active: no copies
+                q, tb, fb = Q, Tb, fallback
+            else:
+                q, tb, fb = Q[act], Tb[act], fallback[act]
             a = weight_step(q, tb, v_act, a0=a_start[act], mask=m[act], nonnegative=nonnegative)
-            v_act, _ = position_step(q, tb, a, fb)
-            E_new = quartic_error(q, tb, a, v_act)
+            X = _blend(a, tb)
+            v_act, _ = _position_step_blended(q, X, fb)
+            E_new = _quartic_error_blended(q, X, v_act)
             old = best_E[act]
             better = E_new < old
             gain = (old - E_new) / np.maximum(np.abs(old), 1e-300)
