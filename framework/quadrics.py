@@ -246,7 +246,7 @@ def weight_step(Q: np.ndarray, Tb: np.ndarray, v: np.ndarray, a0: np.ndarray, ma
     s = np.trace(H, axis1=1, axis2=2) / kk
     H = H / np.where(s > 0, s, 1.0)[:, None, None]
     if nonnegative:
-        return _nonnegative_weight_step(H, a0, mask, ridge)
+        method = "tikhonov"   # the non-negative step minimises the Tikhonov objective
     KKT = np.zeros((B, K + 1, K + 1))
     KKT[:, :K, :K] = H
     KKT[:, :K, K] = mask
@@ -261,6 +261,12 @@ def weight_step(Q: np.ndarray, Tb: np.ndarray, v: np.ndarray, a0: np.ndarray, ma
     else:
         raise ValueError(f"unknown weight-step method {method!r}")
     a = (a0 + sol[:, :K]) * mask
+    if nonnegative:
+        # The equality-constrained optimum is the answer wherever it is already non-negative
+        # (convex problem); only the other edges need the active-set QP.
+        neg = ((a < 0) & mask).any(axis=1)
+        if neg.any():
+            a[neg] = _nonnegative_weight_step(H[neg], a0[neg], mask[neg], ridge)
     return a
 
 
