@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.datasets import machine
+from benchmarks.datasets import machine, write_results
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "examples" / "data"
@@ -185,12 +185,7 @@ def markdown(doc: dict) -> str:
 
 
 def write(doc: dict, out: Path) -> None:
-    from rigslim.io.atomic import atomic_path
-
-    with atomic_path(out.with_suffix(".json")) as tmp:
-        Path(tmp).write_text(json.dumps(doc, indent=2) + "\n")
-    with atomic_path(out.with_suffix(".md")) as tmp:
-        Path(tmp).write_text(markdown(doc))
+    write_results(out, doc, markdown(doc))
 
 
 def main(argv=None) -> int:

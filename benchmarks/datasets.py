@@ -20,6 +20,7 @@ Example
 
 from __future__ import annotations
 
+import json
 import os
 import platform
 from pathlib import Path
@@ -87,3 +88,15 @@ def cpu_model() -> str:
 def machine() -> dict:
     """``{"cpu", "nproc", "python"}`` of this machine."""
     return {"cpu": cpu_model(), "nproc": os.cpu_count(), "python": platform.python_version()}
+
+
+def write_results(stem, doc: dict, markdown: str) -> None:
+    """Write ``stem.json`` (the document) and ``stem.md`` (its table) atomically."""
+    from rigslim.io.atomic import atomic_path
+
+    stem = Path(stem)
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(stem.with_suffix(".json")) as tmp:
+        tmp.write_text(json.dumps(doc, indent=2) + "\n")
+    with atomic_path(stem.with_suffix(".md")) as tmp:
+        tmp.write_text(markdown)

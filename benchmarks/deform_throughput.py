@@ -47,7 +47,7 @@ if __package__ in (None, ""):          # run as a script: python3 benchmarks/def
 
     sys.path.insert(0, str(ROOT))
 
-from benchmarks.datasets import cpu_model  # noqa: E402
+from benchmarks.datasets import cpu_model, write_results  # noqa: E402
 
 #: [P10] section 5, 702,538-polygon model, 137-vertex cage: CPU full weights 1.2 fps,
 #: CPU 8 weights 13.9 fps, GeForce GTX 280 8 weights 142.9 fps.
@@ -242,13 +242,7 @@ def markdown(doc: dict) -> str:
 
 
 def write(doc: dict, out: Path) -> None:
-    from rigslim.io.atomic import atomic_path
-
-    out = Path(out)
-    with atomic_path(out.with_suffix(".json")) as tmp:
-        Path(tmp).write_text(json.dumps(doc, indent=2) + "\n")
-    with atomic_path(out.with_suffix(".md")) as tmp:
-        Path(tmp).write_text(markdown(doc))
+    write_results(out, doc, markdown(doc))
 
 
 def main(argv=None) -> int:

@@ -10,7 +10,6 @@ The coordinates are computed once and reused (they do not depend on the method).
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -19,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if __package__ in (None, ""):
     sys.path.insert(0, str(ROOT))
 
-from benchmarks.datasets import machine  # noqa: E402
+from benchmarks.datasets import machine, write_results  # noqa: E402
 
 OUT = ROOT / "docs" / "results"
 PIPELINE = ROOT / "examples" / "armadillo-k8.yaml"
@@ -73,10 +72,6 @@ def main() -> None:
               "vertices": asset.mesh.n_vertices, "handles": asset.handles.n,
               "examples": asset.split.examples, "test": asset.split.test,
               "generate_seconds": generate_s, "rows": rows}
-    from rigslim.io.atomic import atomic_path
-
-    with atomic_path(OUT / "reduction_cage.json") as tmp:
-        tmp.write_text(json.dumps(result, indent=2) + "\n")
     mach = result["machine"]
     lines = ["# Reduction quality on a cage: armadillo, mean value coordinates, 110 -> 8", "",
              f"Machine: {mach['cpu']}, nproc {mach['nproc']}. Pipeline `{result['pipeline']}`: "
@@ -89,8 +84,7 @@ def main() -> None:
     for r in rows:
         lines.append(f"| {r['method']} | {r['seconds']:.2f} | {r['position_rms_pct']:.4f} ({r['position_max_pct']:.4f}) "
                      f"| {r['normal_rms_rad']:.4f} ({r['normal_max_rad']:.4f}) |")
-    with atomic_path(OUT / "reduction_cage.md") as tmp:
-        tmp.write_text("\n".join(lines) + "\n")
+    write_results(OUT / "reduction_cage", result, "\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

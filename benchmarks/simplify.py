@@ -30,7 +30,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.datasets import DATA, cpu_model, elephant  # noqa: E402
+from benchmarks.datasets import DATA, cpu_model, elephant, write_results  # noqa: E402
 
 METHODS = ["quartic", "mohr-gleicher", "decoro-rusinkiewicz", "static-qslim"]
 FRACTIONS = [0.2, 0.1, 0.05, 0.02, 0.01]
@@ -237,14 +237,8 @@ def main(argv=None):
 
 
 def finish(doc, out: Path) -> None:
-    from rigslim.io.atomic import atomic_path
-
-    out.mkdir(parents=True, exist_ok=True)
-    with atomic_path(out / "simplify.json") as tmp:
-        tmp.write_text(json.dumps(doc, indent=2) + "\n")
     md = markdown(doc)
-    with atomic_path(out / "simplify.md") as tmp:
-        tmp.write_text(md)
+    write_results(out / "simplify", doc, md)
     print(md)
     plot(doc, out / "simplify.png")
 
