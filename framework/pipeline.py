@@ -29,6 +29,7 @@ from rigslim.host import PluginHost, get_host
 from rigslim.io.atomic import atomic_path
 from rigslim.plugin import STEP_STAGES, StepContext
 from rigslim.poses import FrameSplit
+from rigslim.weights import influence_counts, validate_weights
 
 #: Order in which input roles are read (others follow, in file order).
 ROLE_ORDER = ["gltf", "mesh", "skeleton", "cage", "weights", "animation"]
@@ -392,8 +393,6 @@ def _run_step(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base
             metric = host.get("metric", name)
             metrics.update(metric.compute(evaluation, metric.parse_params(p)))
         label = step.name if step.name != f"evaluate{step.index}" else _default_label(document, asset)
-        from rigslim.weights import influence_counts
-
         evaluation_entry = {"name": label, "step": step.index, "metrics": metrics}
         if asset.weights is not None and asset.reduced is not None:
             # how many vertices have 0, 1, 2... non-zero weights before and after (report histograms)
@@ -430,7 +429,6 @@ def _run_step(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base
     params = plugin.parse_params(step.params)
     if step.key == "generate":
         asset.require("mesh", "handles", step=f"generate: {plugin.name}")
-        from rigslim.weights import validate_weights
         W = plugin.generate(asset, params, ctx)
         asset.weights = validate_weights(W, asset.mesh.n_vertices, n_handles=asset.handles.n,
                                          source=f"generate: {plugin.name}")
@@ -444,6 +442,7 @@ def _run_step(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base
         asset.provenance["solver"] = plugin.name
     elif step.key == "decimate":
         plugin.decimate(asset, params, ctx)
+        asset.provenance["decimator"] = plugin.name
     elif step.key == "deform":
         asset.deformer, asset.deformer_params = plugin.name, dict(step.params)
     elif step.key == "normals":
@@ -454,6 +453,8 @@ def _run_step(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base
 
 
 def _default_label(document, asset) -> str:
+    if asset.reduced is None and asset.extras.get("levels"):
+        return f"{asset.provenance.get('decimator', 'decimate')}-levels"
     solver = asset.provenance.get("solver", "input")
     k = asset.reduced.k if asset.reduced is not None else None
     return f"{solver}-k{k}" if k else solver

@@ -144,3 +144,20 @@ def test_step_needing_earlier_step(write_pipeline, capsys):
     code, _, err = run(["run", "-q", str(write_pipeline(ELEPHANT.replace("  - select: k-largest\n    k: 4\n", "")))],
                        capsys)
     assert code == 2 and "needs influences" in err and "select" in err
+
+
+def test_simplification_evaluation_is_named_after_the_decimator(write_pipeline, tmp_path, capsys):
+    text = ELEPHANT.replace("""  - select: k-largest
+    k: 4
+  - solve: k-largest
+  - evaluate: [position-rms, normal-deviation, max-influences]
+  - write: out/w.npz
+""", """  - decimate: mohr-gleicher
+    targets: [0.1]
+    min_faces: 1000
+    max_bones: 4
+  - evaluate: [metro]
+""").replace('"5:457:7"', '"5:457:91"')
+    code, _, err = run(["run", "-q", str(write_pipeline(text)), "--metrics", str(tmp_path / "m.json")], capsys)
+    assert code == 0, err
+    assert json.loads((tmp_path / "m.json").read_text())["evaluations"][0]["name"] == "mohr-gleicher-levels"
