@@ -9,6 +9,8 @@ go to ``asset.extras["hierarchy"]`` and ``asset.extras["levels"]``.
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 import scipy.sparse as sp
 from pydantic import Field
@@ -48,6 +50,8 @@ class DecimationParams(Params):
     min_normal_cos: float = Field(default=0.0, ge=-1.0, le=1.0)
     """Refuse collapses that turn a surviving face's normal by more than arccos(this), in any pose."""
     area_weighted: bool = True
+    backend: Literal["numpy", "numba"] = "numba"
+    """``numba``: the compiled collapse loop and per-edge solves; ``numpy``: the batched numpy reference."""
 
 
 def target_faces(targets, n_faces: int) -> list[int]:
@@ -98,7 +102,7 @@ class ArticulatedDecimator(Decimator):
         model = self.model(Q, W, T, params)
         hier = simplify(mesh.V, mesh.F, W, T, X, model, min_faces=min_faces, keep_boundary=params.keep_boundary,
                         min_normal_cos=params.min_normal_cos, progress=ctx.progress, method=self.name,
-                        params=params.model_dump())
+                        params=params.model_dump(), backend=params.backend)
         levels = [hier.at_faces(f, target_label(self.name, t, f)) for t, f in zip(params.targets, faces)]
         levels += [hier.at_error(e, f"{self.name}-err{e:g}") for e in params.error_targets]
         levels += [hier.adaptive(a.budget(mesh.V), a.label or f"{self.name}-adaptive{i + 1}")
@@ -140,7 +144,7 @@ class Quartic(ArticulatedDecimator):
 
         nonnegative = params.nonnegative if params.nonnegative is not None else bool((W >= 0).all())
         return QuarticModel(Q, iterations=params.iterations, tol=params.tol, max_bones=params.max_bones,
-                            endpoints=params.endpoint_candidates, nonnegative=nonnegative)
+                            endpoints=params.endpoint_candidates, nonnegative=nonnegative, backend=params.backend)
 
 
 class MohrGleicher(ArticulatedDecimator):
@@ -152,7 +156,7 @@ class MohrGleicher(ArticulatedDecimator):
     def model(self, Q, W, T, params):
         from rigslim.plugins.decimation.models import MohrGleicherModel
 
-        return MohrGleicherModel(Q, max_bones=params.max_bones)
+        return MohrGleicherModel(Q, max_bones=params.max_bones, backend=params.backend)
 
 
 class DeCoroRusinkiewicz(ArticulatedDecimator):
@@ -164,4 +168,4 @@ class DeCoroRusinkiewicz(ArticulatedDecimator):
     def model(self, Q, W, T, params):
         from rigslim.plugins.decimation.models import DeCoroModel
 
-        return DeCoroModel(Q, W, T, max_bones=params.max_bones)
+        return DeCoroModel(Q, W, T, max_bones=params.max_bones, backend=params.backend)

@@ -131,7 +131,7 @@ class _EdgeTable:
 
 def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_boundary: bool = True,
              min_normal_cos: float = 0.0, progress=None, method: str = "", params: dict | None = None,
-             batch: int = 2048) -> ProgressiveHierarchy:
+             batch: int = 2048, backend: str = "numpy") -> ProgressiveHierarchy:
     """Greedy edge collapses down to ``min_faces``, recorded as a progressive hierarchy.
 
     Parameters
@@ -155,13 +155,23 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     progress : callable, optional
         ``ctx.progress``.
     batch : int
-        Edges per batched cost evaluation.
+        Edges per batched cost evaluation (numpy backend).
+    backend : {"numpy", "numba"}
+        ``"numpy"``: this module's Python loop with the model's batched numpy
+        costs (the reference); ``"numba"``: the compiled loop and per-edge
+        costs of :mod:`rigslim.plugins.decimation.compiled` (same collapses;
+        the model must provide ``compiled_spec()``).
 
     Returns
     -------
     ProgressiveHierarchy
     """
     progress = progress or (lambda it, total=None, description="": it)
+    if backend == "numba":
+        return _simplify_compiled(V, F, W, T, X, model, min_faces=min_faces, keep_boundary=keep_boundary,
+                                  min_normal_cos=min_normal_cos, progress=progress, method=method, params=params)
+    if backend != "numpy":
+        raise ValueError(f"unknown backend {backend!r}")
     st = SimplifyState(V, F, W, T, X)
     m = st.m
     Fm = st.F
@@ -252,7 +262,7 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         n_faces -= 2
         cost_ab = float(table.cost[e])
         table.kill(e)
-        for x in union:
+        for x in sorted(union):            # a fixed order: edge slots (tie-breaks) do not depend on set order
             old = []
             for y in (a, b):
                 k = (y, x) if y < x else (x, y)
@@ -269,7 +279,8 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
             dirty.add(en)
             heapq.heappush(heap, (float(table.cost[en]), int(table.stamp[en]), en))
             for eb_ in blocked_at.pop(x, ()):
-                if table.state[eb_] == BLOCKED:
+                # the slot may since hold another edge: unblock only edges at x
+                if table.state[eb_] == BLOCKED and x in (table.a[eb_], table.b[eb_]):
                     table.state[eb_] = CLEAN
                     heapq.heappush(heap, (float(table.cost[eb_]), int(table.stamp[eb_]), eb_))
         collapses.append((a, b))
@@ -302,13 +313,83 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         if not done:
             break
 
+    return _hierarchy(st.V, st.W, F, collapses, errors, nfaces, method, params)
+
+
+def _hierarchy(Vall, Wall, F, collapses, errors, nfaces, method, params) -> ProgressiveHierarchy:
+    """The progressive hierarchy from the vertex tables and the recorded collapses."""
+    m = len(Vall) // 2                    # the tables hold 2m rows
     N = m + len(collapses)
-    Wall = st.W[:N]
+    n = Wall.shape[1]
+    Wall = Wall[:N]
     Wall = np.where(np.abs(Wall) < 1e-14, 0.0, Wall)
     k = max(1, int(np.count_nonzero(Wall, axis=1).max()))
     order = np.argsort(Wall == 0, axis=1, kind="stable")[:, :k]
     vals = np.take_along_axis(Wall, order, axis=1)
     idx = np.where(vals != 0, order, 0)
-    weights = ReducedWeights(idx, vals, W.shape[1])
-    return ProgressiveHierarchy(st.V[:N].copy(), weights, F, np.array(collapses, dtype=np.int64).reshape(-1, 2),
-                                np.array(errors), np.array(nfaces, dtype=np.int64), method, dict(params or {}))
+    weights = ReducedWeights(idx, vals, n)
+    return ProgressiveHierarchy(Vall[:N].copy(), weights, F, np.array(collapses, dtype=np.int64).reshape(-1, 2),
+                                np.array(errors, dtype=np.float64), np.array(nfaces, dtype=np.int64), method,
+                                dict(params or {}))
+
+
+def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_normal_cos, progress, method,
+                       params) -> ProgressiveHierarchy:
+    """:func:`simplify` with the compiled loop (:func:`rigslim.plugins.decimation.compiled.collapse_chunk`)."""
+    from rigslim.plugins.decimation import compiled as cc
+
+    kind, Qv, ip, fp = model.compiled_spec()
+    st = SimplifyState(V, F, W, T, X)
+    m = st.m
+    N = 2 * m
+    Fm = st.F
+    f = len(Fm)
+    corners = Fm.ravel()
+    order = np.argsort(corners, kind="stable")
+    pool = np.zeros(6 * f + 64, dtype=np.int64)
+    pool[:3 * f] = order // 3
+    vf_cnt = np.zeros(N, dtype=np.int64)
+    vf_cnt[:m] = np.bincount(corners, minlength=m)
+    vf_start = np.zeros(N, dtype=np.int64)
+    vf_start[1:m] = np.cumsum(vf_cnt[:m])[:-1]
+    E_all = np.sort(np.concatenate([Fm[:, [0, 1]], Fm[:, [1, 2]], Fm[:, [2, 0]]]), axis=1)
+    uniq, counts = np.unique(E_all, axis=0, return_counts=True)
+    boundary = np.zeros(N, dtype=bool)
+    if keep_boundary:
+        boundary[uniq[counts == 1].ravel()] = True
+    edges = np.ascontiguousarray(uniq[~(boundary[uniq[:, 0]] | boundary[uniq[:, 1]])], dtype=np.int64)
+    n_edges = len(edges)
+    cap = n_edges + 16
+    n = W.shape[1]
+    ea, eb = np.zeros(cap, np.int64), np.zeros(cap, np.int64)
+    ecost, ev, ew = np.zeros(cap), np.zeros((cap, 3)), np.zeros((cap, n))
+    estamp, estate = np.zeros(cap, np.int64), np.full(cap, DEAD, np.int8)
+    hsize = 1 << int(np.ceil(np.log2(4 * cap)))
+    hk, hv = np.full(hsize, -1, np.int64), np.zeros(hsize, np.int64)
+    cc.init_table(edges, N, ea, eb, estamp, hk, hv)
+    if n_edges:
+        v, w, E = cc.edge_costs(kind, edges[:, 0].copy(), edges[:, 1].copy(), st.V, st.W, Qv, st.T, ip, fp)
+        ecost[:n_edges], ev[:n_edges], ew[:n_edges] = E, v, w
+    estate[:n_edges] = CLEAN
+    estamp[:n_edges] += 1
+    ids = np.arange(n_edges)
+    srt = np.lexsort((ids, estamp[:n_edges], ecost[:n_edges]))     # a sorted array is a heap
+    hc, hs, he = np.zeros(3 * cap), np.zeros(3 * cap, np.int64), np.zeros(3 * cap, np.int64)
+    hc[:n_edges], hs[:n_edges], he[:n_edges] = ecost[srt], estamp[srt], srt
+    free, in_dirty, dirty = np.zeros(cap, np.int64), np.zeros(cap, bool), np.zeros(2 * cap, np.int64)
+    cnt = np.zeros(8, np.int64)
+    cnt[cc.C_FACES], cnt[cc.C_HEAP], cnt[cc.C_SIZE], cnt[cc.C_POOL] = f, n_edges, n_edges, 3 * f
+    col, errs, nf = np.zeros((m, 2), np.int64), np.zeros(m), np.zeros(m, np.int64)
+    mark = np.zeros(N, np.int64)
+    scale = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0))) ** 2
+    tiny = 1e-14 * scale
+    total = max(0, (f - min_faces + 1) // 2)
+    chunk = max(256, -(-total // 100))
+    n_chunks = -(-total // chunk)
+    for _ in progress(range(n_chunks), total=n_chunks, description=f"{method} collapses"):
+        if cc.collapse_chunk(chunk, min_faces, float(min_normal_cos), tiny, kind, ip, fp, st.V, st.W, Qv, st.T,
+                             st.pos, Fm, vf_start, vf_cnt, pool, boundary, mark, ea, eb, ecost, ev, ew, estamp,
+                             estate, free, in_dirty, dirty, hk, hv, hc, hs, he, cnt, col, errs, nf):
+            break
+    k = int(cnt[cc.C_COLLAPSES])
+    return _hierarchy(st.V, st.W, F, col[:k], errs[:k], nf[:k], method, params)

@@ -13,6 +13,25 @@ from rigslim.plugins.decimation.collapse import EdgeCostModel, SimplifyState, bl
 from rigslim.quadrics import alternate, bone_limit, position_step, quadric_error, quartic_error
 
 
+#: Tikhonov weight of the weight step (relative to H's mean diagonal), as in :func:`rigslim.quadrics.weight_step`.
+RIDGE = 1e-9
+BACKENDS = ("numpy", "numba")
+
+
+def _check_backend(backend: str) -> str:
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r} (use one of {BACKENDS})")
+    return backend
+
+
+def compiled_costs(model, st: SimplifyState, ea, eb):
+    """``v (B, 3), w (B, n), E (B,)`` of a model's edges through the compiled per-edge kernel."""
+    from rigslim.plugins.decimation.compiled import edge_costs
+
+    kind, Qv, ip, fp = model.compiled_spec()
+    return edge_costs(kind, np.asarray(ea, np.int64), np.asarray(eb, np.int64), st.V, st.W, Qv, st.T, ip, fp)
+
+
 def _restricted_bones(mask_full: np.ndarray, K: int) -> tuple[np.ndarray, np.ndarray]:
     """(B, K) bone indices of each row's True entries first, and the matching validity mask."""
     bones = np.argsort(~mask_full, axis=1, kind="stable")[:, :K]
@@ -38,15 +57,27 @@ class QuarticModel(EdgeCostModel):
         whichever of the three candidates has the least quartic error.
     """
 
-    def __init__(self, Q, *, iterations=10, tol=1e-6, max_bones=None, endpoints=False, nonnegative=False):
+    kind = 0   # rigslim.plugins.decimation.compiled.QUARTIC
+
+    def __init__(self, Q, *, iterations=10, tol=1e-6, max_bones=None, endpoints=False, nonnegative=False,
+                 backend="numpy"):
         m = len(Q)
         self.Q = np.zeros((2 * m,) + Q.shape[1:])
         self.Q[:m] = Q
         self.iterations, self.tol, self.max_bones = iterations, tol, max_bones
         self.endpoints = endpoints
         self.nonnegative = nonnegative
+        self.backend = _check_backend(backend)
+
+    def compiled_spec(self):
+        """``(method, Qv, ip, fp)`` for :func:`rigslim.plugins.decimation.compiled.edge_cost`."""
+        ip = np.array([self.iterations, -1 if self.max_bones is None else self.max_bones, int(self.nonnegative),
+                       int(self.endpoints)], dtype=np.int64)
+        return self.kind, self.Q, ip, np.array([self.tol, RIDGE])
 
     def costs(self, st: SimplifyState, ea, eb):
+        if self.backend == "numba":
+            return compiled_costs(self, st, ea, eb)
         Wa, Wb = st.W[ea], st.W[eb]
         mask_full = (Wa != 0) | (Wb != 0)
         Kb = mask_full.sum(axis=1)
@@ -91,7 +122,11 @@ class MohrGleicherModel(QuarticModel):
     the merged vertex.
     """
 
+    kind = 1   # rigslim.plugins.decimation.compiled.MOHR_GLEICHER
+
     def costs(self, st, ea, eb):
+        if self.backend == "numba":
+            return compiled_costs(self, st, ea, eb)
         Qe = self.Q[ea] + self.Q[eb]
         out = [endpoint_errors(st, Qe, e) for e in (ea, eb)]
         take_b = out[1] < out[0]
@@ -116,7 +151,9 @@ class DeCoroModel(EdgeCostModel):
     blended by distance, ``w = (|v - v_b| w_a + |v - v_a| w_b) / (|v - v_a| + |v - v_b|)``.
     """
 
-    def __init__(self, Q, W, T, *, max_bones=None):
+    kind = 2   # rigslim.plugins.decimation.compiled.DECORO
+
+    def __init__(self, Q, W, T, *, max_bones=None, backend="numpy"):
         m = len(Q)
         L = np.zeros((m, T.shape[0], 4, 4))
         L[..., :3, :] = blended_transforms(W, T)
@@ -124,8 +161,16 @@ class DeCoroModel(EdgeCostModel):
         self.Q = np.zeros((2 * m, 4, 4))
         self.Q[:m] = np.einsum("mpri,mprs,mpsj->mij", L, Q, L)
         self.max_bones = max_bones
+        self.backend = _check_backend(backend)
+
+    def compiled_spec(self):
+        """``(method, Qv, ip, fp)``; Qv is a (2m, 1, 4, 4) view of the rest-frame quadrics."""
+        ip = np.array([0, -1 if self.max_bones is None else self.max_bones, 0, 0], dtype=np.int64)
+        return self.kind, self.Q.reshape(len(self.Q), 1, 4, 4), ip, np.array([0.0, RIDGE])
 
     def costs(self, st, ea, eb):
+        if self.backend == "numba":
+            return compiled_costs(self, st, ea, eb)
         Qe = (self.Q[ea] + self.Q[eb])[:, None]                         # one "pose": identity
         B = len(ea)
         ident = np.zeros((B, 1, 1, 3, 4))
