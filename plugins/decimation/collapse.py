@@ -19,6 +19,7 @@ batched solve and queued again with its true cost.
 from __future__ import annotations
 
 import heapq
+import os
 
 import numpy as np
 
@@ -353,7 +354,8 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     vf_start = np.zeros(N, dtype=np.int64)
     vf_start[1:m] = np.cumsum(vf_cnt[:m])[:-1]
     E_all = np.sort(np.concatenate([Fm[:, [0, 1]], Fm[:, [1, 2]], Fm[:, [2, 0]]]), axis=1)
-    uniq, counts = np.unique(E_all, axis=0, return_counts=True)
+    keys, counts = np.unique(E_all[:, 0] * N + E_all[:, 1], return_counts=True)    # = np.unique(E_all, axis=0)
+    uniq = np.stack([keys // N, keys % N], axis=1)
     boundary = np.zeros(N, dtype=bool)
     if keep_boundary:
         boundary[uniq[counts == 1].ravel()] = True
@@ -377,7 +379,7 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     hc, hs, he = np.zeros(3 * cap), np.zeros(3 * cap, np.int64), np.zeros(3 * cap, np.int64)
     hc[:n_edges], hs[:n_edges], he[:n_edges] = ecost[srt], estamp[srt], srt
     free, in_dirty, dirty = np.zeros(cap, np.int64), np.zeros(cap, bool), np.zeros(2 * cap, np.int64)
-    cnt = np.zeros(8, np.int64)
+    cnt = np.zeros(11, np.int64)
     cnt[cc.C_FACES], cnt[cc.C_HEAP], cnt[cc.C_SIZE], cnt[cc.C_POOL] = f, n_edges, n_edges, 3 * f
     col, errs, nf = np.zeros((m, 2), np.int64), np.zeros(m), np.zeros(m, np.int64)
     mark = np.zeros(N, np.int64)
@@ -392,4 +394,8 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
                              estate, free, in_dirty, dirty, hk, hv, hc, hs, he, cnt, col, errs, nf):
             break
     k = int(cnt[cc.C_COLLAPSES])
+    stats = {"pops": int(cnt[cc.C_POPS]), "attempts": int(cnt[cc.C_TRIES]),
+             "evaluations": n_edges + int(cnt[cc.C_EVALS])}
+    if os.environ.get("RIGSLIM_DECIMATION_STATS"):
+        print(f"{method}: {k} collapses, {stats}", flush=True)
     return _hierarchy(st.V, st.W, F, col[:k], errs[:k], nf[:k], method, params)

@@ -59,7 +59,7 @@ FAST = {"reassoc", "contract", "nsz"}
 QUARTIC, MOHR_GLEICHER, DECORO = 0, 1, 2
 CLEAN, DIRTY, DEAD, BLOCKED = 0, 1, 2, 3
 # counters of the loop state (an int64 array)
-C_FACES, C_COLLAPSES, C_HEAP, C_FREE, C_SIZE, C_DIRTY, C_POOL, C_TAG = range(8)
+C_FACES, C_COLLAPSES, C_HEAP, C_FREE, C_SIZE, C_DIRTY, C_POOL, C_TAG, C_POPS, C_TRIES, C_EVALS = range(11)
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -73,46 +73,45 @@ def _blend(a, Tb, K, X):
     for j in range(P):
         for r in range(3):
             for c in range(4):
-                s = 0.0
-                for k in range(K):
-                    s += a[k] * Tb[k, j, r, c]
-                X[j, r, c] = s
+                X[j, r, c] = 0.0
+    for k in range(K):
+        ak = a[k]
+        for j in range(P):
+            for r in range(3):
+                for c in range(4):
+                    X[j, r, c] += ak * Tb[k, j, r, c]
 
 
 @njit(cache=True, fastmath=FAST)
 def _gram(Qe, X, G):
-    """``G = sum_j L_j^T Q^j L_j`` with ``L_j = [[X_j], [0 0 0 1]]``."""
+    """``G = sum_j L_j^T Q^j L_j`` with ``L_j = [[X_j], [0 0 0 1]]`` (symmetric; upper triangle mirrored)."""
     P = X.shape[0]
     M = np.empty((4, 4))
     for r in range(4):
         for c in range(4):
             G[r, c] = 0.0
     for j in range(P):
-        for r in range(4):
-            for c in range(4):
-                s = Qe[j, r, 3] if c == 3 else 0.0
-                for t in range(3):
-                    s += Qe[j, r, t] * X[j, t, c]
-                M[r, c] = s
-        for r in range(4):
-            for c in range(4):
-                s = M[3, c] if r == 3 else 0.0
-                for t in range(3):
-                    s += X[j, t, r] * M[t, c]
-                G[r, c] += s
+        for r in range(4):                   # M = Q_j L_j
+            for c in range(3):
+                M[r, c] = Qe[j, r, 0] * X[j, 0, c] + Qe[j, r, 1] * X[j, 1, c] + Qe[j, r, 2] * X[j, 2, c]
+            M[r, 3] = Qe[j, r, 0] * X[j, 0, 3] + Qe[j, r, 1] * X[j, 1, 3] + Qe[j, r, 2] * X[j, 2, 3] + Qe[j, r, 3]
+        for r in range(3):                   # G += L_j^T M
+            for c in range(r, 4):
+                G[r, c] += X[j, 0, r] * M[0, c] + X[j, 1, r] * M[1, c] + X[j, 2, r] * M[2, c]
+        G[3, 3] += X[j, 0, 3] * M[0, 3] + X[j, 1, 3] * M[1, 3] + X[j, 2, 3] * M[2, 3] + M[3, 3]
+    for r in range(4):
+        for c in range(r):
+            G[r, c] = G[c, r]
 
 
 @njit(cache=True)
 def _qform(G, p0, p1, p2):
     """``[p; 1]^T G [p; 1]``."""
-    ph = (p0, p1, p2, 1.0)
-    s = 0.0
-    for r in range(4):
-        t = 0.0
-        for c in range(4):
-            t += G[r, c] * ph[c]
-        s += ph[r] * t
-    return s
+    t0 = G[0, 0] * p0 + G[0, 1] * p1 + G[0, 2] * p2 + G[0, 3]
+    t1 = G[1, 0] * p0 + G[1, 1] * p1 + G[1, 2] * p2 + G[1, 3]
+    t2 = G[2, 0] * p0 + G[2, 1] * p1 + G[2, 2] * p2 + G[2, 3]
+    t3 = G[3, 0] * p0 + G[3, 1] * p1 + G[3, 2] * p2 + G[3, 3]
+    return p0 * t0 + p1 * t1 + p2 * t2 + t3
 
 
 @njit(cache=True)
@@ -736,7 +735,8 @@ def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, method, ip, fp,
     All arrays are the loop's state and are updated in place (see
     :func:`rigslim.plugins.decimation.collapse.simplify`); ``cnt`` holds the
     counters (faces, collapses, heap size, free slots, edge slots, dirty
-    count, pool use, marker tag).
+    count, pool use, marker tag, heap pops, collapse attempts, edge
+    evaluations).
     """
     N = len(V)
     m = N // 2
@@ -758,6 +758,7 @@ def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, method, ip, fp,
         done = False
         while cnt[C_HEAP] > 0:
             cost, stamp, e = _pop(hc, hs, he, cnt)
+            cnt[C_POPS] += 1
             if stamp != estamp[e] or estate[e] == DEAD or estate[e] == BLOCKED:
                 continue
             if estate[e] == DIRTY:               # evaluate every dirty edge, queue their true costs
@@ -770,6 +771,7 @@ def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, method, ip, fp,
                         in_dirty[d] = False
                         dirty[nt] = d
                         nt += 1
+                cnt[C_EVALS] += nt
                 for i in range(nt):
                     d = dirty[i]
                     ecost[d] = edge_cost(method, ea[d], eb[d], V, W, Qv, T, ip, fp, ev[d], ew[d])
@@ -778,6 +780,7 @@ def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, method, ip, fp,
                     _push(hc, hs, he, cnt, ecost[d], estamp[d], d, estamp, estate)
                 continue
             # ---- try to collapse e
+            cnt[C_TRIES] += 1
             a, b = ea[e], eb[e]
             nfab, nrem = 0, 0
             for i in range(vf_start[a], vf_start[a] + vf_cnt[a]):
