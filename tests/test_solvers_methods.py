@@ -152,10 +152,23 @@ def test_bad_parameter_is_a_one_line_error(write_pipeline):
     assert "\n" not in str(err.value)
 
 
-def test_auto_skips_direct_solve_above_limit():
+def test_auto_uses_amg_cg_above_limit():
     asset = tube_asset()
     asset.influences = k_largest(asset.weights, 2)
+    _, direct = reduce_weights(asset, "poisson", PoissonParams(nonnegative=False))
     red, rep = reduce_weights(asset, "poisson", PoissonParams(global_max_unknowns=10, nonnegative=False,
-                                                              max_sweeps=20))
-    assert rep["path"].startswith("auto: local") and rep["sweeps"] >= 1
+                                                              residual_tolerance=1e-9))
+    assert direct["path"] == "global" and rep["path"] == "global: amg-cg" and rep["iterations"] >= 1
+    assert rep["converged"] and rep["kkt_residual"] <= 1e-9
+    assert abs(rep["energy"] - direct["energy"]) <= 1e-6 * abs(direct["energy"])
     _check_invariants(red, 2, False)
+
+
+def test_auto_nonnegative_above_limit_reports_kkt():
+    asset = tube_asset()
+    asset.influences = k_largest(asset.weights, 2)
+    red, rep = reduce_weights(asset, "poisson", PoissonParams(global_max_unknowns=10, nonnegative=True))
+    assert rep["path"] == "auto: amg-cg, projection, local"
+    assert rep["energy"] >= rep["equality_optimum"] * (1 - 1e-9)
+    assert 0 <= rep["kkt_residual"] < 1e-2
+    _check_invariants(red, 2, True)

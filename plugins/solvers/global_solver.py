@@ -19,6 +19,13 @@ solved by a sparse direct factorisation (SuperLU, symmetric minimum-degree
 ordering, no pivoting). This is the exact
 minimiser without inequality constraints, and the reference every
 iterative solver is checked against.
+
+SuperLU's fill grows fast with the mesh (the 386k-vertex elephant's
+factorisation was stopped at 15 GB), so above ``max_direct_unknowns`` the
+same system is solved by conjugate gradients preconditioned with the
+multilevel V-cycle of :mod:`rigslim.plugins.solvers.multilevel_solver`
+(smoothed-aggregation hierarchy from ``pyamg``), to a relative
+reduced-gradient norm ``tolerance``: memory linear in the mesh size.
 """
 
 from __future__ import annotations
@@ -77,16 +84,39 @@ def nullspace_elimination(C: np.ndarray, d: np.ndarray, rtol: float = 1e-10):
     return ap, N
 
 
-def global_solve(prob) -> tuple[np.ndarray, dict]:
-    """Exact minimiser under the equality constraints (``prob.nonneg`` is ignored).
+def global_solve(prob, *, method: str = "direct", max_direct_unknowns: int = 500_000,
+                 tolerance: float = 1e-6, max_iterations: int = 500, coordinates=None,
+                 start=None) -> tuple[np.ndarray, dict]:
+    """Minimiser under the equality constraints (``prob.nonneg`` is ignored).
+
+    Parameters
+    ----------
+    prob : ReductionProblem
+    method : {"direct", "amg-cg", "auto"}
+        SuperLU, multilevel-preconditioned CG, or direct up to
+        ``max_direct_unknowns`` (m k) unknowns and AMG-CG above.
+    tolerance, max_iterations, coordinates, start
+        AMG-CG only (see :func:`rigslim.plugins.solvers.multilevel_solver.multilevel_solve`).
 
     Returns
     -------
     alpha : (m, k) array
     report : dict
         ``energy``, ``unknowns``, ``nonzeros``, ``kkt_residual`` (relative
-        norm of the reduced gradient ``N^T (H a + f)``), ``seconds``.
+        norm of the reduced gradient ``N^T (H a + f)``), ``seconds``,
+        ``solver`` (``direct`` or ``amg-cg``; AMG-CG adds its iterations and levels).
     """
+    if method == "auto":
+        method = "direct" if prob.m * prob.k <= max_direct_unknowns else "amg-cg"
+    if method == "amg-cg":
+        from rigslim.plugins.solvers.multilevel_solver import multilevel_solve
+
+        alpha, rep = multilevel_solve(prob, start, tolerance=tolerance, max_iterations=max_iterations,
+                                      coordinates=coordinates)
+        rep.pop("energy_start", None)
+        return alpha, dict(solver="amg-cg", **rep)
+    if method != "direct":
+        raise ValueError(f"unknown global method {method!r}")
     t0 = time.perf_counter()
     m, k = prob.m, prob.k
     H = assemble_hessian(prob)
@@ -104,6 +134,6 @@ def global_solve(prob) -> tuple[np.ndarray, dict]:
     kkt = float(np.linalg.norm(grad) / max(np.linalg.norm(rhs), 1e-300))
     alpha = a.reshape(m, k)
     alpha = np.where(prob.valid, alpha, 0.0)
-    report = dict(energy=prob.energy(alpha), unknowns=int(Hr.shape[0]), nonzeros=int(Hr.nnz),
+    report = dict(solver="direct", energy=prob.energy(alpha), unknowns=int(Hr.shape[0]), nonzeros=int(Hr.nnz),
                   kkt_residual=kkt, seconds=time.perf_counter() - t0)
     return alpha, report

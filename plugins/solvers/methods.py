@@ -3,21 +3,26 @@
 Each assembles its energy (:mod:`rigslim.plugins.solvers.problem`) on the
 asset's influence sets and minimises it with
 
-- ``solver: global``: the exact sparse solve under the equality constraints
-  (:mod:`rigslim.plugins.solvers.global_solver`); not available with
-  ``nonnegative``;
-- ``solver: local``: [P10]'s per-vertex QPs in parallel Gauss-Seidel sweeps
-  over a distance-2 colouring (:mod:`rigslim.plugins.solvers.local_solver`),
-  on numpy or OpenCL (``device``), from the k-largest weights;
+- ``solver: global``: the equality-constrained optimum
+  (:mod:`rigslim.plugins.solvers.global_solver`): sparse direct solve up to
+  ``global_max_unknowns`` (m k) unknowns, multilevel-preconditioned CG
+  (AMG-CG) above; not available with ``nonnegative``;
+- ``solver: local``: [P10]'s per-vertex QPs. With equality constraints only
+  and ``multilevel`` on (default), they are the smoother of a V-cycle that
+  preconditions CG (:mod:`rigslim.plugins.solvers.multilevel_solver`);
+  with ``multilevel: false``, plain parallel Gauss-Seidel sweeps over a
+  distance-2 colouring (:mod:`rigslim.plugins.solvers.local_solver`), on
+  numpy or OpenCL (``device``), from the k-largest weights. With
+  non-negativity: the multilevel equality-only optimum projected per vertex
+  onto the feasible set, then projected local sweeps (``multilevel: false``:
+  sweeps from the k-largest weights);
 - ``solver: auto``: global without non-negativity; with it, the global
-  optimum projected per vertex onto the feasible set (in each vertex's
-  local Hessian metric), then local sweeps to convergence. Above
-  ``global_max_unknowns`` (m k) unknowns the direct solve is skipped and
-  auto runs local sweeps from the k-largest weights.
+  (direct or AMG-CG) optimum projected per vertex onto the feasible set (in
+  each vertex's local Hessian metric), then local sweeps to convergence.
 
 The step's report (metrics JSON ``solver`` section) holds the method, the
-solver path, sweeps, energies, convergence and, when the equality-only
-optimum is known, the relative gap to it.
+solver path, iterations, sweeps, energies, convergence, the KKT residual
+and, when the equality-only optimum is known, the relative gap to it.
 """
 
 from __future__ import annotations
@@ -31,14 +36,15 @@ from pydantic import Field
 from rigslim.errors import StepError
 from rigslim.plugin import Params, WeightSolver
 from rigslim.plugins.solvers.global_solver import global_solve
-from rigslim.plugins.solvers.local_solver import feasible_start, local_solve
+from rigslim.plugins.solvers.local_solver import feasible_start, kkt_residual, local_solve
+from rigslim.plugins.solvers.multilevel_solver import multilevel_solve
 from rigslim.plugins.solvers.problem import RIDGE, build_problem
 from rigslim.qp import solve_small_qps
 from rigslim.weights import ReducedWeights
 
-#: Above this many unknowns (m k) ``auto`` skips the direct solve: measured on this 2-core
-#: machine, SuperLU took ~41 s for the 96.5k-vertex elephant (386k unknowns) and was stopped
-#: after 5.5 min and 15 GB for the 386k-vertex one.
+#: Above this many unknowns (m k) the global solve is AMG-CG instead of SuperLU: measured on
+#: this 2-core machine, SuperLU took ~41 s for the 96.5k-vertex elephant (386k unknowns) and was
+#: stopped after 5.5 min and 15 GB for the 386k-vertex one.
 GLOBAL_MAX_UNKNOWNS = 500_000
 
 
@@ -58,8 +64,13 @@ class ReductionParams(Params):
                                                                 "Gauss-Seidel as in the paper)")
     ridge: float = Field(RIDGE, ge=0, description="ridge towards the k-largest weights, relative to the "
                                                   "mean local Hessian diagonal")
-    global_max_unknowns: int = Field(GLOBAL_MAX_UNKNOWNS, ge=0, description="auto uses the sparse direct solve "
-                                     "only up to this many unknowns (m k); above it, local sweeps alone")
+    global_max_unknowns: int = Field(GLOBAL_MAX_UNKNOWNS, ge=0, description="the global solve is sparse direct "
+                                     "up to this many unknowns (m k), multilevel-preconditioned CG above")
+    multilevel: bool = Field(True, description="local solver: per-vertex solves as the smoother of a multigrid "
+                                               "V-cycle preconditioning CG (false: plain sweeps as in the paper)")
+    residual_tolerance: float = Field(1e-6, gt=0, description="CG (multilevel / AMG-CG) stops when the reduced "
+                                      "gradient norm falls below this times its starting value")
+    max_iterations: int = Field(500, ge=1, description="upper bound on CG iterations")
 
 
 class LaplacianParams(ReductionParams):
@@ -108,26 +119,43 @@ def reduce_weights(asset, method: str, params, ctx=None) -> tuple[ReducedWeights
                       device=cl_device, progress=progress, relaxation=params.relaxation)
     report = {"method": method, "nonnegative": prob.nonneg, "linear_precision": lp, **prob.info}
     adjacency = asset.mesh.adjacency
-    direct_ok = prob.m * prob.k <= params.global_max_unknowns
-    if params.solver == "auto" and prob.coupled and not direct_ok:
-        alpha, rep = local_solve(prob, adjacency, **sweep_args)
-        report.update(path=f"auto: local ({prob.m * prob.k} unknowns > global_max_unknowns)", **rep)
-    elif params.solver == "global" or (params.solver == "auto" and not prob.nonneg):
-        alpha, rep = global_solve(prob)
-        report.update(path="global", **rep, gap=0.0)
-    elif params.solver == "local" or not prob.coupled:
+    cg_args = dict(tolerance=params.residual_tolerance, max_iterations=params.max_iterations,
+                   coordinates=asset.mesh.V)
+
+    def equality_optimum(kind, start):
+        if kind == "global":
+            return global_solve(prob, method="auto", max_direct_unknowns=params.global_max_unknowns,
+                                start=start, **cg_args)
+        alpha, rep = multilevel_solve(prob, start, **cg_args)
+        return alpha, dict(solver="multilevel", **rep)
+
+    if params.solver == "global" or (params.solver == "auto" and not prob.nonneg):
+        alpha, rep = equality_optimum("global", None)
+        report.update(path="global" if rep["solver"] == "direct" else "global: amg-cg", **rep)
+        if rep["solver"] == "direct":
+            report["gap"] = 0.0
+    elif not prob.coupled or (params.solver == "local" and not params.multilevel):
         alpha, rep = local_solve(prob, adjacency, **sweep_args)
         report.update(path="local", **rep)
+    elif params.solver == "local" and not prob.nonneg:
+        start, dropped = feasible_start(prob)
+        alpha, rep = equality_optimum("local", start)
+        report.update(path="local: multilevel", **rep)
     else:
         start, dropped = feasible_start(prob)
-        unconstrained, grep = global_solve(prob)
+        kind = "global" if params.solver == "auto" else "local"
+        unconstrained, grep = equality_optimum(kind, None if prob.C.shape[1] > 1 else start)
         projected = project_feasible(prob, unconstrained, start)
         alpha, rep = local_solve(prob, adjacency, projected, **sweep_args)
         if dropped:
             rep["linear_precision_dropped"] = dropped
-        report.update(path="auto: global, projection, local", **rep,
-                      equality_optimum=grep["energy"], global_seconds=grep["seconds"],
-                      gap_above_equality_optimum=(rep["energy"] - grep["energy"]) / abs(grep["energy"]))
+        k0 = kkt_residual(prob, start)
+        eq = "global" if grep["solver"] == "direct" else grep["solver"]
+        report.update(path=f"{params.solver}: {eq}, projection, local", **rep,
+                      equality_optimum=grep["energy"], equality_seconds=grep["seconds"],
+                      equality_iterations=grep.get("iterations"),
+                      gap_above_equality_optimum=(rep["energy"] - grep["energy"]) / abs(grep["energy"]),
+                      kkt_residual=kkt_residual(prob, alpha) / k0 if k0 > 0 else 0.0)
     report.pop("energy_history", None)
     report["seconds"] = time.perf_counter() - t0
     if ctx is not None and hasattr(ctx, "report"):

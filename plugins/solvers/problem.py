@@ -107,6 +107,13 @@ class ReductionProblem:
         R = self.blend(alpha) - self.Y
         return R, np.asarray(self.Q @ R)
 
+    def gradient(self, alpha: np.ndarray) -> np.ndarray:
+        """Half the energy gradient, ``H a + f`` (m, k) in the global solver's notation:
+        ``B_v^T (Q (X - Y))_v + eps (alpha_v - alpha0_v)`` on valid slots, ``alpha_v`` on padding."""
+        _, QR = self.residual_energy_terms(alpha)
+        g = np.einsum("mkd,md->mk", self.B, QR) + self.eps * (alpha - self.alpha0)
+        return np.where(self.valid, g, alpha)
+
 
 def laplacian_operator(mesh, laplacian: str) -> tuple[sp.csr_matrix, sp.csr_matrix]:
     """``K`` (``L^T M^-1 L`` or ``L^T L``) and the matching position weight ``W`` (``M`` or ``I``)."""
