@@ -50,7 +50,7 @@ caller can report progress between chunks.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 #: Floating-point flags of the hot loops: reassociation (vectorised sums) and fused multiply-adds;
 #: no finite-math assumptions, so infinities and NaN keep their meaning.
@@ -550,15 +550,35 @@ def edge_cost(method, ia, ib, V, W, Qv, T, ip, fp, v_out, w_out):
     return E
 
 
-@njit(cache=True, parallel=True)
-def edge_costs(method, ea, eb, V, W, Qv, T, ip, fp):
-    """:func:`edge_cost` of many edges, in parallel: returns v (B, 3), w (B, n), E (B,)."""
-    B, n = len(ea), W.shape[1]
-    v = np.empty((B, 3))
-    w = np.empty((B, n))
-    E = np.empty(B)
-    for i in prange(B):
+@njit(cache=True, nogil=True)
+def _edge_costs_into(method, ea, eb, V, W, Qv, T, ip, fp, v, w, E):
+    """:func:`edge_cost` of the edges ``(ea[i], eb[i])`` into v (B, 3), w (B, n), E (B,); releases the GIL."""
+    for i in range(len(ea)):
         E[i] = edge_cost(method, ea[i], eb[i], V, W, Qv, T, ip, fp, v[i], w[i])
+
+
+def edge_costs(method, ea, eb, V, W, Qv, T, ip, fp, threads: int | None = None):
+    """:func:`edge_cost` of many edges: returns v (B, 3), w (B, n), E (B,).
+
+    Large batches are split over ``threads`` Python threads (default: the
+    CPU count), which run the compiled loop without the GIL.
+    """
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
+    ea = np.ascontiguousarray(ea, dtype=np.int64)
+    eb = np.ascontiguousarray(eb, dtype=np.int64)
+    B, n = len(ea), W.shape[1]
+    v, w, E = np.empty((B, 3)), np.empty((B, n)), np.empty(B)
+    threads = threads or os.cpu_count() or 1
+    if threads == 1 or B < 4096:
+        _edge_costs_into(method, ea, eb, V, W, Qv, T, ip, fp, v, w, E)
+        return v, w, E
+    parts = np.array_split(np.arange(B), 8 * threads)      # small parts balance uneven costs
+    with ThreadPoolExecutor(threads) as pool:
+        list(pool.map(lambda p: _edge_costs_into(method, ea[p[0]:p[-1] + 1], eb[p[0]:p[-1] + 1], V, W, Qv, T, ip,
+                                                 fp, v[p[0]:p[-1] + 1], w[p[0]:p[-1] + 1], E[p[0]:p[-1] + 1]),
+                      [p for p in parts if len(p)]))
     return v, w, E
 
 
