@@ -134,6 +134,22 @@ def test_nonnegative_matches_clarabel():
     np.testing.assert_allclose(alpha, ref, atol=1e-3)
 
 
+def test_kkt_residual_nonnegative():
+    from rigslim.plugins.solvers.local_solver import kkt_residual
+
+    asset = tube_asset(rings=10, segments=6, bones=4)
+    asset.influences = k_largest(asset.weights, 3)
+    prob = build_problem(asset, "poisson", nonnegative=True)
+    start, _ = feasible_start(prob)
+    alpha, _ = local_solve(prob, asset.mesh.adjacency, tolerance=1e-14, max_sweeps=4000, relaxation=1.5)
+    assert ((alpha <= 1e-10) & prob.valid).any()  # some bounds are active at the optimum
+    k0, k1 = kkt_residual(prob, start), kkt_residual(prob, alpha)
+    assert k0 > 0 and k1 <= 1e-4 * k0
+    # Without the bounds the same point is not stationary: its equality-only residual is large.
+    prob.nonneg = False
+    assert kkt_residual(prob, alpha) > 100 * k1
+
+
 def test_feasible_start_linear_precision_nonnegative():
     asset = cage_asset()
     asset.influences = k_largest(asset.weights, 6)
