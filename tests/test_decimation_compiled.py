@@ -160,3 +160,25 @@ def test_hierarchy_equals_the_numpy_backend(piece, method, params):
                                    atol=(1e-10 if exact else 1e-6) * scale)
     if params.get("max_bones"):
         assert h1.weights.influence_counts().max() <= params["max_bones"]
+
+
+def test_compiled_loop_reports_progress_in_chunks(piece):
+    """The compiled loop runs in chunks (1% of the collapses, at least 256) and advances the progress hook per chunk."""
+    seen = []
+
+    def progress(it, total=None, description=""):
+        seen.append((total, description))
+        for x in it:
+            seen.append(x)
+            yield x
+
+    plugin = get_host().get("articulated-decimation", "quartic")
+    piece.extras.clear()
+    plugin.decimate(piece, plugin.parse_params({"min_faces": 100}), StepContext(progress=progress))
+    total, description = seen[0]
+    planned = (piece.mesh.n_faces - 100 + 1) // 2
+    assert description == "quartic collapses" and total == -(-planned // 256) >= 2
+    hier = piece.extras["hierarchy"]
+    assert seen[1:] == list(range(total))            # every chunk ran, one step each
+    assert hier.n_collapses > 256                     # so the second chunk collapsed too
+    assert hier.faces_after(hier.n_collapses) == piece.mesh.n_faces - 2 * hier.n_collapses
