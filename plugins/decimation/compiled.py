@@ -514,26 +514,30 @@ def edge_cost(method, ia, ib, V, W, Qv, T, ip, fp, v_out, w_out):
             Tb[i, j] = T[j, k]
     v = np.empty(3)
     a = np.empty(K)
-    E = _alternate(Qe, Tb, K, a0, fb, iterations, tol, nonneg, ridge, v, a)
-    if max_bones >= 0:
+    E = 0.0
+    for _ in range(2):                       # one call site: the kernel is compiled (inlined) once
+        E = _alternate(Qe, Tb, K, a0, fb, iterations, tol, nonneg, ridge, v, a)
+        if max_bones < 0:
+            break
         nz = 0
         for i in range(K):
             if a[i] != 0.0:
                 nz += 1
-        if nz > max_bones:
-            mask = np.ones(K, np.bool_)
-            keep = np.empty(K, np.bool_)
-            lim = np.empty(K)
-            _bone_limit(a, K, mask, max_bones, lim, keep)
-            K2 = 0
-            for i in range(K):
-                if keep[i]:
-                    bones[K2] = bones[i]
-                    Tb[K2] = Tb[i]
-                    a0[K2] = lim[i]
-                    K2 += 1
-            K = K2
-            E = _alternate(Qe, Tb, K, a0, fb, iterations, tol, nonneg, ridge, v, a)
+        if nz <= max_bones:
+            break
+        # bone limit: keep the max_bones largest, renormalise, alternate again on that set
+        mask = np.ones(K, np.bool_)
+        keep = np.empty(K, np.bool_)
+        lim = np.empty(K)
+        _bone_limit(a, K, mask, max_bones, lim, keep)
+        K2 = 0
+        for i in range(K):
+            if keep[i]:
+                bones[K2] = bones[i]
+                Tb[K2] = Tb[i]
+                a0[K2] = lim[i]
+                K2 += 1
+        K = K2
     for k in range(n):
         w_out[k] = 0.0
     for i in range(K):
