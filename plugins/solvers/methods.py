@@ -42,10 +42,11 @@ from rigslim.plugins.solvers.problem import RIDGE, build_problem
 from rigslim.qp import solve_small_qps
 from rigslim.weights import ReducedWeights
 
-#: Above this many unknowns (m k) the global solve is AMG-CG instead of SuperLU: measured on
-#: this 2-core machine, SuperLU took ~41 s for the 96.5k-vertex elephant (386k unknowns) and was
-#: stopped after 5.5 min and 15 GB for the 386k-vertex one.
-GLOBAL_MAX_UNKNOWNS = 500_000
+# The direct/AMG-CG switch (``global_max_unknowns``) defaults to
+# rigslim.plugins.solvers.global_solver.MAX_DIRECT_UNKNOWNS: measured on this
+# 2-core machine, SuperLU took ~41 s for the 96.5k-vertex elephant (386k
+# unknowns) and was stopped after 5.5 min and 15 GB for the 386k-vertex one;
+# MKL PARDISO solved the latter in about 50 s and 6.8 GB.
 
 
 class ReductionParams(Params):
@@ -64,8 +65,9 @@ class ReductionParams(Params):
                                                                 "Gauss-Seidel as in the paper)")
     ridge: float = Field(RIDGE, ge=0, description="ridge towards the k-largest weights, relative to the "
                                                   "mean local Hessian diagonal")
-    global_max_unknowns: int = Field(GLOBAL_MAX_UNKNOWNS, ge=0, description="the global solve is sparse direct "
-                                     "up to this many unknowns (m k), multilevel-preconditioned CG above")
+    global_max_unknowns: int | None = Field(None, ge=0, description="the global solve is sparse direct up to "
+                                            "this many unknowns (m k), multilevel-preconditioned CG above "
+                                            "(default: 2,000,000 with MKL PARDISO installed, 500,000 with SuperLU)")
     multilevel: bool = Field(True, description="local solver: per-vertex solves as the smoother of a multigrid "
                                                "V-cycle preconditioning CG (false: plain sweeps as in the paper)")
     residual_tolerance: float = Field(1e-6, gt=0, description="CG (multilevel / AMG-CG) stops when the reduced "
