@@ -9,8 +9,10 @@ except on the ``global`` rows (equality constraints only, by definition).
 Rows (seconds of wall time, including building the energy):
 - ``k-largest``: renormalised selected weights;
 - ``geometric local`` (numpy / OpenCL): one exact pass (independent vertices);
-- ``smooth`` / ``poisson`` ``global direct``: SuperLU on the equality-constrained
-  null-space system (levels <= ``--no-global-above``);
+- ``smooth`` / ``poisson`` ``global direct``: the exact factorisation of the
+  equality-constrained null-space system (MKL PARDISO when ``pypardiso`` is
+  installed, SuperLU otherwise; the ``factorisation`` field says which;
+  levels <= ``--no-global-above``);
 - ``smooth`` / ``poisson`` ``global amg-cg``: the same system by CG with the
   multilevel V-cycle (per-vertex solves as smoother, pyamg smoothed
   aggregation below; ``residual_tolerance`` 1e-6, at most ``CG_CAPS`` iterations on the
@@ -22,7 +24,8 @@ Rows (seconds of wall time, including building the energy):
 - ``poisson local multilevel`` / ``poisson auto`` (non-negative): the
   equality-only optimum (multilevel CG / direct-or-AMG-CG), projected per
   vertex, then projected local sweeps (caps ``CG_CAPS``, ``SWEEP_CAPS`` on the larger meshes);
-  KKT residual relative to the k-largest start;
+  KKT residual relative to the k-largest start; ``poisson auto opencl``: the
+  same with the projected sweeps on OpenCL;
 - Dem Bones (py-dem-bones 0.13, ``DemBones.computeWeights``): its weight
   update only, bone transforms fixed to the true ones, nnz = 4, 11 example
   frames, default smoothness (weightsSmooth 1e-4, 3 inner iterations).
@@ -105,8 +108,9 @@ def run_method(asset, method, **params):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--levels", type=int, nargs="*", default=[0, 2, 3])
-    ap.add_argument("--no-global-above", type=int, default=2,
-                    help="skip the direct global rows above this subdivision level (SuperLU fill)")
+    ap.add_argument("--no-global-above", type=int, default=3,
+                    help="skip the direct global rows above this subdivision level (factorisation memory: "
+                         "SuperLU needs > 15 GB at level 3, PARDISO 6.8 GB)")
     ap.add_argument("--sweeps-up-to", type=int, default=2,
                     help="run the plain local sweep rows (paper's solver) up to this subdivision level")
     args = ap.parse_args()
@@ -142,6 +146,7 @@ def main():
         caps = {**CG_CAPS.get(level, {}), **SWEEP_CAPS.get(level, {})}
         plan.append(("poisson local multilevel", "poisson", {"solver": "local", **caps}))
         plan.append(("poisson auto", "poisson", {"solver": "auto", **caps}))
+        plan.append(("poisson auto opencl", "poisson", {"solver": "auto", "device": "opencl", **caps}))
         test = asset.split.test[::TEST_STRIDE.get(level, 1)]
         direct_energy = {}
         with_errors = ("k-largest", "geometric local numpy", "poisson auto", "poisson global")
@@ -155,7 +160,8 @@ def main():
                    "converged": rep.get("converged"), "kkt_residual": rep.get("kkt_residual"),
                    "equality_optimum": rep.get("equality_optimum"),
                    "gap_above_equality_optimum": rep.get("gap_above_equality_optimum"),
-                   "colors": rep.get("colors"), "backend": rep.get("backend"), "levels": rep.get("levels")}
+                   "colors": rep.get("colors"), "backend": rep.get("backend"), "levels": rep.get("levels"),
+                   "factorisation": rep.get("factorisation")}
             ref = direct_energy.get(method)
             if ref is not None and rep.get("energy") is not None and params.get("nonnegative") is False:
                 row["gap_to_direct"] = (rep["energy"] - ref) / abs(ref)

@@ -155,7 +155,7 @@ def reduce_weights(asset, method: str, params, ctx=None) -> tuple[ReducedWeights
         eq = "global" if grep["solver"] == "direct" else grep["solver"]
         report.update(path=f"{params.solver}: {eq}, projection, local", **rep,
                       equality_optimum=grep["energy"], equality_seconds=grep["seconds"],
-                      equality_iterations=grep.get("iterations"),
+                      equality_iterations=grep.get("iterations"), factorisation=grep.get("factorisation"),
                       gap_above_equality_optimum=(rep["energy"] - grep["energy"]) / abs(grep["energy"]),
                       kkt_residual=kkt_residual(prob, alpha) / k0 if k0 > 0 else 0.0)
     report.pop("energy_history", None)
