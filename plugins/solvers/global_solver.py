@@ -15,7 +15,10 @@ symmetric positive definite system
 
     (N^T H N) z = -N^T (H a_p + f)
 
-solved by a sparse direct factorisation: Intel MKL PARDISO's supernodal
+assembled blockwise in the null-space coordinates without forming ``H``
+(:func:`rigslim.plugins.solvers.nullspace.nullspace_system`; ``H`` and ``f``
+are kept here, :func:`assemble_hessian` and :func:`linear_term`, as the
+reference the tests check that system against) and solved by a sparse direct factorisation: Intel MKL PARDISO's supernodal
 Cholesky (``pypardiso``, the ``fast-direct`` extra; nested-dissection
 ordering, real symmetric positive definite mode on the upper triangle) when
 it is installed, SuperLU otherwise (symmetric minimum-degree ordering, no
@@ -69,24 +72,6 @@ def linear_term(prob) -> np.ndarray:
     QY = np.asarray(prob.Q @ prob.Y)
     f = -np.einsum("mkd,md->mk", prob.B, QY) - prob.eps * prob.alpha0
     return np.where(prob.valid, f, 0.0).ravel()
-
-
-def nullspace_elimination(C: np.ndarray, d: np.ndarray, rtol: float = 1e-10):
-    """Particular solutions ``C_v^+ d_v`` (m, k) and the block-diagonal null-space basis ``N`` (m k, r)."""
-    m, q, k = C.shape
-    U, s, Vt = np.linalg.svd(C, full_matrices=True)
-    rank = (s > rtol * np.maximum(s[:, :1], 1e-300)).sum(axis=1)
-    sinv = np.where(np.arange(q)[None, :] < rank[:, None], 1.0 / np.where(s > 0, s, 1.0), 0.0)
-    ap = np.einsum("mjk,mj,mqj,mq->mk", Vt[:, :q, :], sinv, U, d)
-    # Null-space columns: rows rank..k-1 of Vt.
-    keep = np.arange(k)[None, :] >= rank[:, None]  # (m, k) which Vt rows are null directions
-    v_idx, j_idx = np.nonzero(keep)
-    col = np.arange(len(v_idx))
-    rows = (v_idx[:, None] * k + np.arange(k)[None, :]).ravel()
-    cols = np.repeat(col, k)
-    vals = Vt[v_idx, j_idx, :].ravel()
-    N = sp.csr_matrix((vals, (rows, cols)), shape=(m * k, len(col)))
-    return ap, N
 
 
 #: Direct-solve size limits (m k unknowns) by factorisation back end.
