@@ -37,11 +37,13 @@ FRACTIONS = [0.2, 0.1, 0.05, 0.02, 0.01]
 OUT = ROOT / "docs" / "results"
 
 
-def armadillo(n_frames: int = 80, seed: int = 7):
+def armadillo(n_frames: int = 80, seed: int = 7, amplitude: tuple[float, float] = (20.0, 40.0)):
     """The armadillo with its 5-handle weights and a generated animation.
 
     Each handle rotates about its weighted centroid, around a fixed random
-    axis, by ``A sin(2 pi f t / n + phi)`` with A in [20, 40] degrees and one
+    axis, by ``A sin(2 pi f t / n + phi)`` with A uniform in ``amplitude``
+    degrees (default [20, 40]; the ``armadillo-86k-wide`` dataset uses
+    [60, 90]) and one
     or two cycles over the clip; frame t uses the same formula, so example
     frames ``0:80:8`` and test frames ``4:80:8`` are disjoint samples of one
     smooth motion.
@@ -59,7 +61,7 @@ def armadillo(n_frames: int = 80, seed: int = 7):
     rng = np.random.default_rng(seed)
     axes = rng.normal(size=(n, 3))
     axes /= np.linalg.norm(axes, axis=1, keepdims=True)
-    amp = np.radians(rng.uniform(20, 40, n))
+    amp = np.radians(rng.uniform(*amplitude, n))
     freq = rng.integers(1, 3, n)
     phase = rng.uniform(0, 2 * np.pi, n)
     T = np.zeros((n_frames, n, 3, 4))
@@ -233,7 +235,8 @@ def main(argv=None):
     ap.add_argument("--backend", choices=["numba", "numpy"], default="numba",
                     help="decimation backend of quartic, mohr-gleicher and decoro-rusinkiewicz")
     ap.add_argument("--datasets", nargs="+", metavar="NAME",
-                    help="only these datasets (elephant-12k, elephant-12k-4bones, elephant-193k, armadillo-86k)")
+                    help="only these datasets (elephant-12k, elephant-12k-4bones, elephant-193k, armadillo-86k, "
+                         "armadillo-86k-wide)")
     ap.add_argument("--merge", action="store_true",
                     help="with --gltfpack: add the comparison to the existing simplify.json instead of rerunning")
     args = ap.parse_args(argv)
@@ -248,7 +251,8 @@ def main(argv=None):
                 ("elephant-12k-4bones", lambda: elephant(0), 4, 1)]
     if not args.quick:
         datasets += [("elephant-193k", lambda: elephant(2), None, 4),
-                     ("armadillo-86k", armadillo, None, 1)]
+                     ("armadillo-86k", armadillo, None, 1),
+                     ("armadillo-86k-wide", lambda: armadillo(amplitude=(60.0, 90.0)), None, 1)]
     if args.datasets:
         datasets = [d for d in datasets if d[0] in args.datasets]
     import os
