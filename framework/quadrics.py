@@ -193,8 +193,12 @@ def _position_step_blended(Q: np.ndarray, X: np.ndarray, fallback: np.ndarray):
     return v, singular
 
 
+#: Default Tikhonov weight of the weight step (see :func:`weight_step`); the compiled backend uses it too.
+WEIGHT_RIDGE = 1e-9
+
+
 def weight_step(Q: np.ndarray, Tb: np.ndarray, v: np.ndarray, a0: np.ndarray, mask: np.ndarray,
-                method: str = "tikhonov", ridge: float = 1e-9, nonnegative: bool = False) -> np.ndarray:
+                method: str = "tikhonov", ridge: float = WEIGHT_RIDGE, nonnegative: bool = False) -> np.ndarray:
     """Minimum-norm weight offset for a fixed position ([S09] sec. 3.2), batched.
 
     Parameters

@@ -19,7 +19,7 @@ batched solve and queued again with its true cost.
 from __future__ import annotations
 
 import heapq
-import os
+import logging
 
 import numpy as np
 
@@ -27,6 +27,8 @@ from rigslim.hierarchy import ProgressiveHierarchy
 from rigslim.weights import ReducedWeights
 
 CLEAN, DIRTY, DEAD, BLOCKED = 0, 1, 2, 3
+
+log = logging.getLogger(__name__)
 
 
 def blended_transforms(W: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -396,6 +398,5 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     k = int(cnt[cc.C_COLLAPSES])
     stats = {"pops": int(cnt[cc.C_POPS]), "attempts": int(cnt[cc.C_TRIES]),
              "evaluations": n_edges + int(cnt[cc.C_EVALS])}
-    if os.environ.get("RIGSLIM_DECIMATION_STATS"):
-        print(f"{method}: {k} collapses, {stats}", flush=True)
+    log.debug("%s: %d collapses, %s", method, k, stats)
     return _hierarchy(st.V, st.W, F, col[:k], errs[:k], nf[:k], method, params)

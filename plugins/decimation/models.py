@@ -10,11 +10,9 @@ from __future__ import annotations
 import numpy as np
 
 from rigslim.plugins.decimation.collapse import EdgeCostModel, SimplifyState, blended_transforms
-from rigslim.quadrics import alternate, bone_limit, position_step, quadric_error, quartic_error
+from rigslim.quadrics import WEIGHT_RIDGE, alternate, bone_limit, position_step, quadric_error, quartic_error
 
 
-#: Tikhonov weight of the weight step (relative to H's mean diagonal), as in :func:`rigslim.quadrics.weight_step`.
-RIDGE = 1e-9
 BACKENDS = ("numpy", "numba")
 
 
@@ -73,7 +71,7 @@ class QuarticModel(EdgeCostModel):
         """``(method, Qv, ip, fp)`` for :func:`rigslim.plugins.decimation.compiled.edge_cost`."""
         ip = np.array([self.iterations, -1 if self.max_bones is None else self.max_bones, int(self.nonnegative),
                        int(self.endpoints)], dtype=np.int64)
-        return self.kind, self.Q, ip, np.array([self.tol, RIDGE])
+        return self.kind, self.Q, ip, np.array([self.tol, WEIGHT_RIDGE])
 
     def costs(self, st: SimplifyState, ea, eb):
         if self.backend == "numba":
@@ -166,7 +164,7 @@ class DeCoroModel(EdgeCostModel):
     def compiled_spec(self):
         """``(method, Qv, ip, fp)``; Qv is a (2m, 1, 4, 4) view of the rest-frame quadrics."""
         ip = np.array([0, -1 if self.max_bones is None else self.max_bones, 0, 0], dtype=np.int64)
-        return self.kind, self.Q.reshape(len(self.Q), 1, 4, 4), ip, np.array([0.0, RIDGE])
+        return self.kind, self.Q.reshape(len(self.Q), 1, 4, 4), ip, np.array([0.0, WEIGHT_RIDGE])
 
     def costs(self, st, ea, eb):
         if self.backend == "numba":

@@ -42,12 +42,6 @@ from rigslim.plugins.solvers.problem import RIDGE, build_problem
 from rigslim.qp import solve_small_qps
 from rigslim.weights import ReducedWeights
 
-# The direct/AMG-CG switch (``global_max_unknowns``) defaults to
-# rigslim.plugins.solvers.global_solver.MAX_DIRECT_UNKNOWNS: measured on this
-# 2-core machine, SuperLU took ~41 s for the 96.5k-vertex elephant (386k
-# unknowns) and was stopped after 5.5 min and 15 GB for the 386k-vertex one;
-# MKL PARDISO solved the latter in about 50 s and 6.8 GB.
-
 
 class ReductionParams(Params):
     """Parameters common to the optimising solvers."""
