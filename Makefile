@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY      = $(VENV)/bin/python
 PIP     = $(PY) -m pip
 
-.PHONY: demo test install install-test test-tools clean
+.PHONY: demo test lint install install-test test-tools clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -14,7 +14,6 @@ $(VENV)/.installed: pyproject.toml
 
 $(VENV)/.installed-test: $(VENV)/.installed
 	$(PIP) install --quiet -e '.[test]'
-	$(PIP) install --quiet -e examples/rigslim-absweights
 	touch $@
 
 install: $(VENV)/.installed
@@ -32,6 +31,11 @@ test-tools:
 ## test: create .venv, install rigslim with test extras and the tools tests need, run pytest
 test: install-test test-tools
 	$(PY) -m pytest -q $(PYTEST_ARGS)
+
+## lint: ruff over the tree, mypy over the plugin contract (tools/mypy-contract.sh)
+lint: install-test
+	$(VENV)/bin/ruff check .
+	bash tools/mypy-contract.sh
 
 clean:
 	rm -rf $(VENV) examples/out build *.egg-info

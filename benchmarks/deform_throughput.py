@@ -25,7 +25,7 @@ Usage::
 
     .venv/bin/python -m benchmarks.deform_throughput                # full size, writes docs/results/deform.{json,md}
     .venv/bin/python -m benchmarks.deform_throughput --levels 1 --frames 3 --out /tmp/deform
-    python3 benchmarks/deform_throughput.py --device gpu             # on the GPU machine (shared/device/GPU.md)
+    python3 benchmarks/deform_throughput.py --device gpu             # on a machine with a GPU
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Linear blending of handle transforms, the numpy reference of every deformer.
 
-``v^j = sum_i a_{v,i} T_i^j [v; 1]`` (ALGORITHMS.md section 1), for sparse
+``v^j = sum_i a_{v,i} T_i^j [v; 1]`` (docs/algorithms.md section 1), for sparse
 input weights and for fixed-k reduced weights alike.
 """
 

@@ -2,7 +2,7 @@
 
 The local solver of [P10] updates one vertex at a time. The energies it
 minimises couple vertices through ``L^T M^-1 L``, i.e. up to two rings
-apart (ALGORITHMS.md section 2), so vertices at graph distance >= 3 can be
+apart (docs/algorithms.md section 2), so vertices at graph distance >= 3 can be
 updated at the same time: a *distance-2 colouring* of the mesh graph (no two
 vertices within two edges share a colour) splits the vertices into batches
 of independent updates.

@@ -1,6 +1,6 @@
 """The handles of a linear blend deformation: a skeleton's bones or a cage's vertices.
 
-ALGORITHMS.md section 1: every deformation rigslim handles is
+docs/algorithms.md section 1: every deformation rigslim handles is
 ``v^j = sum_i a_{v,i} T_i^j [v; 1]`` with one 3x4 transform per handle and
 pose. A skeleton's handles are its bones (``T_i`` = pose transform times
 inverse bind matrix, ``[I | 0]`` at rest); a cage's handles are its vertices
@@ -96,7 +96,7 @@ def cage_transforms(C: np.ndarray) -> np.ndarray:
     Returns
     -------
     (p, n, 3, 4) array
-        ``T_i^j = [0 | c_i^j]`` (ALGORITHMS.md section 1).
+        ``T_i^j = [0 | c_i^j]`` (docs/algorithms.md section 1).
     """
     C = np.asarray(C, dtype=np.float64)
     T = np.zeros(C.shape[:2] + (3, 4))

@@ -107,7 +107,3 @@ class Mesh:
         import igl
 
         return sp.csr_matrix(igl.massmatrix(self.V, self.F, igl.MASSMATRIX_TYPE_VORONOI))
-
-    def with_vertices(self, V: np.ndarray) -> "Mesh":
-        """The same connectivity with other vertex positions (e.g. a deformed pose)."""
-        return Mesh(V, self.F, source=self.source)

@@ -4,7 +4,7 @@ Solves ``A z = b`` for a symmetric positive definite block-sparse ``A``
 (``m`` block rows of size ``r``, CSR pattern of blocks), whose blocks are
 coupled only between vertices of different colours of a given colouring
 (same-colour off-diagonal blocks are zero). In the weight solvers of [P10]
-(ALGORITHMS.md section 2) a block row is one vertex's weights in null-space
+(docs/algorithms.md section 2) a block row is one vertex's weights in null-space
 coordinates and the colouring is a distance-2 colouring of the mesh graph.
 
 Method

@@ -37,12 +37,6 @@ class CLRuntime:
     def name(self) -> str:
         return f"{self.device.name.strip()} ({self.device.platform.name.strip()})"
 
-    @property
-    def is_gpu(self) -> bool:
-        import pyopencl as cl
-
-        return bool(self.device.type & cl.device_type.GPU)
-
 
 def _import_cl():
     try:

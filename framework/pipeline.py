@@ -70,10 +70,6 @@ class Step:
     params: dict
     name: str
 
-    @property
-    def label(self) -> str:
-        return self.name
-
 
 @dataclass
 class RunResult:

@@ -1,4 +1,4 @@
-"""Per-pose quadrics and the quartic error of articulated simplification ([S09], ALGORITHMS.md sec. 4).
+"""Per-pose quadrics and the quartic error of articulated simplification ([S09], docs/algorithms.md sec. 4).
 
 The functions are batched over edges: the hot parts of the simplifier (the
 initial quadrics of every vertex and the alternating position / weight
@@ -222,7 +222,7 @@ def weight_step(Q: np.ndarray, Tb: np.ndarray, v: np.ndarray, a0: np.ndarray, ma
         Also require ``a >= 0`` (skin weights engines accept). The step is then
         the small QP ``min a^T H a + ridge |a - a0|^2`` s.t. ``1^T a = 1``,
         ``a >= 0``, solved exactly by the batched active-set method
-        (:func:`rigslim.qp.solve_small_qps`); ``method`` is ignored.
+        (:func:`rigslim.numerics.small_qp.solve_small_qps`); ``method`` is ignored.
 
     Returns
     -------
@@ -276,7 +276,7 @@ def weight_step(Q: np.ndarray, Tb: np.ndarray, v: np.ndarray, a0: np.ndarray, ma
 
 def _nonnegative_weight_step(H: np.ndarray, a0: np.ndarray, mask: np.ndarray, ridge: float) -> np.ndarray:
     """``min a^T H a + ridge |a - a0|^2`` s.t. ``1^T a = 1``, ``a >= 0``, ``a = 0`` off the mask."""
-    from rigslim.qp import solve_small_qps
+    from rigslim.numerics.small_qp import solve_small_qps
 
     B, K = a0.shape
     eye = np.eye(K)[None]

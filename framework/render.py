@@ -26,7 +26,6 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -496,14 +495,3 @@ def png_bytes(image: np.ndarray) -> bytes:
     buf = io.BytesIO()
     Image.fromarray(np.ascontiguousarray(image, dtype=np.uint8)).save(buf, format="PNG", optimize=True)
     return buf.getvalue()
-
-
-def save_png(path, image: np.ndarray) -> Path:
-    """Write an image as PNG atomically; return the path."""
-    from rigslim.io.atomic import atomic_path
-
-    path = Path(path)
-    data = png_bytes(image)
-    with atomic_path(path) as tmp:
-        Path(tmp).write_bytes(data)
-    return path

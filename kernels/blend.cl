@@ -1,5 +1,5 @@
 /* Linear blending of handle transforms, one work-item per vertex ([P10] sec. 5,
- * ALGORITHMS.md sections 1 and 3). numpy reference: rigslim.blend.linear_blend,
+ * docs/algorithms.md sections 1 and 3). numpy reference: rigslim.blend.linear_blend,
  * rigslim.plugins.normals.{blended_matrix,approximate_affine}.
  *
  *   v' = X_v [v; 1],  X_v = sum_l w_l T_{i_l}                    (positions)

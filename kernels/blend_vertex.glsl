@@ -1,5 +1,5 @@
 // Linear blending of handle transforms in a vertex shader, captured with
-// transform feedback ([P10] sec. 5, ALGORITHMS.md sections 1 and 3); the
+// transform feedback ([P10] sec. 5, docs/algorithms.md sections 1 and 3); the
 // GLSL twin of kernels/blend.cl. numpy reference: rigslim.blend.linear_blend,
 // rigslim.plugins.normals.{blended_matrix,approximate_affine}.
 //

@@ -6,16 +6,14 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-pytest.importorskip("numba")
-
-from rigslim.asset import Asset  # noqa: E402
-from rigslim.blend import linear_blend  # noqa: E402
-from rigslim.host import get_host  # noqa: E402
-from rigslim.mesh import Mesh  # noqa: E402
-from rigslim.plugin import StepContext  # noqa: E402
-from rigslim.plugins.decimation.collapse import SimplifyState  # noqa: E402
-from rigslim.plugins.decimation.models import DeCoroModel, MohrGleicherModel, QuarticModel  # noqa: E402
-from rigslim.quadrics import per_pose_quadrics  # noqa: E402
+from rigslim.asset import Asset
+from rigslim.blend import linear_blend
+from rigslim.host import get_host
+from rigslim.mesh import Mesh
+from rigslim.plugin import StepContext
+from rigslim.plugins.decimation.collapse import SimplifyState
+from rigslim.plugins.decimation.models import DeCoroModel, MohrGleicherModel, QuarticModel
+from rigslim.quadrics import per_pose_quadrics
 
 
 @pytest.fixture(scope="module")

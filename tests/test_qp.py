@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from rigslim.qp import solve_small_qps
+from rigslim.numerics.small_qp import solve_small_qps
 
 
 def _random_batch(rng, nb, k, q, rank=3):

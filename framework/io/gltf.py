@@ -8,7 +8,7 @@ as (glTF 2.0 specification, section 3.7.3 "Skins")::
 where ``G`` is a joint node's global transform in the current pose and
 ``IBM_i`` the skin's inverse bind matrix; the transform of the node that
 instantiates the skinned mesh is ignored. This is exactly rigslim's linear
-blend model (ALGORITHMS.md section 1) with one handle per joint and
+blend model (docs/algorithms.md section 1) with one handle per joint and
 ``T_i = (G(joint_i) @ IBM_i)[:3, :]``.
 
 :func:`read_gltf_skin` returns the merged skinned mesh, the skeleton handles,

@@ -36,12 +36,6 @@ def blended_transforms(W: np.ndarray, T: np.ndarray) -> np.ndarray:
     return np.einsum("bn,pnrc->bprc", W, T)
 
 
-def posed_positions(v: np.ndarray, W: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """(B, P, 3) positions of rest points v (B, 3) with weights W (B, n) in the poses T (P, n, 3, 4)."""
-    X = blended_transforms(W, T)
-    return np.einsum("bprc,bc->bpr", X[..., :3], v) + X[..., 3]
-
-
 class SimplifyState:
     """Vertex tables shared by the collapse loop and a cost model.
 

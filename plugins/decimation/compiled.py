@@ -28,7 +28,7 @@ Per-edge cost (``method``):
     alternation's active set and checked by the KKT conditions
     ``a_F >= 0``, ``mu_A = (H a - r a0 + lambda 1)_A >= 0``; if it does not
     settle, the primal active-set method (Nocedal & Wright, Alg. 16.3), as in
-    :func:`rigslim.qp.solve_small_qps`, takes over;
+    :func:`rigslim.numerics.small_qp.solve_small_qps`, takes over;
 
   until the error ``E(v, a) = sum_j [v_j; 1]^T Q^j [v_j; 1]``,
   ``v_j = sum_k a_k M_k^j [v; 1]``, falls by less than ``tol`` (relative);
@@ -317,7 +317,7 @@ def _weight_step(H, K, a0, nonneg, ridge, free, warm, x, L, w, idx):
                     any_bound = True
             return any_bound
         lam = _solve_free(H, ridge, g, K, free, x, L, w, idx)
-    # did not settle: primal active set from the feasible start of rigslim.qp's path
+    # did not settle: primal active set from the feasible start of rigslim.numerics.small_qp's path
     s = 0.0
     for k in range(K):
         x[k] = max(a0[k], 0.0)

@@ -8,7 +8,7 @@ that can estimate normals in the same pass take ``normals:`` in their
 parameters and an optional ``handles=`` at bind (cages need the rest
 handle positions).
 
-Weight layouts (ALGORITHMS.md section 3):
+Weight layouts (docs/algorithms.md section 3):
 
 - ``fixed``: k (index int32, weight float32) pairs per vertex, padded with
   (0, 0), stored slot-major (``[l * m + v]``) so that neighbouring work-items

@@ -1,4 +1,4 @@
-"""Approximate-affine normals for cages ([P10] section 5, ALGORITHMS.md section 3).
+"""Approximate-affine normals for cages ([P10] section 5, docs/algorithms.md section 3).
 
 A cage's blended transforms have no linear part (``T_i = [0 | c_i]``), so
 normals cannot come from a blended matrix. Instead each vertex fits the

@@ -3,7 +3,7 @@
 Linear blend skinning moves vertex v by ``X_v = sum_l w_l T_{i_l}``; near v
 the deformation is (to first order, ignoring the weight gradients) the
 linear map ``R_v = sum_l w_l R_{i_l}`` (the 3x3 parts), so normals move by
-``R_v^{-T}`` ([P10] section 5, ALGORITHMS.md section 3).
+``R_v^{-T}`` ([P10] section 5, docs/algorithms.md section 3).
 """
 
 from __future__ import annotations

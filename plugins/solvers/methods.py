@@ -39,7 +39,7 @@ from rigslim.plugins.solvers.global_solver import global_solve
 from rigslim.plugins.solvers.local_solver import feasible_start, kkt_residual, local_solve
 from rigslim.plugins.solvers.multilevel_solver import multilevel_solve
 from rigslim.plugins.solvers.problem import RIDGE, build_problem
-from rigslim.qp import solve_small_qps
+from rigslim.numerics.small_qp import solve_small_qps
 from rigslim.weights import ReducedWeights
 
 

@@ -3,7 +3,7 @@
 The per-vertex Hessians, constraint rows and right-hand sides stay on the
 device for the whole solve (uploaded once, in colour order); each call sends
 a colour class's linear terms and starting points and reads back the
-solutions. Same algorithm as :func:`rigslim.qp.solve_small_qps`, which is
+solutions. Same algorithm as :func:`rigslim.numerics.small_qp.solve_small_qps`, which is
 its reference.
 """
 

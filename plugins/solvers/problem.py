@@ -1,6 +1,6 @@
 """The weight-reduction energies of [P10] as one quadratic problem.
 
-Every method (geometric, smooth, Poisson; ALGORITHMS.md section 2) is
+Every method (geometric, smooth, Poisson; docs/algorithms.md section 2) is
 
     E(alpha) = sum_c (X_c - Y_c)^T Q (X_c - Y_c) + eps ||alpha - alpha0||^2
     X_{v,c}  = sum_l alpha_{v,l} B_{v,l,c}

@@ -7,7 +7,7 @@ from pydantic import Field
 
 from rigslim import hookimpl
 from rigslim.plugin import InfluenceSelector, Params
-from rigslim.plugins.selection.k_largest import check_k, k_largest
+from rigslim.numerics.k_largest import check_k, k_largest
 
 
 class LargestAbsSelector(InfluenceSelector):

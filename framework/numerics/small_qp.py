@@ -7,7 +7,7 @@ Every problem of the batch is
                 x >= 0                 (optional, per problem)
 
 with k small (up to ~16). The weight-reduction local solver ([P10] sec. 3,
-ALGORITHMS.md section 2) solves one such QP per vertex of a colour class;
+docs/algorithms.md section 2) solves one such QP per vertex of a colour class;
 the articulated simplifier's weight step can reuse it. This is the numpy
 reference of the OpenCL kernel ``kernels/small_qp.cl`` (same algorithm,
 same iteration order, so both return the same active sets).
