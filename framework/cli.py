@@ -53,6 +53,7 @@ def _cmd_report(args) -> int:
     from rich.console import Console
 
     from rigslim.errors import InputError
+    from rigslim.io.atomic import check_output, output_transaction
     from rigslim.progress import Reporter
     from rigslim.report import build_report, load_document, write_report
 
@@ -68,6 +69,7 @@ def _cmd_report(args) -> int:
     except ValueError:
         raise InputError(f"--size '{args.size}' is not WIDTHxHEIGHT", field="--size",
                          fix="write e.g. --size 320x270") from None
+    check_output(args.output)
     documents = [(load_document(p), p) for p in args.metrics]
     console = Console(stderr=True, quiet=args.quiet)
     reporter = Reporter(console)
@@ -75,7 +77,8 @@ def _cmd_report(args) -> int:
                           projection=args.projection, azimuth=args.azimuth, elevation=args.elevation,
                           up_axis=args.up_axis, title=args.title, render=not args.no_renders,
                           progress=reporter.track)
-    written = write_report(args.output, report, args.png_dir)
+    with output_transaction():  # the page and its PNG files appear together
+        written = write_report(args.output, report, args.png_dir)
     for note in report.notes:
         reporter.note(note)
     print(f"report written to {args.output} ({len(report.rows)} evaluations, {len(report.renders)} renders)")
@@ -136,20 +139,41 @@ def build_parser() -> argparse.ArgumentParser:
     plugins = sub.add_parser("plugins", help="list loaded plugins")
     plugins.add_argument("--json", action="store_true", help="machine-readable output")
     plugins.set_defaults(func=_cmd_plugins)
+    from rigslim.batch import add_parser as add_batch_parser
+
+    add_batch_parser(sub)
     return parser
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, unwound like Ctrl-C so that staged outputs are removed (docs/pipelines.md, Guarantees)."""
+
+
+def _terminate(signum, frame):
+    raise _Terminated
+
+
 def main(argv=None) -> int:
+    import signal
+    import threading
+
     parser = build_parser()
     args = parser.parse_args(argv)
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _terminate)
     try:
         return args.func(args)
     except RigslimError as e:
         print(f"rigslim: error: {e.one_line()}", file=sys.stderr)
         return EXIT_USER_ERROR
-    except KeyboardInterrupt:
-        print("rigslim: interrupted; no output was written partially", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as e:
+        print("rigslim: interrupted; every output is either unchanged or complete", file=sys.stderr)
+        return 143 if isinstance(e, _Terminated) else 130
+    except OSError as e:  # an I/O error no reader or writer turned into a RigslimError: still one line
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"rigslim: error: {where}{e.strerror or e} (fix: check the path, its permissions and the free space)",
+              file=sys.stderr)
+        return EXIT_USER_ERROR
 
 
 if __name__ == "__main__":  # pragma: no cover

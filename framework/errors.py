@@ -1,15 +1,22 @@
 """Errors a user can cause, with messages that say where and how to fix them.
 
 Every error that bad input can trigger is a :class:`RigslimError`. Its message
-is one line naming the file, the field and the fix; the CLI prints exactly
-that line and exits with status 2. Programming errors stay ordinary Python
+is one line naming the file, the field and the fix, at most
+:data:`MAX_LINE` characters (values inside it are shortened by :func:`brief`);
+the CLI prints exactly that line and exits with status 2. Programming errors stay ordinary Python
 exceptions (and tracebacks).
 """
 
 from __future__ import annotations
 
 import difflib
+import reprlib
 from pathlib import Path
+
+#: Longest error line the CLI prints (characters); longer messages are clipped in the middle.
+MAX_LINE = 300
+#: Longest rendering of one offending value inside a message (characters).
+MAX_VALUE = 80
 
 
 class RigslimError(Exception):
@@ -29,10 +36,10 @@ class RigslimError(Exception):
 
     def __init__(self, problem: str, *, source: str | Path | None = None,
                  field: str | None = None, fix: str | None = None):
-        self.problem = problem
+        self.problem = clip(problem, 4 * MAX_LINE)
         self.source = None if source is None else str(source)
-        self.field = field
-        self.fix = fix
+        self.field = None if field is None else clip(field, MAX_LINE // 2)
+        self.fix = None if fix is None else clip(fix, MAX_LINE)
         super().__init__(self.one_line())
 
     def one_line(self) -> str:
@@ -46,7 +53,37 @@ class RigslimError(Exception):
         text = f"{head}: {self.problem}" if head else self.problem
         if self.fix:
             text += f" (fix: {self.fix})"
-        return " ".join(text.split())
+        return clip(" ".join(text.split()), MAX_LINE)
+
+
+def clip(text: str, limit: int = MAX_LINE) -> str:
+    """``text`` shortened to at most ``limit`` characters by cutting its middle (``" ... "``).
+
+    The start (file, field) and the end (the fix) of a message are what a
+    reader needs, so the middle goes.
+    """
+    text = str(text)
+    if len(text) <= limit:
+        return text
+    keep = limit - 5
+    head = keep * 2 // 3
+    return text[:head] + " ... " + text[len(text) - (keep - head):]
+
+
+_repr = reprlib.Repr()
+_repr.maxstring = MAX_VALUE
+_repr.maxother = MAX_VALUE
+_repr.maxlist = _repr.maxtuple = _repr.maxdict = _repr.maxset = 6
+_repr.maxlevel = 3
+
+
+def brief(value) -> str:
+    """A short ``repr`` of a value for messages: nested containers and long strings are elided,
+    so an alias bomb or a megabyte string never makes a megabyte message."""
+    try:
+        return clip(_repr.repr(value), MAX_VALUE)
+    except Exception:  # a hostile object whose repr fails
+        return f"<{type(value).__name__}>"
 
 
 class InputError(RigslimError):

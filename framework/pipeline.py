@@ -26,7 +26,7 @@ from rigslim.errors import PipelineError, RigslimError, StepError, closest
 from rigslim.errors import PluginNotFoundError as PluginNotFound
 from rigslim.evaluation import Evaluation
 from rigslim.host import PluginHost, get_host
-from rigslim.io.atomic import atomic_path
+from rigslim.io.atomic import atomic_path, check_output, output_transaction
 from rigslim.plugin import STEP_STAGES, StepContext
 from rigslim.poses import FrameSplit
 from rigslim.weights import influence_counts, validate_weights
@@ -323,14 +323,24 @@ def run_pipeline(path, *, overrides: list[str] = (), metrics_path=None, host: Pl
                  console=None, on_evaluation: Callable | None = None) -> RunResult:
     """Run a pipeline file and return the asset and the metrics document.
 
-    The metrics JSON (if asked for) is written atomically at the end, so a
-    failed run writes none.
+    Outputs are committed together at the end: ``write``/``report`` steps and
+    the metrics JSON (if asked for) stage temporary files, which are renamed
+    into place only after the last step and the metrics succeeded; a failed or
+    interrupted run leaves every output as it was (docs/pipelines.md, Guarantees).
     """
+    with output_transaction():
+        return _run_pipeline(path, overrides=overrides, metrics_path=metrics_path, host=host, console=console,
+                             on_evaluation=on_evaluation)
+
+
+def _run_pipeline(path, *, overrides, metrics_path, host, console, on_evaluation) -> RunResult:
     from rigslim.progress import Reporter
 
     host = host or get_host()
     path = Path(path)
     doc, steps = load_pipeline(path, overrides, host)
+    if metrics_path is not None:
+        check_output(metrics_path)
     base = path.parent.resolve()
     reporter = Reporter(console)
     t0 = time.perf_counter()

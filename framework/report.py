@@ -41,7 +41,7 @@ from typing import Any, Callable
 import numpy as np
 
 from rigslim.errors import InputError, RigslimError
-from rigslim.io.atomic import atomic_path
+from rigslim.io.atomic import atomic_path, output_transaction
 
 #: Colour map of the normal-deviation renders (pale yellow: none, dark red: the scale's maximum).
 HEAT_CMAP = "YlOrRd"
@@ -774,10 +774,15 @@ def write_report(path, report: Report, png_dir=None) -> list[Path]:
     private mode of the temporary file they were written to, so that a web
     server or a colleague can read them.
     """
-    import os
-
     path = Path(path)
     mode = _umask_mode()
+    with output_transaction():  # the page and its PNG files are renamed into place together
+        return _write_report_files(path, report, png_dir, mode)
+
+
+def _write_report_files(path, report, png_dir, mode) -> list[Path]:
+    import os
+
     with atomic_path(path) as tmp:
         Path(tmp).write_text(report.html, encoding="utf-8")
         os.chmod(tmp, mode)

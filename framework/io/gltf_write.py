@@ -23,7 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from rigslim.errors import InputError, StepError
-from rigslim.io.atomic import atomic_path
+from rigslim.io.atomic import atomic_path, output_transaction
 from rigslim.io.gltf import CHUNK_BIN, CHUNK_JSON, GLB_MAGIC, GltfSkin, skinning_sets
 
 #: Weight encodings: name -> (numpy dtype, componentType, normalized, scale).
@@ -318,7 +318,8 @@ def _put_sets(blob: _Blob, attrs: dict, indices, values, n_joints: int, kind: st
 
 
 def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float", sets: int | None = None,
-               levels=None, lod: bool = False, embed: bool = False, clamp_negative: bool = False) -> dict:
+               levels=None, lod: bool = False, embed: bool = False, clamp_negative: bool = False,
+               hierarchy=None) -> dict:
     """Write the source document with new skin weights (and simplified levels).
 
     Parameters
@@ -337,9 +338,15 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
     sets : int, optional
         Number of JOINTS/WEIGHTS sets (default ``ceil(k / 4)``).
     levels : list of SimplifiedLevel, optional
-        Each becomes a mesh of its own on a node with the same skin.
+        Each becomes, for each mesh the reader used, a mesh of its own with
+        one primitive per source primitive (every attribute and morph target
+        carried, :mod:`rigslim.io.gltf_lod`), on one new node per skinned
+        node with the same skin. Levels without ``hierarchy`` become one
+        primitive (single-primitive, single-node skins only).
+    hierarchy : ProgressiveHierarchy, optional
+        The hierarchy the levels were taken from (``asset.extras["hierarchy"]``).
     lod : bool
-        Link the levels from the skinned mesh node(s) with ``MSFT_lod``
+        Link each skinned node to its own level nodes with ``MSFT_lod``
         (coarser levels in order, plus ``MSFT_screencoverage`` in the node's
         extras); otherwise each level gets its own scene.
     embed : bool
@@ -431,33 +438,16 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
 
     # 3. simplified levels as meshes of their own
     if levels:
-        skinned_nodes = [i for i, n in enumerate(js.get("nodes", []))
-                         if n.get("skin") == source.skin and n.get("mesh") in {s.mesh for s in source.slices}]
-        first = source.slices[0]
-        material = js["meshes"][first.mesh]["primitives"][first.primitive].get("material")
-        level_nodes = []
         for level in levels:
             if level.weights.n_handles != n_joints:
                 raise StepError(f"level '{level.label}' has weights for {level.weights.n_handles} handles, "
                                 f"the skin has {n_joints} joints", field="levels",
                                 fix="simplify the mesh read from this glTF file")
-            prim = _level_primitive(blob, level, n_joints, quantize, sets, material, clamp)
-            js.setdefault("meshes", []).append({"name": level.label, "primitives": [prim]})
-            js["nodes"].append({"name": level.label, "mesh": len(js["meshes"]) - 1, "skin": source.skin})
-            level_nodes.append(len(js["nodes"]) - 1)
-        if lod:
-            for i in skinned_nodes:
-                node = js["nodes"][i]
-                node.setdefault("extensions", {})["MSFT_lod"] = {"ids": level_nodes}
-                coverage = [0.5 ** (j + 1) for j in range(len(level_nodes))] + [0.0]
-                node.setdefault("extras", {})["MSFT_screencoverage"] = coverage
-            used_ext = js.setdefault("extensionsUsed", [])
-            if "MSFT_lod" not in used_ext:
-                used_ext.append("MSFT_lod")
+        if hierarchy is not None and all(lv.vertex_ids is not None for lv in levels):
+            stats["level_primitives"] = _write_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp,
+                                                      lod)
         else:
-            roots = _joint_roots(js, source.joints)
-            for level, node in zip(levels, level_nodes):
-                js.setdefault("scenes", []).append({"name": level.label, "nodes": [node] + roots})
+            _write_merged_levels(js, blob, source, levels, quantize, sets, clamp, lod)
 
     # 4. one buffer
     data = blob.bytes()
@@ -470,6 +460,130 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
     if clamp is not None:
         stats.update({"clamped_vertices": 0, "most_negative": 0.0} | clamp)
     return stats
+
+
+def _skinned_nodes(js: dict, source: GltfSkin) -> list[int]:
+    """Nodes that instantiate one of the meshes the reader used, with the skin it used."""
+    meshes = {s.mesh for s in source.slices}
+    return [i for i, n in enumerate(js.get("nodes", [])) if n.get("skin") == source.skin and n.get("mesh") in meshes]
+
+
+def _link_levels(js: dict, source: GltfSkin, node_levels: dict[int, list[int]], lod: bool, labels) -> None:
+    """MSFT_lod on each original node (its own level nodes only), or one scene per level."""
+    if lod:
+        for i, ids in node_levels.items():
+            node = js["nodes"][i]
+            node.setdefault("extensions", {})["MSFT_lod"] = {"ids": ids}
+            node.setdefault("extras", {})["MSFT_screencoverage"] = [0.5 ** (j + 1) for j in range(len(ids))] + [0.0]
+        used_ext = js.setdefault("extensionsUsed", [])
+        if "MSFT_lod" not in used_ext:
+            used_ext.append("MSFT_lod")
+    else:
+        roots = _joint_roots(js, source.joints)
+        for j, label in enumerate(labels):
+            nodes = [ids[j] for ids in node_levels.values()]
+            js.setdefault("scenes", []).append({"name": label, "nodes": nodes + roots})
+
+
+def _write_merged_levels(js, blob, source, levels, quantize, sets, clamp, lod) -> None:
+    """Levels without a hierarchy (e.g. static-qslim): one primitive, only for a single-node, single-primitive skin."""
+    skinned = _skinned_nodes(js, source)
+    if len(skinned) != 1 or len(source.slices) != 1:
+        raise StepError(f"levels without a progressive hierarchy cannot be split into this file's "
+                        f"{len(source.slices)} primitives on {len(skinned)} nodes", field="levels",
+                        fix="simplify with quartic, mohr-gleicher or decoro-rusinkiewicz (they record a hierarchy)")
+    first = source.slices[0]
+    material = js["meshes"][first.mesh]["primitives"][first.primitive].get("material")
+    ids = []
+    for level in levels:
+        prim = _level_primitive(blob, level, len(source.joints), quantize, sets, material, clamp)
+        js.setdefault("meshes", []).append({"name": level.label, "primitives": [prim]})
+        js["nodes"].append({"name": level.label, "mesh": len(js["meshes"]) - 1, "skin": source.skin})
+        ids.append(len(js["nodes"]) - 1)
+    _link_levels(js, source, {skinned[0]: ids}, lod, [lv.label for lv in levels])
+
+
+#: Primitive properties a level primitive copies from its source primitive.
+_PRIMITIVE_KEEP = ("material", "extensions", "extras")
+
+
+def _write_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp, lod) -> list[dict]:
+    """Per-node, per-primitive levels with every attribute (:mod:`rigslim.io.gltf_lod`).
+
+    For each level and each mesh the reader used, a new mesh with one
+    primitive per source primitive (same material, attributes and morph
+    targets); for each skinned node, one level node per level with that
+    mesh and the same skin. Each node's ``MSFT_lod`` lists only its own
+    level nodes. Returns per level the faces of each primitive.
+    """
+    from rigslim.io.gltf_lod import hierarchy_attributes, level_primitives, primitive_data
+
+    n_joints = len(source.joints)
+    data = primitive_data(source)
+    attributes = hierarchy_attributes(source, hierarchy, data)
+    skinned = _skinned_nodes(js, source)
+    node_levels = {i: [] for i in skinned}
+    summary = []
+    for j, level in enumerate(levels):
+        parts = level_primitives(source, hierarchy, level, data, attributes)
+        values = np.asarray(level.weights.values, dtype=np.float64)
+        if clamp is not None:
+            values, st = clamp_negative_weights(values)
+            _merge_clamp(clamp, st)
+        width = max(1, int((values != 0).sum(axis=1).max(initial=1)))
+        order = np.argsort(-values, axis=1, kind="stable")[:, :width]
+        I = np.take_along_axis(level.weights.indices, order, 1)
+        W = np.take_along_axis(values, order, 1)
+        by_mesh: dict[int, list] = {}
+        for part in parts:
+            sl = source.slices[part.slice_index]
+            src = js["meshes"][sl.mesh]["primitives"][sl.primitive]
+            prim = {k: copy.deepcopy(src[k]) for k in _PRIMITIVE_KEEP if k in src}
+            attrs = {"POSITION": blob.new_accessor(part.positions.astype(np.float32), 5126, "VEC3", minmax=True)}
+            for name, arr in part.attributes.items():
+                attrs[name] = blob.new_accessor(arr.astype(np.float32), 5126, _vec(arr.shape[1]))
+            _put_sets(blob, attrs, I[part.weight_rows], W[part.weight_rows], n_joints, quantize, sets)
+            prim["attributes"] = attrs
+            if part.targets:
+                prim["targets"] = [{name: blob.new_accessor(arr.astype(np.float32), 5126, _vec(arr.shape[1]),
+                                                            minmax=name == "POSITION")
+                                    for name, arr in t.items()} for t in part.targets]
+            idx_dtype, idx_ct = (np.uint16, 5123) if len(part.positions) < 65535 else (np.uint32, 5125)
+            prim["indices"] = blob.new_accessor(part.faces.reshape(-1).astype(idx_dtype), idx_ct, "SCALAR",
+                                                target=ELEMENT_ARRAY_BUFFER)
+            prim["mode"] = 4
+            by_mesh.setdefault(sl.mesh, []).append((sl.primitive, prim, len(part.faces)))
+        meshes = js.setdefault("meshes", [])
+        new_mesh = {}
+        for mi, prims in by_mesh.items():
+            src_mesh = js["meshes"][mi]
+            mesh = {"name": f"{src_mesh.get('name', f'mesh{mi}')}-{level.label}",
+                    "primitives": [p for _, p, _ in sorted(prims, key=lambda x: x[0])]}
+            for key in ("weights", "extras"):
+                if key in src_mesh:
+                    mesh[key] = copy.deepcopy(src_mesh[key])
+            meshes.append(mesh)
+            new_mesh[mi] = len(meshes) - 1
+        for i in skinned:
+            node = js["nodes"][i]
+            mi = node["mesh"]
+            if mi not in new_mesh:       # every primitive of it degenerated: show the full mesh
+                new_mesh[mi] = mi
+            js["nodes"].append({"name": f"{node.get('name', f'node{i}')}-{level.label}", "mesh": new_mesh[mi],
+                                "skin": source.skin})
+            node_levels[i].append(len(js["nodes"]) - 1)
+            for anim in js.get("animations", []):           # morph weights play on the level nodes too
+                for ch in list(anim.get("channels", [])):
+                    if ch.get("target", {}).get("node") == i and ch["target"].get("path") == "weights":
+                        anim["channels"].append({"sampler": ch["sampler"],
+                                                 "target": {"node": len(js["nodes"]) - 1, "path": "weights"}})
+        summary.append({"label": level.label, "primitive_faces": [n for ps in by_mesh.values() for _, _, n in ps]})
+    _link_levels(js, source, node_levels, lod, [lv.label for lv in levels])
+    return summary
+
+
+def _vec(width: int) -> str:
+    return {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4"}[width]
 
 
 def _joint_roots(js: dict, joints: list[int]) -> list[int]:
@@ -505,8 +619,9 @@ def _write_document(path: Path, js: dict, data: bytes, *, embed: bool = False) -
         else:
             js["buffers"][0]["uri"] = path.stem + ".bin"
     text = json.dumps(js, indent=2, ensure_ascii=False) + "\n"
-    if data and not embed:
-        with atomic_path(path.with_name(path.stem + ".bin")) as tmp_bin, atomic_path(path) as tmp:
+    if data and not embed:  # the .gltf and its .bin are renamed into place together
+        with output_transaction(), atomic_path(path.with_name(path.stem + ".bin")) as tmp_bin, \
+                atomic_path(path) as tmp:
             tmp_bin.write_bytes(data)
             tmp.write_text(text, encoding="utf-8")
     else:

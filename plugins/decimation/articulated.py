@@ -47,6 +47,9 @@ class DecimationParams(Params):
     max_bones: int | None = Field(default=None, ge=1)
     """At most this many non-zero weights per vertex at every level."""
     keep_boundary: bool = True
+    lock_seams: bool = True
+    """For a mesh read from glTF: never move a vertex on a UV/colour seam or a material (primitive) boundary
+    (:func:`rigslim.io.gltf_lod.seam_vertices`), so every level keeps them exactly."""
     min_normal_cos: float = Field(default=0.0, ge=-1.0, le=1.0)
     """Refuse collapses that turn a surviving face's normal by more than arccos(this), in any pose."""
     area_weighted: bool = True
@@ -79,6 +82,19 @@ def limited_weights(A, max_bones: int | None) -> np.ndarray:
     return W
 
 
+def seam_lock(asset) -> np.ndarray | None:
+    """Seam and material-boundary vertices of a mesh read from glTF (None for other inputs).
+
+    Only when ``asset.mesh`` is still the mesh the glTF reader made (a step may have replaced it).
+    """
+    from rigslim.io.gltf_lod import seam_vertices
+
+    source = asset.extras.get("gltf")
+    if source is None or source.mesh is not asset.mesh:
+        return None
+    return seam_vertices(source)
+
+
 class ArticulatedDecimator(Decimator):
     """Shared driver: quadrics of the example poses, the collapse loop, level extraction."""
 
@@ -100,9 +116,10 @@ class ArticulatedDecimator(Decimator):
         Q, X = per_pose_quadrics(mesh.V, mesh.F, asset.weights, T, params.area_weighted)
         W = limited_weights(asset.weights, params.max_bones)
         model = self.model(Q, W, T, params)
+        locked = seam_lock(asset) if params.lock_seams else None
         hier = simplify(mesh.V, mesh.F, W, T, X, model, min_faces=min_faces, keep_boundary=params.keep_boundary,
                         min_normal_cos=params.min_normal_cos, progress=ctx.progress, method=self.name,
-                        params=params.model_dump(), backend=params.backend)
+                        params=params.model_dump(), backend=params.backend, locked=locked)
         levels = [hier.at_faces(f, target_label(self.name, t, f)) for t, f in zip(params.targets, faces)]
         levels += [hier.at_error(e, f"{self.name}-err{e:g}") for e in params.error_targets]
         levels += [hier.adaptive(a.budget(mesh.V), a.label or f"{self.name}-adaptive{i + 1}")
@@ -110,6 +127,8 @@ class ArticulatedDecimator(Decimator):
         levels.sort(key=lambda lv: -lv.n_faces)
         asset.extras["hierarchy"] = hier
         asset.extras["levels"] = levels
+        if locked is not None:
+            ctx.report["locked_seam_vertices"] = int(locked.sum())
         ctx.report.update({
             "collapses": hier.n_collapses, "input_faces": mesh.n_faces,
             "final_faces": hier.faces_after(hier.n_collapses), "example_poses": len(T),

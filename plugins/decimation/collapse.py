@@ -128,7 +128,7 @@ class _EdgeTable:
 
 def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_boundary: bool = True,
              min_normal_cos: float = 0.0, progress=None, method: str = "", params: dict | None = None,
-             batch: int = 2048, backend: str = "numpy") -> ProgressiveHierarchy:
+             batch: int = 2048, backend: str = "numpy", locked=None) -> ProgressiveHierarchy:
     """Greedy edge collapses down to ``min_faces``, recorded as a progressive hierarchy.
 
     Parameters
@@ -158,6 +158,10 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         costs (the reference); ``"numba"``: the compiled loop and per-edge
         costs of :mod:`rigslim.plugins.decimation.compiled` (same collapses;
         the model must provide ``compiled_spec()``).
+    locked : (m,) bool array, optional
+        Vertices no collapse may move (like boundary vertices, whatever
+        ``keep_boundary`` says): e.g. a glTF file's UV seams and material
+        boundaries (:func:`rigslim.io.gltf_lod.seam_vertices`).
 
     Returns
     -------
@@ -166,7 +170,8 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     progress = progress or (lambda it, total=None, description="": it)
     if backend == "numba":
         return _simplify_compiled(V, F, W, T, X, model, min_faces=min_faces, keep_boundary=keep_boundary,
-                                  min_normal_cos=min_normal_cos, progress=progress, method=method, params=params)
+                                  min_normal_cos=min_normal_cos, progress=progress, method=method, params=params,
+                                  locked=locked)
     if backend != "numpy":
         raise ValueError(f"unknown backend {backend!r}")
     st = SimplifyState(V, F, W, T, X)
@@ -184,6 +189,8 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     boundary = np.zeros(2 * m, dtype=bool)
     if keep_boundary:
         boundary[uniq[counts == 1].ravel()] = True
+    if locked is not None:
+        boundary[:m] |= np.asarray(locked, bool)
     edges = uniq[~(boundary[uniq[:, 0]] | boundary[uniq[:, 1]])]
 
     table = _EdgeTable(W.shape[1], max(16, 2 * len(edges)))
@@ -331,7 +338,7 @@ def _hierarchy(Vall, Wall, F, collapses, errors, nfaces, method, params) -> Prog
 
 
 def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_normal_cos, progress, method,
-                       params) -> ProgressiveHierarchy:
+                       params, locked=None) -> ProgressiveHierarchy:
     """:func:`simplify` with the compiled loop (:func:`rigslim.plugins.decimation.compiled.collapse_chunk`)."""
     from rigslim.plugins.decimation import compiled as cc
 
@@ -355,6 +362,8 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     boundary = np.zeros(N, dtype=bool)
     if keep_boundary:
         boundary[uniq[counts == 1].ravel()] = True
+    if locked is not None:
+        boundary[:m] |= np.asarray(locked, bool)
     edges = np.ascontiguousarray(uniq[~(boundary[uniq[:, 0]] | boundary[uniq[:, 1]])], dtype=np.int64)
     n_edges = len(edges)
     cap = n_edges + 16

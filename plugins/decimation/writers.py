@@ -12,9 +12,6 @@ Both are chosen by name (``writer: hierarchy`` / ``writer: levels``), since
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -35,11 +32,9 @@ def write_obj(path, V: np.ndarray, F: np.ndarray) -> None:
 def write_levels(folder, levels, binary: bool = True) -> None:
     """Write levels into ``folder``: OBJ + DMAT + NPZ per level and ``levels.json``; the folder appears whole."""
     from rigslim.io import write_dmat, write_reduced_npz
+    from rigslim.io.atomic import atomic_dir
 
-    folder = Path(folder)
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
-    try:
+    with atomic_dir(folder) as tmp:
         index = []
         for lv in levels:
             write_obj(tmp / f"{lv.label}.obj", lv.mesh.V, lv.mesh.F)
@@ -51,16 +46,6 @@ def write_levels(folder, levels, binary: bool = True) -> None:
                           "mesh": f"{lv.label}.obj", "weights": f"{lv.label}-weights.dmat",
                           "reduced": f"{lv.label}.npz"})
         (tmp / "levels.json").write_text(json.dumps({"levels": index}, indent=2) + "\n")
-        if folder.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{folder.name}.old.", dir=folder.parent))
-            os.replace(folder, old / folder.name)
-            os.replace(tmp, folder)
-            shutil.rmtree(old)
-        else:
-            os.replace(tmp, folder)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
 
 
 class HierarchyWriter(Writer):

@@ -57,6 +57,7 @@ class GltfWriter(Writer):
         embed: bool = False
         fps: float = 30.0
         keep_input_weights: bool = True
+        """With no solve step, keep the file's skinning bytes when they sum to one (else write them normalised)."""
         clamp_negative: bool = False
 
     def write(self, path, asset, params, ctx):
@@ -65,12 +66,24 @@ class GltfWriter(Writer):
         levels = asset.extras.get("levels") if params.levels else None
         source = asset.extras.get("gltf")
         if source is not None:
+            from rigslim.io.gltf_lod import input_weights_normalized
+
             reduced = asset.reduced
-            if reduced is None and not params.keep_input_weights:
+            renormalised = False
+            if reduced is None and params.keep_input_weights and asset.weights is not None \
+                    and not input_weights_normalized(source):
+                # the file's own bytes do not sum to one (the validator's ACCESSOR_WEIGHTS_NON_NORMALIZED):
+                # write the weights as read (normalised) instead of keeping them
+                renormalised = True
+            if reduced is None and (renormalised or not params.keep_input_weights):
                 asset.require("weights", step="write: gltf")
                 reduced = fixed_width_weights(asset.weights)
             stats = write_gltf(path, source, reduced, quantize=params.quantize, sets=params.sets, levels=levels,
-                               lod=params.lod, embed=params.embed, clamp_negative=params.clamp_negative)
+                               lod=params.lod, embed=params.embed, clamp_negative=params.clamp_negative,
+                               hierarchy=asset.extras.get("hierarchy") if levels else None)
+            if renormalised:
+                stats["renormalised_input_weights"] = True
+                ctx.log("the file's weights do not sum to one: written normalised")
             ctx.report.update(stats)
             mode = "rewrite"
         else:

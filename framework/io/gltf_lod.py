@@ -1,0 +1,418 @@
+"""Levels of detail of a skinned glTF: per-primitive meshes with every vertex attribute, and MSFT_lod views.
+
+The decimators work on the welded mesh of every skinned primitive
+(:func:`rigslim.io.gltf.read_gltf_skin` with ``weld=True``): one vertex per
+position, so that the surface is connected. A glTF file, however, splits a
+position into several file vertices ("wedges", Hoppe 1999) wherever an
+attribute (UV, colour, normal) or the primitive (material) changes. This
+module maps a :class:`rigslim.hierarchy.ProgressiveHierarchy` of the welded
+mesh back onto the file's primitives:
+
+- :func:`seam_vertices` marks the welded vertices where a UV (``TEXCOORD_n``),
+  ``COLOR_n``, a custom attribute, a morph target or the primitive differs
+  between wedges. The decimators lock them (no collapse moves them), so UV
+  seams and material boundaries are kept exactly. ``NORMAL`` and
+  ``TANGENT`` do not lock a vertex: flat-shaded exports split every vertex
+  by its normals, and locking those would forbid every collapse.
+- :func:`level_primitives` gives, for one level, one primitive per source
+  primitive: its faces (the source faces that survive, in order), positions
+  and weights of the level, and every attribute and morph target. A vertex
+  the level did not move keeps its file vertex (all its attributes, byte
+  for byte after decoding); a vertex made by collapses gets the attributes
+  interpolated along its collapses (below).
+- :func:`level_document` is the view of a written file at one level (each
+  node's mesh replaced by its ``MSFT_lod`` level node's), used by
+  ``rigslim compare --level`` and ``rigslim lod --split``.
+
+Attributes along collapses: collapse ``i`` merges a and b into ``c = m + i``
+at position ``v_c``. With ``t = clamp(((v_c - v_a) . (v_b - v_a)) / |v_b - v_a|^2, 0, 1)``
+(the projection of the new position onto the edge), every attribute is
+``x_c = (1 - t) x_a + t x_b``; NORMAL is renormalised, TANGENT's xyz too
+(its w, the handedness, is the sign of the interpolated w). An original
+vertex's value for a primitive is the mean of its wedges in that primitive
+(only normals and tangents can differ there, since other differences lock
+the vertex).
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rigslim.errors import InputError, StepError
+from rigslim.io.gltf import GltfDocument, GltfSkin, _triangles, read_accessor, skinning_sets
+
+#: Attributes that never lock a vertex (hard edges are interpolated, not kept).
+SOFT_ATTRIBUTES = ("NORMAL", "TANGENT")
+
+
+@dataclass
+class PrimitiveData:
+    """The carried attributes of one source primitive, decoded to float64.
+
+    Attributes
+    ----------
+    index : int
+        Position in ``GltfSkin.slices``.
+    attributes : dict name -> (count, c) array
+        Every attribute but POSITION, JOINTS_n and WEIGHTS_n.
+    targets : list of dict name -> (count, c) array
+        Morph target deltas (POSITION, NORMAL, TANGENT, ...).
+    faces : (f, 3) int64 array
+        Triangles in the primitive's own vertex numbering.
+    """
+
+    index: int
+    count: int
+    attributes: dict[str, np.ndarray]
+    targets: list[dict[str, np.ndarray]] = field(default_factory=list)
+    faces: np.ndarray | None = None
+
+    def columns(self) -> list[tuple[str, int]]:
+        """``(key, width)`` of every carried column block: attributes, then ``"t{j}/{name}"`` target blocks."""
+        out = [(k, v.shape[1]) for k, v in self.attributes.items()]
+        for j, t in enumerate(self.targets):
+            out += [(f"t{j}/{k}", v.shape[1]) for k, v in t.items()]
+        return out
+
+    def matrix(self) -> np.ndarray:
+        """(count, C) the column blocks side by side, in :meth:`columns` order."""
+        blocks = list(self.attributes.values()) + [v for t in self.targets for v in t.values()]
+        return np.hstack(blocks) if blocks else np.zeros((self.count, 0))
+
+
+def primitive_data(skin: GltfSkin) -> list[PrimitiveData]:
+    """Decode the carried attributes, morph targets and triangles of every primitive the skin reader used."""
+    doc, js = skin.document, skin.document.json
+    out = []
+    for i, sl in enumerate(skin.slices):
+        prim = js["meshes"][sl.mesh]["primitives"][sl.primitive]
+        attrs = prim.get("attributes", {})
+        sets = skinning_sets(attrs)
+        skip = {"POSITION"} | {f"JOINTS_{s}" for s in sets} | {f"WEIGHTS_{s}" for s in sets}
+        values = {}
+        for name in sorted(attrs):
+            if name in skip:
+                continue
+            a = np.asarray(read_accessor(doc, attrs[name]), np.float64).reshape(sl.count, -1)
+            if len(a) != sl.count:
+                raise InputError(f"attribute {name} has {len(a)} elements, POSITION {sl.count}", source=doc.path,
+                                 field=f"meshes[{sl.mesh}].primitives[{sl.primitive}].attributes.{name}",
+                                 fix="re-export the file")
+            values[name] = a
+        targets = []
+        for j, t in enumerate(prim.get("targets", [])):
+            targets.append({name: np.asarray(read_accessor(doc, t[name]), np.float64).reshape(sl.count, -1)
+                            for name in sorted(t)})
+        idx = (np.asarray(read_accessor(doc, prim["indices"]), np.int64) if "indices" in prim
+               else np.arange(sl.count, dtype=np.int64))
+        out.append(PrimitiveData(i, sl.count, values, targets, _triangles(prim.get("mode", 4), idx)))
+    return out
+
+
+def _vertex_map(skin: GltfSkin) -> np.ndarray:
+    total = sum(s.count for s in skin.slices)
+    return np.arange(total) if skin.vertex_map is None else np.asarray(skin.vertex_map, np.int64)
+
+
+def seam_vertices(skin: GltfSkin, data: list[PrimitiveData] | None = None) -> np.ndarray:
+    """Welded vertices whose wedges differ in primitive, UV, colour, custom attribute or morph target.
+
+    Returns
+    -------
+    (m,) bool array over ``skin.mesh`` vertices
+        True where two file vertices at this position belong to different
+        primitives or carry different values of any attribute except
+        NORMAL/TANGENT (or different morph target deltas).
+    """
+    data = primitive_data(skin) if data is None else data
+    vmap = _vertex_map(skin)
+    m = skin.mesh.n_vertices
+    keys = []
+    for d, sl in zip(data, skin.slices):
+        cols = [v for k, v in d.attributes.items() if k not in SOFT_ATTRIBUTES]
+        cols += [v for t in d.targets for v in t.values()]
+        keys.append((sl, np.hstack(cols) if cols else np.zeros((sl.count, 0))))
+    width = max(k.shape[1] for _, k in keys)
+    rows = []
+    for i, (sl, k) in enumerate(keys):
+        pad = np.full((sl.count, width - k.shape[1]), np.nan)
+        w = vmap[sl.start:sl.start + sl.count]
+        rows.append(np.hstack([w[:, None].astype(float), np.full((sl.count, 1), float(i)), k, pad]))
+    R = np.nan_to_num(np.vstack(rows), nan=-1e300)
+    uniq = np.unique(R, axis=0)
+    counts = np.bincount(uniq[:, 0].astype(np.int64), minlength=m)
+    return counts > 1
+
+
+def input_weights_normalized(skin: GltfSkin, tolerance: float = 5e-4) -> bool:
+    """Whether every file vertex's decoded weights (all sets) sum to one within ``tolerance``.
+
+    Checked as ``|sum - 1| <= tolerance`` after decoding: a normalized byte
+    code is 1/255 = 3.9e-3, so an integer file off by one code fails, while
+    float32 round-off passes. Files that fail get their weights rewritten
+    (normalised) by the glTF writer.
+    """
+    doc, js = skin.document, skin.document.json
+    for sl in skin.slices:
+        attrs = js["meshes"][sl.mesh]["primitives"][sl.primitive]["attributes"]
+        total = np.zeros(sl.count)
+        for s in skinning_sets(attrs):
+            total += np.asarray(read_accessor(doc, attrs[f"WEIGHTS_{s}"]), np.float64).reshape(sl.count, -1).sum(1)
+        if sl.count and np.abs(total - 1.0).max() > tolerance:
+            return False
+    return True
+
+
+# --------------------------------------------------------------------------- levels
+
+
+@dataclass
+class LevelPrimitive:
+    """One primitive of one level, ready to be written.
+
+    Attributes
+    ----------
+    slice_index : int
+        The source primitive (``GltfSkin.slices`` index).
+    positions : (v, 3), faces : (f, 3)
+    weight_rows : (v,) int
+        Row of the level's ``weights`` (``SimplifiedLevel.weights``) of each vertex.
+    attributes : dict name -> (v, c) array
+    targets : list of dict name -> (v, c) array
+    """
+
+    slice_index: int
+    positions: np.ndarray
+    faces: np.ndarray
+    weight_rows: np.ndarray
+    attributes: dict[str, np.ndarray]
+    targets: list[dict[str, np.ndarray]]
+
+
+def welded_faces(skin: GltfSkin, data: list[PrimitiveData]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per primitive: the welded faces the reader kept and their file-vertex corners (global file ids)."""
+    vmap = _vertex_map(skin)
+    out = []
+    for d, sl in zip(data, skin.slices):
+        Ff = d.faces + sl.start
+        Fw = vmap[Ff]
+        keep = (Fw[:, 0] != Fw[:, 1]) & (Fw[:, 1] != Fw[:, 2]) & (Fw[:, 2] != Fw[:, 0])
+        out.append((Fw[keep], Ff[keep]))
+    F = np.concatenate([w for w, _ in out]) if out else np.zeros((0, 3), np.int64)
+    if F.shape != skin.mesh.F.shape or not np.array_equal(F, skin.mesh.F):
+        raise StepError("the simplified mesh is not the one read from this glTF file's skinned primitives",
+                        field="levels", fix="simplify the mesh read from this file (no step may replace it)")
+    return out
+
+
+def _normalise_blocks(X: np.ndarray, columns: list[tuple[str, int]]) -> None:
+    """Renormalise NORMAL (and target-free TANGENT xyz, w = sign) column blocks of X in place."""
+    c = 0
+    for key, width in columns:
+        if key == "NORMAL" and width == 3:
+            n = np.linalg.norm(X[:, c:c + 3], axis=1, keepdims=True)
+            X[:, c:c + 3] = np.where(n > 0, X[:, c:c + 3] / np.where(n > 0, n, 1), [0.0, 0.0, 1.0])
+        elif key == "TANGENT" and width == 4:
+            n = np.linalg.norm(X[:, c:c + 3], axis=1, keepdims=True)
+            X[:, c:c + 3] = np.where(n > 0, X[:, c:c + 3] / np.where(n > 0, n, 1), [1.0, 0.0, 0.0])
+            X[:, c + 3] = np.where(X[:, c + 3] < 0, -1.0, 1.0)
+        c += width
+
+
+def collapse_parameters(hier) -> np.ndarray:
+    """``t_i``: where collapse i's new vertex projects onto its edge (0 at a, 1 at b), clamped to [0, 1]."""
+    m = hier.n_original
+    if not hier.n_collapses:
+        return np.zeros(0)
+    a, b = hier.collapses[:, 0], hier.collapses[:, 1]
+    va, vb, vc = hier.V[a], hier.V[b], hier.V[m + np.arange(hier.n_collapses)]
+    e = vb - va
+    den = (e * e).sum(axis=1)
+    t = np.where(den > 0, ((vc - va) * e).sum(axis=1) / np.where(den > 0, den, 1.0), 0.5)
+    return np.clip(t, 0.0, 1.0)
+
+
+def hierarchy_attributes(skin: GltfSkin, hier, data: list[PrimitiveData]) -> list[np.ndarray]:
+    """Per primitive, the (N, C) carried attributes of every hierarchy vertex (NaN where it has no wedge).
+
+    Rows ``0..m-1`` hold the mean of each welded vertex's wedges in that
+    primitive; row ``m + i`` interpolates collapse i's endpoints with
+    :func:`collapse_parameters` (an endpoint without a value gives the other's).
+    """
+    vmap = _vertex_map(skin)
+    m, N = hier.n_original, len(hier.V)
+    blocks, widths = [], []
+    for d, sl in zip(data, skin.slices):
+        X = d.matrix()
+        w = vmap[sl.start:sl.start + sl.count]
+        S = np.zeros((m, X.shape[1]))
+        np.add.at(S, w, X)
+        cnt = np.bincount(w, minlength=m).astype(float)
+        A = np.full((N, X.shape[1]), np.nan)
+        has = cnt > 0
+        A[:m][has] = S[has] / cnt[has, None]
+        _normalise_blocks(A[:m], d.columns())
+        blocks.append(A)
+        widths.append(X.shape[1])
+    if not hier.n_collapses:
+        return blocks
+    A = np.hstack(blocks)
+    t = collapse_parameters(hier)
+    col = hier.collapses
+    for i in range(hier.n_collapses):
+        xa, xb = A[col[i, 0]], A[col[i, 1]]
+        x = (1.0 - t[i]) * xa + t[i] * xb
+        A[m + i] = np.where(np.isnan(xa), xb, np.where(np.isnan(xb), xa, x))
+    out, c = [], 0
+    for d, w in zip(data, widths):
+        B = A[:, c:c + w].copy()
+        _normalise_blocks(B[m:], d.columns())
+        out.append(B)
+        c += w
+    return out
+
+
+def level_representatives(hier, vertex_ids: np.ndarray) -> np.ndarray:
+    """(m,) the level vertex (hierarchy id) that stands for each original vertex (-1 if none).
+
+    Each original vertex walks up its collapses (``parent[a] = parent[b] = m + i``)
+    until it reaches a vertex of the level.
+    """
+    m, N = hier.n_original, len(hier.V)
+    parent = np.arange(N, dtype=np.int64)
+    parent[hier.collapses[:, 0]] = m + np.arange(hier.n_collapses)
+    parent[hier.collapses[:, 1]] = m + np.arange(hier.n_collapses)
+    present = np.zeros(N, bool)
+    present[np.asarray(vertex_ids, np.int64)] = True
+    cur = np.arange(m, dtype=np.int64)
+    while True:
+        move = ~present[cur] & (parent[cur] != cur)
+        if not move.any():
+            break
+        cur[move] = parent[cur[move]]
+    return np.where(present[cur], cur, -1)
+
+
+def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | None = None,
+                     attributes: list[np.ndarray] | None = None) -> list[LevelPrimitive]:
+    """One :class:`LevelPrimitive` per source primitive for a level taken from ``hier``.
+
+    Parameters
+    ----------
+    skin : GltfSkin
+        The source (read with ``weld=True`` or not).
+    hier : ProgressiveHierarchy
+        Built on ``skin.mesh``.
+    level : SimplifiedLevel
+        With ``vertex_ids`` into ``hier``.
+    data, attributes :
+        :func:`primitive_data` and :func:`hierarchy_attributes`, when several levels share them.
+
+    Notes
+    -----
+    A level face is a source face whose three corners map to three distinct
+    level vertices; it stays in its source primitive. A corner whose vertex
+    the level kept (an original vertex) keeps its file vertex; a corner at a
+    vertex made by collapses uses that vertex's interpolated attributes.
+    Faces that fold onto another face (two faces with the same three
+    vertices, from selective refinement) are dropped like the level does.
+    """
+    if level.vertex_ids is None:
+        raise StepError(f"level '{level.label}' was not taken from a progressive hierarchy", field="levels",
+                        fix="use a hierarchy decimator (quartic, mohr-gleicher, decoro-rusinkiewicz) for glTF LODs")
+    data = primitive_data(skin) if data is None else data
+    attributes = hierarchy_attributes(skin, hier, data) if attributes is None else attributes
+    m = hier.n_original
+    ids = np.asarray(level.vertex_ids, np.int64)
+    rep = level_representatives(hier, ids)
+    level_keys = set(map(tuple, np.sort(ids[np.asarray(level.mesh.F)], axis=1).tolist()))
+    vmap = _vertex_map(skin)
+    out = []
+    for d, sl, (Fw, Ff), A in zip(data, skin.slices, welded_faces(skin, data), attributes):
+        R = rep[Fw]
+        keep = (R >= 0).all(axis=1) & (R[:, 0] != R[:, 1]) & (R[:, 1] != R[:, 2]) & (R[:, 2] != R[:, 0])
+        R, Ff = R[keep], Ff[keep]
+        if len(R) and len(level_keys) < len(hier.F):
+            inlevel = np.array([tuple(r) in level_keys for r in np.sort(R, axis=1).tolist()], bool)
+            R, Ff = R[inlevel], Ff[inlevel]
+        # output vertex key: the file vertex where the level kept the vertex, else the hierarchy vertex
+        key = np.where(R < m, Ff - sl.start, -1 - R)
+        uniq, inv = np.unique(key.ravel(), return_inverse=True)
+        faces = inv.reshape(-1, 3).astype(np.int64)
+        orig = uniq >= 0
+        local = np.where(orig, uniq, 0)
+        # hierarchy id: an original vertex's is its welded id (the level kept it), a new one's is -1 - key
+        hv = np.where(orig, vmap[sl.start + local], -1 - uniq)
+        rows = np.searchsorted(ids, hv)
+        if len(hv) and not np.array_equal(ids[np.minimum(rows, len(ids) - 1)], hv):
+            raise StepError(f"level '{level.label}' does not match its hierarchy", field="levels",
+                            fix="write levels of the hierarchy the same step built")
+        cols = d.columns()
+        X = np.empty((len(uniq), sum(w for _, w in cols)))
+        if X.shape[1]:
+            X[orig] = d.matrix()[local[orig]]
+            X[~orig] = A[hv[~orig]]
+        if np.isnan(X).any():
+            raise StepError(f"level '{level.label}': a vertex of primitive {d.index} has no attribute value",
+                            field="levels", fix="report this file; simplify with seams locked")
+        attrs, targets, c = {}, [dict() for _ in d.targets], 0
+        for k, w in cols:
+            block = X[:, c:c + w]
+            if k.startswith("t") and "/" in k:
+                j, name = k[1:].split("/", 1)
+                targets[int(j)][name] = block
+            else:
+                attrs[k] = block
+            c += w
+        out.append(LevelPrimitive(d.index, hier.V[hv], faces, rows, attrs, targets))
+    return out
+
+
+# --------------------------------------------------------------------------- reading levels back
+
+
+def lod_nodes(js: dict) -> dict[int, list[int]]:
+    """Node index -> its ``MSFT_lod`` level node ids, for every node that has the extension."""
+    out = {}
+    for i, node in enumerate(js.get("nodes", [])):
+        ext = node.get("extensions", {}).get("MSFT_lod")
+        if ext is not None:
+            out[i] = [int(x) for x in ext.get("ids", [])]
+    return out
+
+
+def lod_level_count(js: dict) -> int:
+    """Number of LOD levels (the most ``MSFT_lod`` ids of any node; 0 without the extension)."""
+    return max((len(v) for v in lod_nodes(js).values()), default=0)
+
+
+def level_document(doc: GltfDocument, level: int) -> GltfDocument:
+    """The document as a viewer shows it at LOD ``level`` (0: the full meshes).
+
+    Every node with ``MSFT_lod`` gets the mesh (and skin) of its level
+    node ``ids[level - 1]``; nodes with fewer levels show their coarsest one.
+    The buffers are shared with ``doc``.
+    """
+    if level == 0:
+        return doc
+    lods = lod_nodes(doc.json)
+    if level < 0 or not lods or level > lod_level_count(doc.json):
+        have = lod_level_count(doc.json)
+        raise InputError(f"the file has no LOD level {level} (it has {have} MSFT_lod level(s))", source=doc.path,
+                         field="--level", fix=f"give a level from 0 to {have}")
+    js = copy.deepcopy(doc.json)
+    nodes = js["nodes"]
+    for i, ids in lods.items():
+        if not ids:
+            continue
+        src = nodes[ids[min(level, len(ids)) - 1]]
+        if "mesh" not in src:
+            raise InputError(f"LOD node {ids[min(level, len(ids)) - 1]} has no mesh", source=doc.path,
+                             field=f"nodes[{i}].extensions.MSFT_lod", fix="re-export the file")
+        nodes[i]["mesh"] = src["mesh"]
+        if "skin" in src:
+            nodes[i]["skin"] = src["skin"]
+    return GltfDocument(doc.path, js, doc.buffers)
