@@ -106,7 +106,7 @@ def warm_up(backend: str) -> float:
     t0 = time.perf_counter()
     for method in ("quartic", "mohr-gleicher", "decoro-rusinkiewicz"):
         plugin = get_host().get("articulated-decimation", method)
-        plugin.decimate(asset, plugin.parse_params({"min_faces": 40, "backend": backend}), StepContext())
+        plugin.apply(asset, plugin.parse_params({"min_faces": 40, "backend": backend}), StepContext())
     return time.perf_counter() - t0
 
 
@@ -126,7 +126,7 @@ def run_method(asset, method: str, min_faces: int, max_bones, test_stride: int, 
     asset.extras.clear()
     ctx = StepContext()
     t0 = time.perf_counter()
-    plugin.decimate(asset, plugin.parse_params(raw), ctx)
+    plugin.apply(asset, plugin.parse_params(raw), ctx)
     seconds = time.perf_counter() - t0
     ev = Evaluation(asset, host)
     frames = list(range(0, len(ev), test_stride))
@@ -202,12 +202,12 @@ def gltfpack_comparison(gltfpack: str, samples: int, ratios=(0.1, 0.02)):
         plugin = host.get("articulated-decimation", method)
         asset.extras.clear()
         t0 = time.perf_counter()
-        plugin.decimate(asset, plugin.parse_params({"targets": faces, "max_bones": 4}), StepContext())
+        plugin.apply(asset, plugin.parse_params({"targets": faces, "max_bones": 4}), StepContext())
         secs = time.perf_counter() - t0
-        levels[method] = [(lv, secs) for lv in asset.extras["levels"]]
+        levels[method] = [(lv, secs) for lv in asset.levels]
     rows = []
     for method, lvs in levels.items():
-        asset.extras["levels"] = [lv for lv, _ in lvs]
+        asset.levels = [lv for lv, _ in lvs]
         ev = Evaluation(asset, host)
         scale = 100.0 / asset.mesh.bbox_diagonal
         for i, (lv, secs) in enumerate(lvs):

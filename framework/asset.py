@@ -14,6 +14,7 @@ import scipy.sparse as sp
 
 from rigslim.errors import StepError
 from rigslim.handles import Handles
+from rigslim.hierarchy import ProgressiveHierarchy, SimplifiedLevel
 from rigslim.mesh import Mesh
 from rigslim.poses import FrameSplit, Poses
 from rigslim.weights import InfluenceSets, ReducedWeights
@@ -39,10 +40,15 @@ class Asset:
         Output of the ``select`` stage.
     reduced : ReducedWeights
         Output of the ``solve`` stage.
+    levels : list of SimplifiedLevel
+        Output of the ``decimate`` stage: the simplified levels, finest first.
+    hierarchy : ProgressiveHierarchy or None
+        Output of the ``decimate`` stage: every collapse, replayable to any
+        resolution (None when the decimator records none).
     deformer, normal_estimator : str
         Plugins evaluations use (``numpy`` and ``recomputed`` by default).
     extras : dict
-        Anything else plugins attach (tetrahedra, hierarchies, glTF documents...).
+        Anything else plugins attach (tetrahedra, glTF documents...).
     provenance : dict
         Input paths and what each step did.
     """
@@ -54,6 +60,8 @@ class Asset:
     split: FrameSplit | None = None
     influences: InfluenceSets | None = None
     reduced: ReducedWeights | None = None
+    levels: list[SimplifiedLevel] = field(default_factory=list)
+    hierarchy: ProgressiveHierarchy | None = None
     deformer: str = "numpy"
     deformer_params: dict = field(default_factory=dict)
     normal_estimator: str = "recomputed"
@@ -73,9 +81,13 @@ class Asset:
                                 field=name, fix=f"add {producers.get(name, name)} before it")
 
     def example_poses(self) -> Poses:
+        """The example poses (used for fitting)."""
         self.require("poses", "split")
+        assert self.poses is not None and self.split is not None
         return self.poses.select(self.split.examples)
 
     def test_poses(self) -> Poses:
+        """The test poses (used for measuring, never for fitting)."""
         self.require("poses", "split")
+        assert self.poses is not None and self.split is not None
         return self.poses.select(self.split.test)

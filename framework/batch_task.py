@@ -295,7 +295,7 @@ def _influences(asset) -> tuple[int | None, int | None]:
     after = None
     if asset.reduced is not None:
         after = int(asset.reduced.influence_counts().max())
-    levels = asset.extras.get("levels") or []
+    levels = asset.levels
     if levels:
         counts = [int(lv.weights.influence_counts().max()) for lv in levels if lv.weights is not None]
         after = max(counts + ([after] if after is not None else [])) if counts else after

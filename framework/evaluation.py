@@ -1,6 +1,6 @@
 """Evaluation of a reduction on test poses: full against reduced deformation.
 
-For a simplification (``asset.extras["levels"]``) it also deforms every
+For a simplification (``asset.levels``) it also deforms every
 simplified level with its own weights (:meth:`Evaluation.level_positions`),
 to be compared with the full mesh under the full weights.
 
@@ -14,10 +14,17 @@ the work.
 from __future__ import annotations
 
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from rigslim.blend import linear_blend, per_vertex_normals
+
+if TYPE_CHECKING:
+    from rigslim.asset import Asset
+    from rigslim.host import PluginHost
+    from rigslim.mesh import Mesh
+    from rigslim.plugin import StepContext
 
 
 class Evaluation:
@@ -29,18 +36,22 @@ class Evaluation:
         Needs mesh, weights, poses, split and reduced weights.
     host : rigslim.host.PluginHost
         To find the asset's deformer and normal estimator.
+    ctx : rigslim.plugin.StepContext, optional
+        The evaluate step's context, handed to the deformer and the normal estimator.
     """
 
-    def __init__(self, asset, host):
-        #: Simplified levels (``asset.extras["levels"]``, from a ``decimate`` step), finest first.
-        self.levels = list(asset.extras.get("levels") or [])
+    def __init__(self, asset: Asset, host: PluginHost, ctx: StepContext | None = None):
+        #: Simplified levels (``asset.levels``, from a ``decimate`` step), finest first.
+        self.levels = list(asset.levels)
         need = ("mesh", "weights", "poses", "split") + (() if self.levels else ("reduced",))
         asset.require(*need, step="evaluate")
         self.asset = asset
         self.host = host
-        self.mesh = asset.mesh
+        self.ctx = ctx
+        assert asset.mesh is not None  # required above
+        self.mesh: Mesh = asset.mesh
         self.poses = asset.test_poses()
-        self.frames = [int(f) for f in self.poses.frames]
+        self.frames = [int(f) for f in np.asarray(self.poses.frames)]
         self._cache: dict = {}
 
     def __len__(self) -> int:
@@ -51,7 +62,7 @@ class Evaluation:
         self.asset.require("reduced", step="this metric")
         deformer = self.host.get("deformer", self.asset.deformer)
         params = deformer.parse_params(self.asset.deformer_params)
-        return deformer.bind(self.mesh, self.asset.reduced, params)
+        return deformer.bind(self.mesh, self.asset.reduced, params, ctx=self.ctx)
 
     @cached_property
     def _normal_estimator(self):
@@ -80,7 +91,8 @@ class Evaluation:
         """Normals of the reduced deformation from the asset's normal estimator."""
         est, params = self._normal_estimator
         return self._cached("reduced_n", j, lambda: est.estimate(
-            self.mesh, self.asset.reduced, self.asset.handles, self.poses.T[j], self.reduced_positions(j), params))
+            self.mesh, self.asset.reduced, self.asset.handles, self.poses.T[j], self.reduced_positions(j), params,
+            self.ctx))
 
     def level_positions(self, i: int, j: int) -> np.ndarray:
         """(v, 3) positions of simplified level i in test pose j, blended with the level's own weights."""

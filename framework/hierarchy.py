@@ -3,9 +3,9 @@
 This module is the data contract of the ``articulated-decimation`` stage
 (docs/simplification.md). A decimation step stores
 
-- ``asset.extras["hierarchy"]``: a :class:`ProgressiveHierarchy` (or ``None``
+- ``asset.hierarchy``: a :class:`ProgressiveHierarchy` (or ``None``
   for methods that cannot record their collapses, e.g. ``static-qslim``), and
-- ``asset.extras["levels"]``: a list of :class:`SimplifiedLevel`, one per
+- ``asset.levels``: a list of :class:`SimplifiedLevel`, one per
   target the step asked for, finest first.
 
 Writers (``hierarchy``, ``levels``) and the ``metro`` metric read them.

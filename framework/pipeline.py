@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import yaml
@@ -22,14 +23,14 @@ from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
 
 import rigslim
 from rigslim.asset import Asset
-from rigslim.errors import PipelineError, RigslimError, StepError, closest
+from rigslim.errors import PipelineError, RigslimError, closest
 from rigslim.errors import PluginNotFoundError as PluginNotFound
 from rigslim.evaluation import Evaluation
 from rigslim.host import PluginHost, get_host
 from rigslim.io.atomic import atomic_path, check_output, output_transaction
 from rigslim.plugin import STEP_STAGES, StepContext
 from rigslim.poses import FrameSplit
-from rigslim.weights import influence_counts, validate_weights
+from rigslim.weights import influence_counts
 
 #: Order in which input roles are read (others follow, in file order).
 ROLE_ORDER = ["gltf", "mesh", "skeleton", "cage", "weights", "animation"]
@@ -389,77 +390,76 @@ def _run_pipeline(path, *, overrides, metrics_path, host, console, on_evaluation
     return RunResult(asset, document, document["evaluations"])
 
 
-def _run_step(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base: Path, source: Path, document):
+def _run_step(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base: Path, source: Path,
+              document: dict) -> dict:
+    """Run one step; return its entry of the metrics document.
+
+    ``evaluate`` (several metrics) and ``write``/``report`` (a writer chosen by the output path) have runners
+    of their own; every other step runs its plugin's :meth:`rigslim.plugin.Plugin.apply`, which stores the
+    stage's result in the asset.
+    """
     entry = {"stage": step.key, "plugin": step.plugin if isinstance(step.plugin, str) else "metrics",
              "name": step.name}
-    if step.key == "evaluate":
-        evaluation = Evaluation(asset, host)
-        metrics = {}
-        for name, p in step.plugin:
-            metric = host.get("metric", name)
-            metrics.update(metric.compute(evaluation, metric.parse_params(p)))
-        label = step.name if step.name != f"evaluate{step.index}" else _default_label(document, asset)
-        evaluation_entry = {"name": label, "step": step.index, "metrics": metrics}
-        if asset.weights is not None and asset.reduced is not None:
-            # how many vertices have 0, 1, 2... non-zero weights before and after (report histograms)
-            evaluation_entry["influence_histogram"] = {
-                "input": np.bincount(influence_counts(asset.weights)).tolist(),
-                "reduced": np.bincount(asset.reduced.influence_counts()).tolist()}
-            # the weights this evaluation measured, for report steps that render several evaluations
-            asset.extras.setdefault("evaluated_reduced", {})[step.index] = asset.reduced
-            asset.extras.setdefault("evaluated_normals", {})[step.index] = (asset.normal_estimator,
-                                                                            dict(asset.normal_params))
-        document["evaluations"].append(evaluation_entry)
-        entry["plugin"] = ",".join(n for n, _ in step.plugin)
-        return entry
-    if step.key in ("write", "report"):
-        out = Path(step.plugin)
-        out = out if out.is_absolute() else base / out
-        params = dict(step.params)
-        name = params.pop("writer", "report" if step.key == "report" else None)
-        ctx.document = document
-        writers = host.plugins("writer")
-        if name is None:
-            fitting = [w for w in writers.values() if out.suffix.lower() in w.suffixes]
-            if not fitting:
-                sufs = sorted({s for w in writers.values() for s in w.suffixes})
-                raise PipelineError(f"no writer for '{out.suffix}' files", source=source,
-                                    field=f"steps[{step.index}].write", fix="use one of " + ", ".join(sufs))
-            writer = fitting[0]
-        else:
-            writer = host.get("writer", name)
-        writer.write(out, asset, _check_params(writer, params, source, f"steps[{step.index}]"), ctx)
-        entry.update({"plugin": writer.name, "path": str(out)})
-        return entry
+    runner = _STEP_RUNNERS.get(step.key)
+    if runner is not None:
+        return runner(step, asset, host, ctx, base, source, document, entry)
     plugin = host.get(step.stage, step.plugin)
-    params = plugin.parse_params(step.params)
-    if step.key == "generate":
-        asset.require("mesh", "handles", step=f"generate: {plugin.name}")
-        W = plugin.generate(asset, params, ctx)
-        asset.weights = validate_weights(W, asset.mesh.n_vertices, n_handles=asset.handles.n,
-                                         source=f"generate: {plugin.name}")
-    elif step.key == "select":
-        asset.influences = plugin.select(asset, params, ctx)
-        asset.reduced = None
-        entry["k"] = asset.influences.k
-    elif step.key == "solve":
-        asset.reduced = plugin.solve(asset, params, ctx)
-        entry["k"] = asset.reduced.k
-        asset.provenance["solver"] = plugin.name
-    elif step.key == "decimate":
-        plugin.decimate(asset, params, ctx)
-        asset.provenance["decimator"] = plugin.name
-    elif step.key == "deform":
-        asset.deformer, asset.deformer_params = plugin.name, dict(step.params)
-    elif step.key == "normals":
-        asset.normal_estimator, asset.normal_params = plugin.name, dict(step.params)
-    else:  # pragma: no cover - STEP_STAGES and this function change together
-        raise StepError(f"stage key '{step.key}' has no runner", field="steps")
+    entry.update(plugin.apply(asset, plugin.parse_params(step.params), ctx))
     return entry
 
 
+def _run_evaluate(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base: Path, source: Path,
+                  document: dict, entry: dict) -> dict:
+    evaluation = Evaluation(asset, host, ctx)
+    metrics = {}
+    for name, p in step.plugin:
+        metric = host.get("metric", name)
+        metrics.update(metric.compute(evaluation, metric.parse_params(p), ctx))
+    label = step.name if step.name != f"evaluate{step.index}" else _default_label(document, asset)
+    evaluation_entry = {"name": label, "step": step.index, "metrics": metrics}
+    if asset.weights is not None and asset.reduced is not None:
+        # how many vertices have 0, 1, 2... non-zero weights before and after (report histograms)
+        evaluation_entry["influence_histogram"] = {
+            "input": np.bincount(influence_counts(asset.weights)).tolist(),
+            "reduced": np.bincount(asset.reduced.influence_counts()).tolist()}
+        # the weights this evaluation measured, for report steps that render several evaluations
+        asset.extras.setdefault("evaluated_reduced", {})[step.index] = asset.reduced
+        asset.extras.setdefault("evaluated_normals", {})[step.index] = (asset.normal_estimator,
+                                                                        dict(asset.normal_params))
+    document["evaluations"].append(evaluation_entry)
+    entry["plugin"] = ",".join(n for n, _ in step.plugin)
+    return entry
+
+
+def _run_write(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base: Path, source: Path,
+               document: dict, entry: dict) -> dict:
+    out = Path(step.plugin)
+    out = out if out.is_absolute() else base / out
+    params = dict(step.params)
+    name = params.pop("writer", "report" if step.key == "report" else None)
+    ctx.document = document
+    writers = host.plugins("writer")
+    if name is None:
+        fitting = [w for w in writers.values() if out.suffix.lower() in w.suffixes]
+        if not fitting:
+            sufs = sorted({s for w in writers.values() for s in w.suffixes})
+            raise PipelineError(f"no writer for '{out.suffix}' files", source=source,
+                                field=f"steps[{step.index}].write", fix="use one of " + ", ".join(sufs))
+        writer = fitting[0]
+    else:
+        writer = host.get("writer", name)
+    writer.write(out, asset, _check_params(writer, params, source, f"steps[{step.index}]"), ctx)
+    entry.update({"plugin": writer.name, "path": str(out)})
+    return entry
+
+
+#: Steps whose value is not one plugin's name: evaluate (a list of metrics), write/report (an output path).
+_STEP_RUNNERS: dict[str, Callable[..., dict]] = {"evaluate": _run_evaluate, "write": _run_write,
+                                                  "report": _run_write}
+
+
 def _default_label(document, asset) -> str:
-    if asset.reduced is None and asset.extras.get("levels"):
+    if asset.reduced is None and asset.levels:
         return f"{asset.provenance.get('decimator', 'decimate')}-levels"
     solver = asset.provenance.get("solver", "input")
     k = asset.reduced.k if asset.reduced is not None else None

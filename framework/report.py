@@ -436,7 +436,7 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
     -----
     Full: ``v^j = sum_i w_{v,i} T_i^j [v; 1]`` with the input weights;
     reduced: the same with the reduced weights; simplified levels
-    (``asset.extras["levels"]`` of a ``decimate`` step, in-pipeline reports
+    (``asset.levels`` of a ``decimate`` step, in-pipeline reports
     only): each level's rest mesh blended with its own weights. The full
     deformation is shaded with its area-weighted normals (the reference of
     the ``normal_rms_rad`` metric), the reduced one with the normals of the
@@ -499,7 +499,7 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
             entry = [r.label, img, None, float(dev.max()), float(np.sqrt(np.mean(np.radians(dev) ** 2)))]
             rf.reduced.append(entry)
             heat_jobs.append((entry, Xr, Nr, dev, cam, F))
-        for level in data[id(group[0].document)].asset.extras.get("levels") or []:
+        for level in data[id(group[0].document)].asset.levels:
             Xl = linear_blend(level.mesh.V, level.weights, T)
             img, _ = render_mesh(Xl, level.mesh.F, LEVEL_COLOR, cam, backend=backend)
             rf.levels.append((str(level.label), int(level.mesh.n_faces), img))

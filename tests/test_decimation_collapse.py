@@ -60,8 +60,8 @@ def tube(n_around=16, n_along=24, length=3.0, radius=0.3, n_bones=4, caps=True, 
 def decimate(asset, method, **params):
     plugin = get_host().get("articulated-decimation", method)
     asset.extras.clear()
-    plugin.decimate(asset, plugin.parse_params(params), StepContext())
-    return asset.extras["hierarchy"], asset.extras["levels"]
+    plugin.apply(asset, plugin.parse_params(params), StepContext())
+    return asset.hierarchy, asset.levels
 
 
 def assert_closed_manifold(mesh: Mesh):
@@ -195,9 +195,9 @@ def test_static_qslim_levels(asset):
     pytest.importorskip("pymeshlab")
     plugin = get_host().get("articulated-decimation", "static-qslim")
     asset.extras.clear()
-    plugin.decimate(asset, plugin.parse_params({"targets": [0.2, 150], "max_bones": 3}), StepContext())
-    assert asset.extras["hierarchy"] is None
-    levels = asset.extras["levels"]
+    plugin.apply(asset, plugin.parse_params({"targets": [0.2, 150], "max_bones": 3}), StepContext())
+    assert asset.hierarchy is None
+    levels = asset.levels
     assert [lv.n_faces for lv in levels] == [round(0.2 * asset.mesh.n_faces), 150]
     for lv in levels:
         assert lv.weights.influence_counts().max() <= 3
@@ -229,10 +229,10 @@ def test_missing_inputs_are_step_errors():
     a.poses = None
     plugin = get_host().get("articulated-decimation", "quartic")
     with pytest.raises(StepError):
-        plugin.decimate(a, plugin.parse_params({"targets": [0.5]}), StepContext())
+        plugin.apply(a, plugin.parse_params({"targets": [0.5]}), StepContext())
     b = tube(n_along=4)
     with pytest.raises(StepError):
-        plugin.decimate(b, plugin.parse_params({"targets": [-1]}), StepContext())
+        plugin.apply(b, plugin.parse_params({"targets": [-1]}), StepContext())
 
 
 def test_endpoint_candidates_never_cost_more_than_mohr_gleicher(asset):

@@ -127,8 +127,8 @@ def piece(elephant):
 def _hierarchy(asset, method, backend, **params):
     plugin = get_host().get("articulated-decimation", method)
     asset.extras.clear()
-    plugin.decimate(asset, plugin.parse_params(dict(params, backend=backend, min_faces=100)), StepContext())
-    return asset.extras["hierarchy"]
+    plugin.apply(asset, plugin.parse_params(dict(params, backend=backend, min_faces=100)), StepContext())
+    return asset.hierarchy
 
 
 @pytest.mark.parametrize("method,params", [
@@ -172,11 +172,11 @@ def test_compiled_loop_reports_progress_in_chunks(piece):
 
     plugin = get_host().get("articulated-decimation", "quartic")
     piece.extras.clear()
-    plugin.decimate(piece, plugin.parse_params({"min_faces": 100}), StepContext(progress=progress))
+    plugin.apply(piece, plugin.parse_params({"min_faces": 100}), StepContext(progress=progress))
     total, description = seen[0]
     planned = (piece.mesh.n_faces - 100 + 1) // 2
     assert description == "quartic collapses" and total == -(-planned // 256) >= 2
-    hier = piece.extras["hierarchy"]
+    hier = piece.hierarchy
     assert seen[1:] == list(range(total))            # every chunk ran, one step each
     assert hier.n_collapses > 256                     # so the second chunk collapsed too
     assert hier.faces_after(hier.n_collapses) == piece.mesh.n_faces - 2 * hier.n_collapses

@@ -121,7 +121,7 @@ steps:
     assert result.asset.mesh.n_vertices < 128             # welded: the cylinder's seams are closed
     out = path.parent / "out" / "lod.glb"
     valid(out)
-    levels = result.asset.extras["levels"]
+    levels = result.asset.levels
     from rigslim.io.gltf import load_gltf
 
     doc = load_gltf(out)

@@ -99,7 +99,7 @@ def test_simplification_from_yaml(write_pipeline, tmp_path, method):
         W = read_dmat(tmp_path / "out" / "levels" / lv["weights"])
         assert mesh.n_faces == lv["faces"] and W.shape == (mesh.n_vertices, 24)
         assert np.allclose(W.sum(axis=1), 1.0) and ((W != 0).sum(axis=1) <= 4).all()
-    levels = result.asset.extras["levels"]
+    levels = result.asset.levels
     assert np.allclose(read_mesh(tmp_path / "out" / "levels" / f"{coarse}.obj").V, levels[1].mesh.V, atol=1e-6)
 
 

@@ -15,7 +15,7 @@ for entry in framework/*; do ln -s "$root/$entry" "$tmp/rigslim/$(basename "$ent
 ln -s "$root/plugins" "$tmp/rigslim/plugins"
 ln -s "$root/kernels" "$tmp/rigslim/kernels"
 MYPY=${MYPY:-mypy}
-[ -x .venv/bin/mypy ] && MYPY=.venv/bin/mypy
+[ -x "$root/.venv/bin/mypy" ] && MYPY="$root/.venv/bin/mypy"
 cd "$tmp"
 "$MYPY" --config-file "$root/pyproject.toml" --cache-dir /dev/null --follow-imports=silent \
-    -m rigslim.plugin -m rigslim.hookspecs -m rigslim.host -m rigslim.asset -m rigslim.stages "$@"
+    -m rigslim.plugin -m rigslim.hookspecs -m rigslim.host -m rigslim.asset -m rigslim.evaluation "$@"

@@ -4,7 +4,7 @@
 attributes (``JOINTS_n``/``WEIGHTS_n``) of the primitives that were read;
 materials, textures, UVs, morph targets, animations, extras and extensions
 stay as they were (their accessor data is copied byte for byte). Simplified
-levels (``asset.extras["levels"]``) become meshes of their own, optionally
+levels (``asset.levels``) become meshes of their own, optionally
 linked with the ``MSFT_lod`` extension.
 
 :func:`export_skinned` builds a skinned document from libigl-style data (a
@@ -344,7 +344,7 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
         node with the same skin. Levels without ``hierarchy`` become one
         primitive (single-primitive, single-node skins only).
     hierarchy : ProgressiveHierarchy, optional
-        The hierarchy the levels were taken from (``asset.extras["hierarchy"]``).
+        The hierarchy the levels were taken from (``asset.hierarchy``).
     lod : bool
         Link each skinned node to its own level nodes with ``MSFT_lod``
         (coarser levels in order, plus ``MSFT_screencoverage`` in the node's

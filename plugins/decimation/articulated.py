@@ -4,7 +4,7 @@ Each builds a :class:`rigslim.hierarchy.ProgressiveHierarchy` of the rest
 mesh with per-vertex skin weights, fitted to the asset's example poses, and
 extracts the levels the step asks for (``targets``: fractions of the input
 faces or face counts; ``error_targets``: collapse-error thresholds). Results
-go to ``asset.extras["hierarchy"]`` and ``asset.extras["levels"]``.
+are returned as a :class:`rigslim.plugin.Decimation` (``asset.hierarchy`` and ``asset.levels``).
 """
 
 from __future__ import annotations
@@ -15,8 +15,9 @@ import numpy as np
 import scipy.sparse as sp
 from pydantic import Field
 
+from rigslim.asset import Asset
 from rigslim.errors import StepError
-from rigslim.plugin import Decimator, Params
+from rigslim.plugin import Decimation, Decimator, Params, StepContext
 
 
 class AdaptiveTarget(Params):
@@ -103,7 +104,7 @@ class ArticulatedDecimator(Decimator):
     def model(self, Q, W, T, params):
         raise NotImplementedError
 
-    def decimate(self, asset, params, ctx):
+    def decimate(self, asset: Asset, params: DecimationParams, ctx: StepContext) -> Decimation:
         from rigslim.plugins.decimation.collapse import simplify
         from rigslim.quadrics import per_pose_quadrics
 
@@ -125,8 +126,6 @@ class ArticulatedDecimator(Decimator):
         levels += [hier.adaptive(a.budget(mesh.V), a.label or f"{self.name}-adaptive{i + 1}")
                    for i, a in enumerate(params.adaptive_targets)]
         levels.sort(key=lambda lv: -lv.n_faces)
-        asset.extras["hierarchy"] = hier
-        asset.extras["levels"] = levels
         if locked is not None:
             ctx.report["locked_seam_vertices"] = int(locked.sum())
         ctx.report.update({
@@ -137,6 +136,7 @@ class ArticulatedDecimator(Decimator):
                        for lv in levels]})
         if hier.faces_after(hier.n_collapses) > min_faces:
             ctx.log(f"stopped at {hier.faces_after(hier.n_collapses)} faces: no valid collapse is left")
+        return Decimation(levels, hier)
 
 
 class QuarticParams(DecimationParams):

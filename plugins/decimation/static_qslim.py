@@ -5,7 +5,7 @@ The rest mesh is simplified by MeshLab's quadric edge collapse
 preserving), ignoring the animation; each new vertex takes the skin weights
 of the nearest original rest vertex. Levels are nested: each target is
 reached from the previous, finer one. No vertex-split record comes out of
-pymeshlab, so ``asset.extras["hierarchy"]`` is ``None``.
+pymeshlab, so the hierarchy is ``None``.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from pydantic import Field
 
 from rigslim.errors import StepError
 from rigslim.hierarchy import SimplifiedLevel
-from rigslim.plugin import Decimator, Params
+from rigslim.plugin import Decimation, Decimator, Params
 from rigslim.plugins.decimation.articulated import limited_weights, target_faces, target_label
 from rigslim.weights import ReducedWeights
 
@@ -45,7 +45,7 @@ class StaticQSlim(Decimator):
         preserve_normal: bool = True
         quality_threshold: float = Field(default=0.3, ge=0.0, le=1.0)
 
-    def decimate(self, asset, params, ctx):
+    def decimate(self, asset, params, ctx) -> Decimation:
         try:
             import pymeshlab
         except ImportError:  # pragma: no cover - pymeshlab is in the 'metro' extra
@@ -75,8 +75,7 @@ class StaticQSlim(Decimator):
                                           target_label(self.name, params.targets[i], faces[i]), None,
                                           float("nan"), self.name))
         levels.sort(key=lambda lv: -lv.n_faces)
-        asset.extras["hierarchy"] = None
-        asset.extras["levels"] = levels
         ctx.report.update({"input_faces": mesh.n_faces,
                            "levels": [{"label": lv.label, "faces": lv.n_faces, "vertices": lv.n_vertices,
                                        "max_bones": int(lv.weights.influence_counts().max())} for lv in levels]})
+        return Decimation(levels, None)

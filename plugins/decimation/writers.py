@@ -54,7 +54,7 @@ class HierarchyWriter(Writer):
     suffixes = ()
 
     def write(self, path, asset, params, ctx):
-        hier = asset.extras.get("hierarchy")
+        hier = asset.hierarchy
         if hier is None:
             raise StepError("there is no progressive hierarchy to write", field="write",
                             fix="use a decimate step with quartic, mohr-gleicher or decoro-rusinkiewicz "
@@ -71,7 +71,7 @@ class LevelsWriter(Writer):
         binary: bool = True
 
     def write(self, path, asset, params, ctx):
-        levels = asset.extras.get("levels")
+        levels = asset.levels
         if not levels:
             raise StepError("there are no simplified levels to write", field="write",
                             fix="add a decimate step with 'targets' before it")

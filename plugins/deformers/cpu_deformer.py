@@ -155,7 +155,7 @@ class CPUDeformer(Deformer):
         #: Weight layout: auto/fixed (int32 + float32 per influence) or compact (uint16 + float16).
         layout: Literal["auto", "fixed", "compact"] = "auto"
 
-    def bind(self, mesh, weights, params=None, handles=None) -> CPUBound:
+    def bind(self, mesh, weights, params=None, handles=None, ctx=None) -> CPUBound:
         params = params if params is not None else self.Params()
         weights = check_weights(mesh, weights, source="cpu deformer")
         return CPUBound(mesh, weights, resolve_normals(params.normals, handles), handles, params.layout)

@@ -86,7 +86,7 @@ class NumpyDeformer(Deformer):
     class Params(DeformerParams):
         pass
 
-    def bind(self, mesh, weights, params=None, handles=None) -> NumpyBound:
+    def bind(self, mesh, weights, params=None, handles=None, ctx=None) -> NumpyBound:
         params = params if params is not None else self.Params()
         weights = check_weights(mesh, weights, source="numpy deformer")
         return NumpyBound(mesh, weights, resolve_normals(params.normals, handles), handles)

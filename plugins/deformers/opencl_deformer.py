@@ -168,7 +168,7 @@ class OpenCLDeformer(Deformer):
         #: single (float32: error about cond(P) * 6e-8 rad) or double.
         fit_precision: Literal["auto", "single", "double"] = "auto"
 
-    def bind(self, mesh, weights, params=None, handles=None) -> OpenCLBound:
+    def bind(self, mesh, weights, params=None, handles=None, ctx=None) -> OpenCLBound:
         params = params if params is not None else self.Params()
         weights = check_weights(mesh, weights, source="opencl deformer")
         mode = resolve_normals(params.normals, handles)

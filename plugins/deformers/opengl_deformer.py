@@ -277,7 +277,7 @@ class OpenGLDeformer(Deformer):
         #: error about cond(P) * 6e-8 rad).
         fit_precision: Literal["auto", "single", "double"] = "auto"
 
-    def bind(self, mesh, weights, params=None, handles=None) -> OpenGLBound:
+    def bind(self, mesh, weights, params=None, handles=None, ctx=None) -> OpenGLBound:
         params = params if params is not None else self.Params()
         weights = check_weights(mesh, weights, source="opengl deformer")
         mode = resolve_normals(params.normals, handles)

@@ -63,7 +63,7 @@ class GltfWriter(Writer):
     def write(self, path, asset, params, ctx):
         from rigslim.io.gltf_write import export_skinned, fixed_width_weights, write_gltf
 
-        levels = asset.extras.get("levels") if params.levels else None
+        levels = (asset.levels or None) if params.levels else None
         source = asset.extras.get("gltf")
         if source is not None:
             from rigslim.io.gltf_lod import input_weights_normalized
@@ -80,7 +80,7 @@ class GltfWriter(Writer):
                 reduced = fixed_width_weights(asset.weights)
             stats = write_gltf(path, source, reduced, quantize=params.quantize, sets=params.sets, levels=levels,
                                lod=params.lod, embed=params.embed, clamp_negative=params.clamp_negative,
-                               hierarchy=asset.extras.get("hierarchy") if levels else None)
+                               hierarchy=asset.hierarchy if levels else None)
             if renormalised:
                 stats["renormalised_input_weights"] = True
                 ctx.log("the file's weights do not sum to one: written normalised")

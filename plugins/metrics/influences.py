@@ -12,7 +12,7 @@ class MaxInfluences(Metric):
     name = "max-influences"
     summary = "largest number of non-zero weights of any vertex, before (input) and after (reduced)"
 
-    def compute(self, evaluation, params):
+    def compute(self, evaluation, params, ctx=None):
         after = evaluation.asset.reduced.influence_counts()
         before = influence_counts(evaluation.asset.weights)
         return {"max_influences": int(after.max()), "mean_influences": float(np.mean(after)),

@@ -59,7 +59,7 @@ class Metro(Metric):
         samples: int = Field(default=20000, ge=100)
         """Surface samples per direction and pose."""
 
-    def compute(self, evaluation, params):
+    def compute(self, evaluation, params, ctx=None):
         try:
             import pymeshlab  # noqa: F401
         except ImportError:  # pragma: no cover - pymeshlab is in the 'metro' extra

@@ -22,7 +22,7 @@ class NormalDeviation(Metric):
     summary = ("RMS over vertices of the angle (rad) between the reduced deformation's normals "
                "(asset's normal estimator) and area-weighted normals of the full deformation")
 
-    def compute(self, evaluation, params):
+    def compute(self, evaluation, params, ctx=None):
         per_frame = [normal_rms_angle(evaluation.reduced_normals(j), evaluation.full_normals(j))
                      for j in range(len(evaluation))]
         return {"normal_rms_rad": aggregate(per_frame)}

@@ -16,7 +16,7 @@ class PositionRMS(Metric):
     name = "position-rms"
     summary = "RMS over vertices of |v(alpha) - vhat| per test frame, % of the rest bounding-box diagonal"
 
-    def compute(self, evaluation, params):
+    def compute(self, evaluation, params, ctx=None):
         scale = 100.0 / evaluation.mesh.bbox_diagonal
         per_frame = [scale * position_rms(evaluation.reduced_positions(j), evaluation.full_positions(j))
                      for j in range(len(evaluation))]

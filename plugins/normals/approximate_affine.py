@@ -182,7 +182,7 @@ class ApproximateAffineNormals(NormalEstimator):
             self._key = key
         return self._rest
 
-    def estimate(self, mesh, weights, handles, T, positions, params):
+    def estimate(self, mesh, weights, handles, T, positions, params, ctx=None):
         C0 = cage_rest_positions(handles)
         if params.backend != "numpy":
             return normals_from_backend(params.backend, "approximate-affine", mesh, weights, handles, T,

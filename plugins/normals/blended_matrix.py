@@ -98,7 +98,7 @@ class BlendedMatrixNormals(NormalEstimator):
             self._rest = (mesh, per_vertex_normals(mesh.V, mesh.F))
         return self._rest[1]
 
-    def estimate(self, mesh, weights, handles, T, positions, params):
+    def estimate(self, mesh, weights, handles, T, positions, params, ctx=None):
         if handles is not None and handles.is_cage:
             raise StepError("blended-matrix normals need bone transforms; a cage's blended linear part is zero",
                             field="normals", fix="use 'normals: approximate-affine' for cages")

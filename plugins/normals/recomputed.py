@@ -10,5 +10,5 @@ class RecomputedNormals(NormalEstimator):
     name = "recomputed"
     summary = "area-weighted vertex normals of the deformed mesh (igl.per_vertex_normals)"
 
-    def estimate(self, mesh, weights, handles, T, positions, params):
+    def estimate(self, mesh, weights, handles, T, positions, params, ctx=None):
         return per_vertex_normals(positions, mesh.F)
