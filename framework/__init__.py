@@ -2,10 +2,19 @@
 
 The host package. Import cost is kept small: numpy and scipy are the only
 heavy imports here; libigl, OpenCL, OpenGL, pymeshlab and pygltflib are
-imported by the plugins that need them, when they run.
+imported by the plugins that need them, when they run. The Python API
+(:mod:`rigslim.api`, docs/python.md) is loaded on first use::
+
+    import rigslim
+
+    rigslim.registry()["weight-solver"]                  # plugins by stage
+    result = rigslim.Pipeline.from_yaml("examples/elephant-k4.yaml").run()
+    reduced = rigslim.reduce_weights(mesh, weights, poses, k=4, solve="poisson")
 """
 
-from importlib.metadata import PackageNotFoundError, version as _version
+from importlib.metadata import PackageNotFoundError
+from importlib.metadata import version as _version
+from typing import Any
 
 try:
     __version__ = _version("rigslim")
@@ -13,9 +22,24 @@ except PackageNotFoundError:  # running from a source tree that is not installed
     __version__ = "0.0.0+unknown"
 
 from rigslim.errors import RigslimError  # noqa: E402
-
-__all__ = ["__version__", "RigslimError"]
-
 from rigslim.hookspecs import hookimpl  # noqa: E402
 
-__all__.append("hookimpl")
+__all__ = ["__version__", "RigslimError", "hookimpl", "Pipeline", "RunResult", "reduce_weights", "registry",
+           "simplify"]
+
+_API = {"Pipeline": "rigslim.api", "reduce_weights": "rigslim.api", "registry": "rigslim.api",
+        "simplify": "rigslim.api", "RunResult": "rigslim.pipeline"}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _API:
+        import importlib
+
+        value = getattr(importlib.import_module(_API[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'rigslim' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -273,11 +273,13 @@ def metric_columns(document: dict) -> dict:
     ``normal_rms_rad_max``, ``hausdorff_max_pct@10%_mean`` (one pair per
     simplified level) ...; earlier evaluations get the prefix ``step<N>.``.
     """
+    from rigslim.metrics_document import flat_metrics
+
     cols = {}
     evaluations = document.get("evaluations") or []
     for i, ev in enumerate(evaluations):
         prefix = "" if i == len(evaluations) - 1 else f"step{ev.get('step')}."
-        for key, value in (ev.get("metrics") or {}).items():
+        for key, value in flat_metrics(ev).items():
             if isinstance(value, dict):
                 for stat in ("mean", "max"):
                     if isinstance(value.get(stat), (int, float)):

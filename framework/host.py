@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import pluggy
 
@@ -28,9 +29,14 @@ class PluginInfo:
     package: str
     version: str
     summary: str
-    plugin: Plugin
+    plugin: Plugin[Any]
 
-    def as_dict(self) -> dict:
+    @property
+    def params_schema(self) -> dict[str, Any]:
+        """JSON schema of the plugin's ``Params`` (names, types, defaults, descriptions)."""
+        return self.plugin.Params.model_json_schema()
+
+    def as_dict(self) -> dict[str, Any]:
         return {"stage": self.stage, "name": self.name, "package": self.package,
                 "version": self.version, "summary": self.summary}
 

@@ -28,6 +28,7 @@ from rigslim.errors import PluginNotFoundError as PluginNotFound
 from rigslim.evaluation import Evaluation
 from rigslim.host import PluginHost, get_host
 from rigslim.io.atomic import atomic_path, check_output, output_transaction
+from rigslim.metrics_document import SCHEMA_VERSION, merge_levels
 from rigslim.plugin import STEP_STAGES, StepContext
 from rigslim.poses import FrameSplit
 from rigslim.weights import influence_counts
@@ -87,7 +88,8 @@ def _format_validation(err: ValidationError) -> tuple[str, str]:
     return loc, e["msg"]
 
 
-def load_pipeline(path, overrides: list[str] = (), host: PluginHost | None = None) -> tuple[PipelineDoc, list[Step]]:
+def load_pipeline(path, overrides: list[str] = (), host: PluginHost | None = None, *,
+                  raw: dict | None = None) -> tuple[PipelineDoc, list[Step]]:
     """Read, validate and parse a pipeline file.
 
     Parameters
@@ -96,22 +98,14 @@ def load_pipeline(path, overrides: list[str] = (), host: PluginHost | None = Non
     overrides : list of "STEP.PARAM=VALUE"
         STEP is a step's ``name``, its stage key, its plugin name or its
         1-based index; VALUE is parsed as YAML.
+    raw : dict, optional
+        The document itself (as YAML would load it); ``path`` then only names
+        it in messages, and its folder is where relative paths resolve.
     """
     host = host or get_host()
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise PipelineError(f"cannot read pipeline ({e.strerror})", source=path, field="path",
-                            fix="check the path") from None
-    try:
-        raw = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "YAML"
-        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
-        raise PipelineError(f"malformed YAML ({problem})", source=path, field=where,
-                            fix="fix the YAML syntax (indentation, colons, quotes)") from None
+    if raw is None:
+        raw = _read_yaml(path)
     if not isinstance(raw, dict):
         raise PipelineError("the document is not a mapping", source=path, field="top level",
                             fix="start with 'inputs:', 'poses:' and 'steps:'")
@@ -127,6 +121,23 @@ def load_pipeline(path, overrides: list[str] = (), host: PluginHost | None = Non
     for item in overrides:
         _apply_override(item, steps, path, host)
     return doc, steps
+
+
+def _read_yaml(path: Path):
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise PipelineError(f"cannot read pipeline ({e.strerror})", source=path, field="path",
+                            fix="check the path") from None
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "YAML"
+        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
+        raise PipelineError(f"malformed YAML ({problem})", source=path, field=where,
+                            fix="fix the YAML syntax (indentation, colons, quotes)") from None
+    return raw
 
 
 def _parse_step(index: int, raw: dict, path: Path, host: PluginHost) -> Step:
@@ -321,8 +332,8 @@ def read_inputs(doc: PipelineDoc, base: Path, host: PluginHost, ctx: StepContext
 
 
 def run_pipeline(path, *, overrides: list[str] = (), metrics_path=None, host: PluginHost | None = None,
-                 console=None, on_evaluation: Callable | None = None) -> RunResult:
-    """Run a pipeline file and return the asset and the metrics document.
+                 console=None, on_evaluation: Callable | None = None, raw: dict | None = None) -> RunResult:
+    """Run a pipeline file (or the document ``raw``, see :func:`load_pipeline`); return the asset and metrics.
 
     Outputs are committed together at the end: ``write``/``report`` steps and
     the metrics JSON (if asked for) stage temporary files, which are renamed
@@ -331,15 +342,15 @@ def run_pipeline(path, *, overrides: list[str] = (), metrics_path=None, host: Pl
     """
     with output_transaction():
         return _run_pipeline(path, overrides=overrides, metrics_path=metrics_path, host=host, console=console,
-                             on_evaluation=on_evaluation)
+                             on_evaluation=on_evaluation, raw=raw)
 
 
-def _run_pipeline(path, *, overrides, metrics_path, host, console, on_evaluation) -> RunResult:
+def _run_pipeline(path, *, overrides, metrics_path, host, console, on_evaluation, raw=None) -> RunResult:
     from rigslim.progress import Reporter
 
     host = host or get_host()
     path = Path(path)
-    doc, steps = load_pipeline(path, overrides, host)
+    doc, steps = load_pipeline(path, overrides, host, raw=raw)
     if metrics_path is not None:
         check_output(metrics_path)
     base = path.parent.resolve()
@@ -348,6 +359,7 @@ def _run_pipeline(path, *, overrides, metrics_path, host, console, on_evaluation
     with reporter.status("reading inputs"):
         asset = read_inputs(doc, base, host, reporter.context(base), path)
     document = {
+        "schema_version": SCHEMA_VERSION,
         "rigslim_version": rigslim.__version__,
         "pipeline": str(path),
         "pipeline_file": str(path.resolve()),
@@ -411,12 +423,17 @@ def _run_step(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base
 def _run_evaluate(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base: Path, source: Path,
                   document: dict, entry: dict) -> dict:
     evaluation = Evaluation(asset, host, ctx)
-    metrics = {}
+    metrics: dict = {}
+    levels: list[dict] = []
     for name, p in step.plugin:
         metric = host.get("metric", name)
-        metrics.update(metric.compute(evaluation, metric.parse_params(p), ctx))
+        values = dict(metric.compute(evaluation, metric.parse_params(p), ctx))
+        merge_levels(levels, values.pop("levels", None) or [])
+        metrics.update(values)
     label = step.name if step.name != f"evaluate{step.index}" else _default_label(document, asset)
     evaluation_entry = {"name": label, "step": step.index, "metrics": metrics}
+    if levels:
+        evaluation_entry["levels"] = levels
     if asset.weights is not None and asset.reduced is not None:
         # how many vertices have 0, 1, 2... non-zero weights before and after (report histograms)
         evaluation_entry["influence_histogram"] = {

@@ -304,7 +304,13 @@ class Metric(Plugin[P]):
     step_keys = ("evaluate",)
 
     def compute(self, evaluation: Evaluation, params: P, ctx: StepContext | None = None) -> dict[str, MetricValue]:
-        """``{key: value}`` over the evaluation's test frames."""
+        """``{key: value}`` over the evaluation's test frames.
+
+        A metric of simplified levels (``evaluation.levels``) returns their values under the key
+        ``levels``: a list of ``{"name": level label, key: value, ...}`` records, which the
+        evaluation entry of the metrics document holds as its ``levels`` (schema version 2,
+        :mod:`rigslim.metrics_document`).
+        """
         raise NotImplementedError
 
 

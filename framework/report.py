@@ -42,6 +42,7 @@ import numpy as np
 
 from rigslim.errors import InputError, RigslimError
 from rigslim.io.atomic import atomic_path, output_transaction
+from rigslim.metrics_document import upgrade
 
 #: Colour map of the normal-deviation renders (pale yellow: none, dark red: the scale's maximum).
 HEAT_CMAP = "YlOrRd"
@@ -78,7 +79,7 @@ class EvaluationRow:
     metro_per_frame : ndarray or None
         ``hausdorff_rms_pct`` per test frame (Metro RMS distance, % of the diagonal).
     levels : dict
-        Per simplified level (``key@level`` metrics of a decimation): ``{level: {key: value}}``.
+        Per simplified level (the evaluation's ``levels`` records): ``{level: {key: value}}``.
     histogram_input, histogram_reduced : list of int or None
         Vertices per number of non-zero weights.
     """
@@ -171,8 +172,10 @@ def summarize(document: dict, source: str = "") -> list[EvaluationRow]:
     The method and k come from the last ``solve`` (and ``select``) step before
     the evaluation (``steps[i]`` is step i; ``steps[0]`` is reading the
     inputs); the time is the sum of the reduction steps' seconds since the
-    previous evaluation.
+    previous evaluation. Documents of either schema version are read
+    (:func:`rigslim.metrics_document.upgrade`).
     """
+    original, document = document, upgrade(document)
     steps = document.get("steps") or []
     frames = list((document.get("frames") or {}).get("test") or [])
     rows = []
@@ -190,17 +193,17 @@ def summarize(document: dict, source: str = "") -> list[EvaluationRow]:
                 seconds += float(s.get("seconds", 0.0))
         k = (solve or {}).get("k", (select or {}).get("k"))
         metrics = ev.get("metrics") or {}
-        metro, levels = {}, {}
+        metro = {}
+        # per-level values of a simplification: {"quartic-10pct": {"hausdorff_rms_pct": ..., "faces": ...}}
+        levels = {str(lv["name"]): {k: v for k, v in lv.items() if k != "name"}
+                  for lv in ev.get("levels") or [] if isinstance(lv, dict) and "name" in lv}
         for key, value in metrics.items():
-            name, sep, level = key.partition("@")
-            if sep:  # per-level values of a simplification: "hausdorff_rms_pct@10%", "faces@10%"
-                levels.setdefault(level, {})[name] = value
-            elif "metro" in key.lower() or "hausdorff" in key.lower():
+            if "metro" in key.lower() or "hausdorff" in key.lower():
                 metro[key] = float(value["mean"]) if isinstance(value, dict) and "mean" in value else value
         hist = ev.get("influence_histogram") or {}
         rows.append(EvaluationRow(
             label=str(ev.get("name", "evaluation")), run=str(document.get("name", "run")),
-            evaluation=str(ev.get("name", "evaluation")), source=str(source), document=document, step=at,
+            evaluation=str(ev.get("name", "evaluation")), source=str(source), document=original, step=at,
             method=(solve or decimate or {}).get("plugin", "input"), selection=(select or {}).get("plugin"),
             k=int(k) if k is not None else None, seconds=seconds, frames=frames,
             position_per_frame=_per_frame(metrics, "position_rms_pct"),

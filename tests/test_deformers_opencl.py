@@ -21,6 +21,8 @@ from rigslim.plugins.deformers.opencl_deformer import OpenCLDeformer
 from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.k_largest import k_largest_weights
 
+pytestmark = pytest.mark.opencl
+
 POSITION_TOL = 1e-5      # fraction of the bounding-box diagonal
 NORMAL_TOL = 1e-4        # radians
 

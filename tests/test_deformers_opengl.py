@@ -18,6 +18,8 @@ from rigslim.plugins.deformers.opengl_deformer import OpenGLDeformer
 
 from test_deformers_opencl import angles, cage_poses, idw_weights, jittered_box_cage, reduce_to
 
+pytestmark = pytest.mark.opengl
+
 POSITION_TOL = 1e-5      # fraction of the bounding-box diagonal
 NORMAL_TOL = 1e-4        # radians
 

@@ -6,6 +6,8 @@ import pytest
 
 from rigslim.egl import EGLUnavailable, create_context, shared_context
 
+pytestmark = pytest.mark.opengl
+
 
 @pytest.fixture(scope="module")
 def context():

@@ -112,6 +112,7 @@ def test_smooth_across_a_face():
     assert np.abs(inside - on).max() < 1e-4
 
 
+@pytest.mark.opencl
 def test_numpy_and_opencl_agree(rng):
     pytest.importorskip("pyopencl")
     from rigslim.opencl import OpenCLUnavailable
@@ -173,6 +174,7 @@ steps:
     assert m["max_influences"] == 8 and m["input_max_influences"] == asset.handles.n
 
 
+@pytest.mark.opencl
 def test_user_cage_file_and_opencl_backend(write_pipeline, tmp_path):
     pytest.importorskip("pyopencl")
     from rigslim.cage import build_cage

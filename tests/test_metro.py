@@ -85,13 +85,17 @@ def test_simplification_from_yaml(write_pipeline, tmp_path, method):
         assert set(metrics[key]) == {"mean", "max", "per_frame"}
         assert len(metrics[key]["per_frame"]) == len(doc["frames"]["test"])
     fine, coarse = f"{method}-10pct", f"{method}-600f"
-    assert metrics["hausdorff_rms_pct"] == metrics[f"hausdorff_rms_pct@{fine}"]
-    assert 0 < metrics[f"hausdorff_rms_pct@{fine}"]["mean"] < metrics[f"hausdorff_rms_pct@{coarse}"]["mean"]
+    assert doc["schema_version"] == 2 and not any("@" in key for key in metrics)
+    levels = {lv["name"]: lv for lv in doc["evaluations"][0]["levels"]}
+    assert list(levels) == [fine, coarse]
+    assert metrics["hausdorff_rms_pct"] == levels[fine]["hausdorff_rms_pct"]
+    assert 0 < levels[fine]["hausdorff_rms_pct"]["mean"] < levels[coarse]["hausdorff_rms_pct"]["mean"]
     assert metrics["hausdorff_rms_pct"]["mean"] < 1.0               # % of the diagonal
-    assert metrics[f"faces@{coarse}"] <= 600
+    assert levels[coarse]["faces"] <= 600
+    assert set(levels[coarse]) == {"name", "faces", "hausdorff_rms_pct", "hausdorff_max_pct"}
     if method != "static-qslim":
         hier = ProgressiveHierarchy.load(tmp_path / "out" / "h.npz")
-        assert hier.prefix(hier.n_collapses).n_faces == metrics[f"faces@{coarse}"]
+        assert hier.prefix(hier.n_collapses).n_faces == levels[coarse]["faces"]
     index = json.loads((tmp_path / "out" / "levels" / "levels.json").read_text())["levels"]
     assert [lv["label"] for lv in index] == [fine, coarse]
     for lv in index:

@@ -80,6 +80,7 @@ def test_start_must_be_given_with_bounds(rng):
 
 
 @pytest.mark.parametrize("k,q,nonneg", [(4, 1, True), (6, 4, True), (5, 2, False)])
+@pytest.mark.opencl
 def test_opencl_kernel_matches_numpy(rng, k, q, nonneg):
     pytest.importorskip("pyopencl")
     from rigslim.opencl import OpenCLUnavailable, get_runtime

@@ -101,6 +101,7 @@ def test_numpy_depth_test_keeps_the_nearer_triangle():
 
 
 @pytest.mark.parametrize("projection", ["orthographic", "perspective"])
+@pytest.mark.opengl
 def test_opengl_matches_numpy_reference(projection):
     gl = _gl_or_skip()
     V, F = _icosphere(2)
@@ -119,6 +120,7 @@ def test_opengl_matches_numpy_reference(projection):
     assert diff.mean() < 0.5
 
 
+@pytest.mark.opengl
 def test_opengl_silhouette_matches_projected_elephant(elephant):
     gl = _gl_or_skip()
     from rigslim.blend import linear_blend

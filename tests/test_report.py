@@ -313,7 +313,7 @@ def test_simplified_level_renders_like_the_same_reduced_weights(run, elephant):
 
     folder, result = run
     R = result.asset.extras["evaluated_reduced"][7]  # the k=4 evaluation
-    asset = replace(elephant, extras={"levels": [SimplifiedLevel(elephant.mesh, R, "k4-as-level")]})
+    asset = replace(elephant, levels=[SimplifiedLevel(elephant.mesh, R, "k4-as-level")])
     doc = json.loads((folder / "out" / "m.json").read_text())
     rows = summarize(doc)
     rs = render_rows(rows, {id(doc): RenderData(asset, {7: R})}, frames=[65], width=64, height=56,

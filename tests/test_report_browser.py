@@ -9,8 +9,9 @@ import pytest
 
 from rigslim.report_browser import check_page, find_chromium
 
-pytestmark = pytest.mark.skipif(find_chromium() is None,
-                                reason="no chromium (tools/setup-chromium.sh installs it; make test runs it)")
+pytestmark = [pytest.mark.browser,
+              pytest.mark.skipif(find_chromium() is None,
+                                 reason="no chromium (tools/setup-chromium.sh installs it; make test runs it)")]
 
 
 @pytest.fixture(scope="module")

@@ -48,6 +48,7 @@ def test_geometric_is_exact_in_one_pass(elephant):
 
 
 @pytest.mark.parametrize("method", ["geometric", "smooth", "poisson"])
+@pytest.mark.slow
 def test_multilevel_reaches_global_elephant(elephant, method):
     # The per-vertex solves as the smoother of a V-cycle under CG: the exact optimum to 1e-6
     # in a few dozen iterations (plain sweeps: gap 1e-3 after 100 sweeps, below).
@@ -93,6 +94,7 @@ def test_multilevel_cage_linear_precision():
     np.testing.assert_allclose(np.einsum("mqk,mk->mq", prob.C, alpha), prob.d, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_poisson_elephant_converges_towards_global(elephant):
     # Measured, not assumed: block SOR on the elephant's bilaplacian energy closes the gap
     # slowly (low-frequency modes); 150 sweeps bring it below 2e-3 and every sweep helps.
@@ -161,6 +163,8 @@ def test_feasible_start_linear_precision_nonnegative():
     np.testing.assert_allclose(np.einsum("mqk,mk->mq", prob.C, x)[kept], prob.d[kept], atol=1e-6)
 
 
+@pytest.mark.opencl
+@pytest.mark.slow
 def test_opencl_and_numpy_sweeps_agree():
     pytest.importorskip("pyopencl")
     from rigslim.opencl import OpenCLUnavailable, get_runtime

@@ -69,7 +69,7 @@ class Metro(Metric):
         scale = 100.0 / mesh.bbox_diagonal
         frames = range(len(evaluation))
         if evaluation.levels:
-            out = {}
+            out: dict = {"levels": []}
             for i, level in enumerate(evaluation.levels):
                 rms, mx = [], []
                 for j in frames:
@@ -79,9 +79,8 @@ class Metro(Metric):
                     mx.append(scale * d["max"])
                 if i == 0:
                     out["hausdorff_rms_pct"], out["hausdorff_max_pct"] = aggregate(rms), aggregate(mx)
-                out[f"hausdorff_rms_pct@{level.label}"] = aggregate(rms)
-                out[f"hausdorff_max_pct@{level.label}"] = aggregate(mx)
-                out[f"faces@{level.label}"] = level.n_faces
+                out["levels"].append({"name": level.label, "faces": level.n_faces,
+                                      "hausdorff_rms_pct": aggregate(rms), "hausdorff_max_pct": aggregate(mx)})
             return out
         rms, mx = [], []
         for j in frames:

@@ -1,0 +1,227 @@
+"""The Python API: the plugin registry, pipelines, and one function per common job.
+
+Everything here is re-exported by the :mod:`rigslim` package (see its ``__all__``)
+and documented with runnable examples in docs/python.md.
+
+- :func:`registry`: every loaded plugin, by stage, with its ``Params`` schema;
+- :class:`Pipeline`: a pipeline from a YAML file or a mapping; ``run()`` returns the
+  metrics document and the asset;
+- :func:`reduce_weights`: k weights per vertex from a mesh, its weights and example poses
+  ([P10]; docs/solvers.md);
+- :func:`simplify`: simplified levels with skin weights ([S09]; docs/simplification.md).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from rigslim.asset import Asset
+from rigslim.errors import InputError
+from rigslim.handles import Handles
+from rigslim.host import PluginHost, PluginInfo, get_host
+from rigslim.mesh import Mesh
+from rigslim.pipeline import PipelineDoc, RunResult, Step, load_pipeline, run_pipeline
+from rigslim.plugin import Decimation, StepContext
+from rigslim.poses import FrameSplit, Poses
+from rigslim.weights import ReducedWeights, validate_weights
+
+__all__ = ["Pipeline", "reduce_weights", "registry", "simplify"]
+
+
+def registry(host: PluginHost | None = None) -> dict[str, dict[str, PluginInfo]]:
+    """Every loaded plugin, by stage and name.
+
+    Parameters
+    ----------
+    host : PluginHost, optional
+        Defaults to the process-wide host (built-ins and installed plugin packages).
+
+    Returns
+    -------
+    dict
+        ``{stage: {name: PluginInfo}}``; a :class:`rigslim.host.PluginInfo` has ``stage``,
+        ``name``, ``package``, ``version``, ``summary``, the ``plugin`` object, and
+        ``params_schema`` (the JSON schema of its ``Params``).
+    """
+    host = host or get_host()
+    return {stage: dict(plugins) for stage, plugins in host.registry.items()}
+
+
+class Pipeline:
+    """A parsed, validated pipeline, ready to run.
+
+    Build one with :meth:`from_yaml`; the document is checked (stages, plugin names,
+    parameters) before anything runs, with the same errors as ``rigslim run``.
+    """
+
+    def __init__(self, doc: PipelineDoc, steps: list[Step], source: Path, raw: dict[str, Any] | None,
+                 overrides: Sequence[str], host: PluginHost):
+        self.doc = doc
+        self.steps = steps
+        self.source = source
+        self._raw = raw
+        self._overrides = list(overrides)
+        self._host = host
+
+    @classmethod
+    def from_yaml(cls, spec: str | Path | Mapping[str, Any], *, base_dir: str | Path | None = None,
+                  overrides: Sequence[str] = (), host: PluginHost | None = None) -> Pipeline:
+        """A pipeline from a YAML file, or from a mapping with the same keys.
+
+        Parameters
+        ----------
+        spec : path or mapping
+            A pipeline file (docs/pipelines.md), or the document itself as a ``dict``
+            (``{"inputs": ..., "poses": ..., "steps": [...]}``).
+        base_dir : path, optional
+            For a mapping: the folder relative input and output paths resolve against
+            (default: the current directory). A file's paths resolve against its folder.
+        overrides : list of str
+            ``"STEP.PARAM=VALUE"`` settings, as ``rigslim run --set``.
+        """
+        host = host or get_host()
+        if isinstance(spec, Mapping):
+            raw: dict[str, Any] | None = dict(spec)
+            source = Path(base_dir if base_dir is not None else Path.cwd()).resolve() / "<python>"
+        else:
+            raw, source = None, Path(spec)
+        doc, steps = load_pipeline(source, list(overrides), host, raw=raw)
+        return cls(doc, steps, source, raw, overrides, host)
+
+    def run(self, *, metrics_path: str | Path | None = None, console: Any = None) -> RunResult:
+        """Run every step.
+
+        Parameters
+        ----------
+        metrics_path : path, optional
+            Also write the metrics document there (atomically, at the end).
+        console : rich.console.Console, optional
+            Where progress goes; default: none (quiet).
+
+        Returns
+        -------
+        RunResult
+            ``document`` (the metrics document, docs/pipelines.md) and ``asset`` (mesh,
+            weights, ``reduced``, ``levels``, ``hierarchy``...).
+        """
+        if console is None:
+            from rich.console import Console
+
+            console = Console(stderr=True, quiet=True)
+        return run_pipeline(self.source, overrides=self._overrides, metrics_path=metrics_path, host=self._host,
+                            console=console, raw=self._raw)
+
+
+def _asset(mesh: Mesh | tuple[np.ndarray, np.ndarray], weights: Any, poses: Poses | np.ndarray | None,
+           handles: Handles | None) -> Asset:
+    if not isinstance(mesh, Mesh):
+        if not (isinstance(mesh, tuple) and len(mesh) == 2):
+            raise InputError("mesh must be a rigslim.mesh.Mesh or a (V, F) pair", field="mesh",
+                             fix="pass Mesh(V, F) or (V, F)")
+        mesh = Mesh(*mesh, source="mesh")
+    W = validate_weights(weights if sp.issparse(weights) else sp.csr_matrix(np.asarray(weights, dtype=np.float64)),
+                         mesh.n_vertices, source="weights")
+    n = W.shape[1]
+    if handles is None:
+        handles = Handles("skeleton", [f"handle{i}" for i in range(n)])
+    elif handles.n != n:
+        raise InputError(f"{handles.n} handles for weights of {n} columns", field="handles",
+                         fix="give one handle per weight column")
+    asset = Asset(mesh=mesh, handles=handles, weights=W)
+    if poses is not None:
+        if not isinstance(poses, Poses):
+            poses = Poses(np.asarray(poses, dtype=np.float64), source="poses")
+        if poses.n_handles != n:
+            raise InputError(f"poses have {poses.n_handles} handles, the weights {n}", field="poses",
+                             fix="give (p, n, 3, 4) transforms, one per handle")
+        asset.poses = poses
+        # every pose given is an example pose (fitting); measuring is the caller's choice
+        asset.split = FrameSplit([int(f) for f in np.asarray(poses.frames)], [], [])
+    return asset
+
+
+def reduce_weights(mesh: Mesh | tuple[np.ndarray, np.ndarray], weights: Any, poses: Poses | np.ndarray | None,
+                   *, k: int = 4, select: str = "k-largest", solve: str = "geometric",
+                   handles: Handles | None = None, report: dict[str, Any] | None = None,
+                   host: PluginHost | None = None, **params: Any) -> ReducedWeights:
+    """Reduce weights to at most k per vertex ([P10]), as a ``select`` then a ``solve`` step would.
+
+    Parameters
+    ----------
+    mesh : Mesh or (V, F)
+        The rest mesh, V (m, 3) and F (f, 3).
+    weights : (m, n) array or sparse matrix
+        The input weights, rows summing to one.
+    poses : Poses or (p, n, 3, 4) array, or None
+        Example poses (every one is used for fitting); ``None`` for the methods
+        that need none (``k-largest``, ``smooth``).
+    k : int
+        Influences per vertex.
+    select, solve : str
+        Plugin names of the influence-selection and weight-solver stages
+        (``rigslim.registry()["weight-solver"]`` lists the solvers).
+    handles : Handles, optional
+        Default: n skeleton handles; pass ``Handles.from_cage(cage)`` for cage coordinates.
+    report : dict, optional
+        Filled with the solver's statistics (sweeps, energy, gap...).
+    **params
+        More parameters of the solver (e.g. ``nonnegative=True``).
+
+    Returns
+    -------
+    ReducedWeights
+        (m, k) indices and values, rows summing to one.
+    """
+    host = host or get_host()
+    asset = _asset(mesh, weights, poses, handles)
+    selector = host.get("influence-selection", select)
+    selector.apply(asset, selector.parse_params({"k": k}), StepContext())
+    solver = host.get("weight-solver", solve)
+    ctx = StepContext()
+    solver.apply(asset, solver.parse_params(params), ctx)
+    if report is not None:
+        report.update(ctx.report)
+    assert asset.reduced is not None
+    return asset.reduced
+
+
+def simplify(mesh: Mesh | tuple[np.ndarray, np.ndarray], weights: Any, poses: Poses | np.ndarray, *,
+             targets: Sequence[float] = (0.1,), method: str = "quartic", handles: Handles | None = None,
+             report: dict[str, Any] | None = None, host: PluginHost | None = None, **params: Any) -> Decimation:
+    """Simplify a skinned mesh into levels whose vertices keep fitted skin weights ([S09]).
+
+    Parameters
+    ----------
+    mesh : Mesh or (V, F)
+    weights : (m, n) array or sparse matrix
+    poses : Poses or (p, n, 3, 4) array
+        Example poses the new vertices' positions and weights are fitted to.
+    targets : sequence of float
+        Levels: a number below 1 is a fraction of the faces, else a face count.
+    method : str
+        An articulated-decimation plugin (``quartic``, ``mohr-gleicher``,
+        ``decoro-rusinkiewicz``, ``static-qslim``).
+    handles, report, host
+        As in :func:`reduce_weights`.
+    **params
+        More parameters of the decimator (e.g. ``max_bones=4``).
+
+    Returns
+    -------
+    Decimation
+        ``levels`` (finest first; each has ``mesh``, ``weights``, ``label``...) and
+        ``hierarchy`` (every collapse, or None).
+    """
+    host = host or get_host()
+    asset = _asset(mesh, weights, poses, handles)
+    decimator = host.get("articulated-decimation", method)
+    ctx = StepContext()
+    result = decimator.decimate(asset, decimator.parse_params({"targets": list(targets), **params}), ctx)
+    if report is not None:
+        report.update(ctx.report)
+    return result
