@@ -139,6 +139,9 @@ def build_parser() -> argparse.ArgumentParser:
     plugins = sub.add_parser("plugins", help="list loaded plugins")
     plugins.add_argument("--json", action="store_true", help="machine-readable output")
     plugins.set_defaults(func=_cmd_plugins)
+    from rigslim.gltf_commands import add_commands  # reduce, lod, compare, inspect (docs/gltf.md)
+
+    add_commands(sub)
     from rigslim.batch import add_parser as add_batch_parser
 
     add_batch_parser(sub)

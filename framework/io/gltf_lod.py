@@ -416,3 +416,46 @@ def level_document(doc: GltfDocument, level: int) -> GltfDocument:
         if "skin" in src:
             nodes[i]["skin"] = src["skin"]
     return GltfDocument(doc.path, js, doc.buffers)
+
+
+def split_levels(path, outputs) -> None:
+    """Write each ``MSFT_lod`` level of a file as a file of its own (the level's meshes on the original nodes).
+
+    Parameters
+    ----------
+    path : path-like
+        A file written with ``lod: true``.
+    outputs : list of path-like
+        One per level, finest first (``len(outputs)`` levels are written).
+    """
+    from rigslim.io.gltf import load_gltf
+    from rigslim.io.gltf_write import write_pruned
+
+    doc = load_gltf(path)
+    lods = lod_nodes(doc.json)
+    level_ids = {j for ids in lods.values() for j in ids}
+    if len(outputs) > lod_level_count(doc.json):
+        raise StepError(f"{len(outputs)} outputs for {lod_level_count(doc.json)} levels", field="--split",
+                        fix="give one output per level")
+    first = min(level_ids) if level_ids else len(doc.json.get("nodes", []))
+    if any(j < first for j in level_ids) or len(doc.json["nodes"]) - first != len(level_ids):
+        raise StepError("the LOD nodes are not the last nodes of the document", field="MSFT_lod",
+                        fix="split files written by rigslim's glTF writer")
+    for level, out in enumerate(outputs, 1):
+        js = level_document(doc, level).json
+        js["nodes"] = js["nodes"][:first]
+        for node in js["nodes"]:
+            node.get("extensions", {}).pop("MSFT_lod", None)
+            if "extensions" in node and not node["extensions"]:
+                node.pop("extensions")
+            node.get("extras", {}).pop("MSFT_screencoverage", None)
+            if "extras" in node and not node["extras"]:
+                node.pop("extras")
+        for anim in js.get("animations", []):
+            anim["channels"] = [c for c in anim.get("channels", []) if c.get("target", {}).get("node", 0) < first]
+        used = js.get("extensionsUsed", [])
+        if "MSFT_lod" in used:
+            used.remove("MSFT_lod")
+            if not used:
+                js.pop("extensionsUsed")
+        write_pruned(out, doc, js)
