@@ -137,13 +137,14 @@ def _validate_if_available(paths) -> dict | None:
 
 def reduce_pipeline(src: Path, out: Path, *, k: int, select: str, solve: str, clip, fps: float, frames: int,
                     quantize: str) -> dict:
-    """The pipeline ``rigslim reduce`` runs (without animation: k-largest, no evaluation)."""
-    steps = [{"select": select, "k": k}]
+    """The pipeline ``rigslim reduce`` runs (without animation: k-largest, no evaluation; select None: rewrite only)."""
+    steps = []
     animated = frames >= 2
-    steps.append({"solve": solve if animated else "k-largest"})
-    if animated:
-        steps.append({"evaluate": ["position-rms", "normal-deviation", "max-influences"]})
-    steps.append({"write": str(out), "quantize": quantize, "clamp_negative": True})
+    if select is not None:
+        steps += [{"select": select, "k": k}, {"solve": solve if animated else "k-largest"}]
+        if animated:
+            steps.append({"evaluate": ["position-rms", "normal-deviation", "max-influences"]})
+    steps.append({"write": str(out), "quantize": quantize, "clamp_negative": True, "keep_input_weights": False})
     return {"name": f"reduce-{src.stem}", "inputs": {"gltf": _gltf_input(src, clip, fps, frames)},
             "poses": _poses(frames), "steps": steps}
 
@@ -155,24 +156,43 @@ def cmd_reduce(args) -> int:
     frames, clip, duration = clip_frames(src, args.clip, args.fps)
     console = _console(args)
     select, solve = args.select, args.solve
-    if frames < 2:
+    joints = _joint_count(src)
+    if args.k >= joints:
+        print(f"rigslim reduce: the skin has {joints} joints, so every vertex already has at most k = {args.k}: "
+              f"writing the weights normalised", file=sys.stderr)
+        select = solve = None
+    elif frames < 2:
         print(f"rigslim reduce: {src.name} has no animation: falling back to k-largest weights", file=sys.stderr)
         select, solve = "k-largest", "k-largest"
     pipeline = reduce_pipeline(src, out, k=args.k, select=select, solve=solve, clip=args.clip, fps=args.fps,
                                frames=frames, quantize=args.quantize)
     result, seconds = _run(pipeline, args, console)
     metrics = result.evaluations[-1]["metrics"] if result.evaluations else {}
+    world = {}
+    if frames >= 2:     # the test frames again, in world units, from the written file
+        world = compare(src, out, clip=args.clip, frames=f"1:{frames}:2", fps=args.fps, hausdorff=False)
+        world = {k: world[k] for k in ("position_rms_m", "position_max_m", "position_rms_pct", "normal_rms_rad",
+                                       "reference_diagonal_m") if k in world}
     doc = _header("reduce") | {"input": str(src), "output": str(out), "clip": clip, "clip_seconds": duration,
                                 "frames": frames, "k": args.k, "select": select, "solve": solve,
                                 "fallback_k_largest": frames < 2, "seconds": seconds, "metrics": metrics,
-                                "pipeline": pipeline, "run": result.document}
+                                "world": world, "pipeline": pipeline, "run": result.document}
     _emit_report(args, doc)
-    line = f"wrote {out} (k = {args.k}, {select}/{solve}, {seconds:.2f} s)"
-    if "position_rms_pct" in metrics:
-        v = metrics["position_rms_pct"]
-        line += f"; test-pose position RMS {v['mean'] if isinstance(v, dict) else v:.4g} % of the diagonal"
+    line = f"wrote {out} (k = {args.k}, {select or 'no'}/{solve or 'no'} reduction, {seconds:.2f} s)"
+    if "position_rms_m" in world:
+        line += (f"; test-pose position RMS {world['position_rms_pct']:.4g} % of the world-space diagonal "
+                 f"({world['position_rms_m']:.4g} m of {world['reference_diagonal_m']:.4g} m)")
     print(line)
     return 0
+
+
+def _joint_count(path: Path) -> int:
+    from rigslim.io.gltf import load_gltf
+
+    skins = load_gltf(path).json.get("skins", [])
+    if not skins:
+        raise InputError("the file has no skin", source=path, field="skins", fix="give a skinned glTF")
+    return max(len(s.get("joints", [])) for s in skins)
 
 
 # --------------------------------------------------------------------------- lod
@@ -293,8 +313,25 @@ def posed_surfaces(path: Path, *, clip, times, level: int = 0):
 
 
 def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, level: int = 0, fps: float = DEFAULT_FPS,
-            samples: int = 20000) -> dict:
-    """Test-pose Hausdorff distance between two skinned files (see :func:`cmd_compare`)."""
+            samples: int = 20000, hausdorff: bool = True) -> dict:
+    """Distances between two skinned files posed by their own skins at the same clip times.
+
+    Returns
+    -------
+    dict
+        ``hausdorff_rms_pct``, ``hausdorff_max_pct`` (% of the reference's
+        world-space bounding-box diagonal in the first compared frame),
+        ``hausdorff_rms_m``, ``hausdorff_max_m`` (world units: metres for
+        glTF), ``faces``; when both have the same vertices and faces also
+        ``position_rms_m``/``position_max_m``/``position_rms_pct`` (vertex to
+        vertex) and ``normal_rms_rad``.
+
+    Notes
+    -----
+    Per frame j, :func:`rigslim.plugins.metrics.metro.metro_distance` gives
+    the two-sided sampled RMS ``r_j`` and max ``h_j``; the results are
+    ``mean_j r_j`` and ``max_j h_j``.
+    """
     from rigslim.blend import per_vertex_normals
     from rigslim.plugins.metrics.metro import metro_distance
 
@@ -310,21 +347,24 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
     diag = float(np.linalg.norm(hi - lo))
     if diag <= 0:
         raise InputError("the reference has zero extent", source=ref, field="POSITION", fix="give a real mesh")
-    rms, mx = [], []
-    for j in range(len(times)):
-        d = metro_distance(Pc[j], Fc, Pr[j], Fr, samples)
-        rms.append(d["rms"])
-        mx.append(d["max"])
-    rms, mx = np.asarray(rms), np.asarray(mx)
     out = _header("compare") | {
         "reference": str(ref), "candidate": str(cand), "level": level, "clip": clip_name, "fps": fps,
-        "frames": chosen, "reference_diagonal_m": diag,
-        "hausdorff_rms_pct": float(100 * rms.mean() / diag), "hausdorff_max_pct": float(100 * mx.max() / diag),
-        "hausdorff_rms_m": float(rms.mean()), "hausdorff_max_m": float(mx.max()),
-        "hausdorff_max_pct_mean": float(100 * mx.mean() / diag),
-        "per_frame_rms_m": rms.tolist(), "per_frame_max_m": mx.tolist(),
-        "faces": int(len(Fc)), "reference_faces": int(len(Fr)), "samples": samples}
+        "frames": chosen, "reference_diagonal_m": diag, "faces": int(len(Fc)), "reference_faces": int(len(Fr))}
+    if hausdorff:
+        rms, mx = [], []
+        for j in range(len(times)):
+            d = metro_distance(Pc[j], Fc, Pr[j], Fr, samples)
+            rms.append(d["rms"])
+            mx.append(d["max"])
+        rms, mx = np.asarray(rms), np.asarray(mx)
+        out |= {"hausdorff_rms_pct": float(100 * rms.mean() / diag), "hausdorff_max_pct": float(100 * mx.max() / diag),
+                "hausdorff_rms_m": float(rms.mean()), "hausdorff_max_m": float(mx.max()),
+                "hausdorff_max_pct_mean": float(100 * mx.mean() / diag),
+                "per_frame_rms_m": rms.tolist(), "per_frame_max_m": mx.tolist(), "samples": samples}
     if Pr.shape == Pc.shape and np.array_equal(Fr, Fc):
+        dist = np.linalg.norm(Pc - Pr, axis=-1)
+        out |= {"position_rms_m": float(np.sqrt((dist ** 2).mean())), "position_max_m": float(dist.max()),
+                "position_rms_pct": float(100 * np.sqrt((dist ** 2).mean()) / diag)}
         ang = []
         for j in range(len(times)):
             nr, nc = per_vertex_normals(Pr[j], Fr), per_vertex_normals(Pc[j], Fc)
@@ -345,6 +385,9 @@ def cmd_compare(args) -> int:
         return 0
     print(f"{cand.name} (level {args.level}, {res['faces']} faces) vs {ref.name} ({res['reference_faces']} faces), "
           f"{len(res['frames'])} frames of {res['clip'] or 'the rest pose'}:")
+    if "position_rms_m" in res:
+        print(f"  vertex position RMS {res['position_rms_pct']:.4g} % ({res['position_rms_m']:.4g} m), "
+              f"max {res['position_max_m']:.4g} m (same topology)")
     print(f"  Hausdorff RMS {res['hausdorff_rms_pct']:.4f} % of the diagonal ({res['hausdorff_rms_m']:.4g} m), "
           f"max {res['hausdorff_max_pct']:.4f} % ({res['hausdorff_max_m']:.4g} m); "
           f"diagonal {res['reference_diagonal_m']:.4g} m")
