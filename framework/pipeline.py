@@ -22,13 +22,14 @@ from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
 
 import rigslim
 from rigslim.asset import Asset
-from rigslim.errors import PipelineError, RigslimError, StepError, closest
+from rigslim.errors import PipelineError, RigslimError, StepError, brief, closest
 from rigslim.errors import PluginNotFoundError as PluginNotFound
 from rigslim.evaluation import Evaluation
 from rigslim.host import PluginHost, get_host
 from rigslim.io.atomic import atomic_path, check_output, output_transaction
 from rigslim.plugin import STEP_STAGES, StepContext
 from rigslim.poses import FrameSplit
+from rigslim.yamlio import load_yaml_file
 from rigslim.weights import influence_counts, validate_weights
 
 #: Order in which input roles are read (others follow, in file order).
@@ -102,19 +103,7 @@ def load_pipeline(path, overrides: list[str] = (), host: PluginHost | None = Non
     """
     host = host or get_host()
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise PipelineError(f"cannot read pipeline ({e.strerror})", source=path, field="path",
-                            fix="check the path") from None
-    try:
-        raw = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "YAML"
-        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
-        raise PipelineError(f"malformed YAML ({problem})", source=path, field=where,
-                            fix="fix the YAML syntax (indentation, colons, quotes)") from None
+    raw = load_yaml_file(path)  # UTF-8, no repeated keys, bounded aliases and nesting
     if not isinstance(raw, dict):
         raise PipelineError("the document is not a mapping", source=path, field="top level",
                             fix="start with 'inputs:', 'poses:' and 'steps:'")
@@ -183,13 +172,18 @@ def _parse_metrics(value, index, path, host) -> list[tuple[str, dict]]:
                 (n, p), = v.items()
                 items.append((n, p or {}))
             else:
-                raise PipelineError(f"cannot read metric entry {v!r}", source=path,
+                raise PipelineError(f"cannot read metric entry {brief(v)}", source=path,
                                     field=f"steps[{index}].evaluate", fix="list metric names")
     elif isinstance(value, dict):
         items = [(n, p or {}) for n, p in value.items()]
     else:
         raise PipelineError("evaluate needs metric names", source=path, field=f"steps[{index}].evaluate",
                             fix="write e.g. 'evaluate: [position-rms, normal-deviation]'")
+    for n, p in items:
+        if not isinstance(n, str) or not isinstance(p, dict):
+            raise PipelineError(f"metric entry {brief(n)}: {brief(p)} is not 'name: {{parameters}}'", source=path,
+                                field=f"steps[{index}].evaluate", fix="write e.g. 'evaluate: {position-rms: {}}' "
+                                "or a list of metric names")
     for n, p in items:
         try:
             metric = host.get("metric", n)
@@ -212,7 +206,7 @@ def _check_params(plugin, params: dict, path, where: str):
             raise PipelineError(f"unknown parameter '{loc}' for {plugin.stage} '{plugin.name}'", source=path,
                                 field=f"{where}.{loc}", fix=fix) from None
         fields = ", ".join(plugin.Params.model_fields) or "none"
-        raise PipelineError(f"{e['msg'].lower()} (got {e.get('input')!r})" if e["type"] != "missing"
+        raise PipelineError(f"{e['msg'].lower()} (got {brief(e.get('input'))})" if e["type"] != "missing"
                             else "required parameter is missing", source=path, field=f"{where}.{loc}",
                             fix=f"{plugin.stage} '{plugin.name}' takes: {fields}") from None
 
