@@ -50,6 +50,10 @@ def _cmd_run(args) -> int:
 
 
 def _cmd_report(args) -> int:
+    if any(str(p).lower().endswith(".csv") for p in args.metrics):  # a batch's summary.csv: the batch view
+        from rigslim.report_batch import cmd_report_batch
+
+        return cmd_report_batch(args)
     from rich.console import Console
 
     from rigslim.errors import InputError
@@ -121,7 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     run.set_defaults(func=_cmd_run)
     report = sub.add_parser("report", help="HTML report of metrics JSON files (table, plots, renders)")
-    report.add_argument("metrics", nargs="+", metavar="METRICS.json", help="metrics documents of 'rigslim run'")
+    report.add_argument("metrics", nargs="+", metavar="METRICS.json", help="metrics documents of 'rigslim run', or one DIR/summary.csv of 'rigslim batch'")
     report.add_argument("-o", "--output", required=True, metavar="REPORT.html", help="write the report here")
     report.add_argument("--png-dir", metavar="DIR", help="also write the renders as PNG files here")
     report.add_argument("--frames", metavar="F1,F2", help="animation frames to render (default: the worst test frame)")
