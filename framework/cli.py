@@ -166,8 +166,9 @@ def main(argv=None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
+    previous = None
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, _terminate)
+        previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         return args.func(args)
     except RigslimError as e:
@@ -181,6 +182,9 @@ def main(argv=None) -> int:
         print(f"rigslim: error: {where}{e.strerror or e} (fix: check the path, its permissions and the free space)",
               file=sys.stderr)
         return EXIT_USER_ERROR
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":  # pragma: no cover
