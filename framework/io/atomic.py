@@ -4,9 +4,10 @@ Every rigslim output goes through :func:`atomic_path` (one file) or
 :func:`atomic_dir` (a folder that appears whole). The rules:
 
 - A regular file (or a new path) is written to a temporary file beside it,
-  named ``.NAME.rigslim-tmp-PID-XXXXXXXX[SUFFIX]``, and renamed onto it
-  (``rename(2)`` is atomic), so a reader sees the old or the new complete
-  file, never a partial one. An existing file keeps its permission bits.
+  named ``.NAME.rigslim-tmp-PID-XXXXXXXX[SUFFIX]``, flushed (``fsync``) and
+  renamed onto it (``rename(2)`` is atomic), so a reader -- or the machine
+  after a crash -- sees the old or the new complete file, never a partial
+  one. An existing file keeps its permission bits.
 - A symbolic link is written through: the file it points to is replaced
   atomically, the link stays.
 - A device node, FIFO or socket (``/dev/null``, ``/dev/full``, a pipe) is
@@ -257,10 +258,25 @@ def _discard(s: _Staged) -> None:
     _unregister(s.tmp)
 
 
+def _fsync(path: Path, directory: bool = False) -> None:
+    """Flush a file (or a folder's entries) to the disk, so that a crash after the rename finds the new data."""
+    fd = os.open(path, os.O_RDONLY | (getattr(os, "O_DIRECTORY", 0) if directory else 0))
+    try:
+        os.fsync(fd)
+    except OSError as e:
+        if e.errno not in (errno.EINVAL, errno.ENOTSUP, errno.EBADF):   # file systems without fsync: fine
+            raise
+    finally:
+        os.close(fd)
+
+
 def _commit_one(s: _Staged) -> None:
     try:
         if s.kind == "file":
+            _fsync(s.tmp)
             os.replace(s.tmp, s.target)
+            with contextlib.suppress(OSError):
+                _fsync(s.target.parent, directory=True)
         elif s.kind == "through":
             _write_through(s.tmp, s.target)
             os.unlink(s.tmp)
