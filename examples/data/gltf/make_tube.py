@@ -46,7 +46,7 @@ def _grid(r0: int, r1: int, s0: int, s1: int):
     rings = np.arange(r0, r1 + 1)
     segs = np.arange(s0, s1 + 1)
     R, S = np.meshgrid(rings, segs, indexing="ij")
-    theta = 2 * np.pi * S / SEGMENTS
+    theta = 2 * np.pi * (S % SEGMENTS) / SEGMENTS       # u = 1 lands bit-identically on u = 0: a closed UV seam
     y = HEIGHT * R / RINGS
     P = np.stack([RADIUS * np.cos(theta), y, RADIUS * np.sin(theta)], axis=-1).reshape(-1, 3)
     N = np.stack([np.cos(theta), np.zeros_like(theta), np.sin(theta)], axis=-1).reshape(-1, 3)
