@@ -1,6 +1,6 @@
 """The ``rigslim`` command line.
 
-``rigslim run PIPELINE.yaml [--metrics FILE.json] [--set STEP.PARAM=VALUE]``
+``rigslim run PIPELINE.yaml [--metrics FILE.json] [--set STEP.PARAM=VALUE | STEP=PLUGIN]``
 runs a pipeline; ``rigslim report METRICS.json [...] -o report.html`` writes an
 HTML report of runs; ``rigslim plugins [--json]`` lists loaded plugins. Errors a
 user can cause print one line and exit with status 2.
@@ -121,7 +121,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("pipeline", help="pipeline YAML file")
     run.add_argument("--metrics", metavar="FILE.json", help="write the metrics document here")
     run.add_argument("--set", action="append", metavar="STEP.PARAM=VALUE",
-                     help="override a step parameter (STEP: step name, stage key, plugin or 1-based index)")
+                     help="override a step parameter, or with STEP=PLUGIN replace a step's plugin "
+                          "(STEP: step name, stage key, plugin or 1-based index)")
     run.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     run.set_defaults(func=_cmd_run)
     report = sub.add_parser("report", help="HTML report of metrics JSON files (table, plots, renders)")

@@ -212,11 +212,14 @@ def _check_params(plugin, params: dict, path, where: str):
 
 
 def _apply_override(item: str, steps: list[Step], path: Path, host: PluginHost) -> None:
-    if "=" not in item or "." not in item.split("=", 1)[0]:
-        raise PipelineError(f"--set '{item}' is not STEP.PARAM=VALUE", source=path, field="--set",
-                            fix="write e.g. --set select.k=6")
-    lhs, value = item.split("=", 1)
-    target, param = lhs.rsplit(".", 1)
+    """One ``--set``: ``STEP.PARAM=VALUE`` sets a parameter; ``STEP=PLUGIN`` (or ``STEP.KEY=PLUGIN``,
+    KEY the step's stage key) replaces the step's plugin, keeping the parameters the new plugin takes."""
+    lhs = item.split("=", 1)[0]
+    if "=" not in item or not lhs.strip():
+        raise PipelineError(f"--set '{item}' is not STEP.PARAM=VALUE or STEP=PLUGIN", source=path, field="--set",
+                            fix="write e.g. --set select.k=6 or --set solve=poisson")
+    value = item.split("=", 1)[1]
+    target, param = lhs.rsplit(".", 1) if "." in lhs else (lhs, None)
     matches = [s for s in steps if target in (s.name, s.key, str(s.index)) or
                (isinstance(s.plugin, str) and s.plugin == target)]
     if not matches:
@@ -230,13 +233,22 @@ def _apply_override(item: str, steps: list[Step], path: Path, host: PluginHost) 
         if step.key == "evaluate":
             raise PipelineError("--set cannot change evaluate steps", source=path, field="--set",
                                 fix="edit the pipeline file")
-        if param == step.key:
+        if param is None or param == step.key:
+            if not isinstance(parsed, str) or not parsed.strip():
+                what = "an output path" if step.key in ("write", "report") else "a plugin name"
+                raise PipelineError(f"--set '{item}' gives {parsed!r}, not {what}", source=path, field="--set",
+                                    fix=f"write e.g. --set {target}=NAME (rigslim plugins lists the names)"
+                                    if what == "a plugin name" else f"write e.g. --set {target}=out/file")
+            if step.key not in ("write", "report") and step.name == step.plugin:
+                step.name = parsed  # a default name (the plugin's) follows the plugin
             step.plugin = parsed
             if step.key not in ("write", "report"):
                 try:
                     plugin = host.get(step.stage, parsed)
                 except PluginNotFound as e:
                     raise PipelineError(e.problem, source=path, field="--set", fix=e.fix) from None
+                # Parameters of the old plugin that the new one does not take are dropped.
+                step.params = {k: v for k, v in step.params.items() if k in plugin.Params.model_fields}
                 _check_params(plugin, step.params, path, f"steps[{step.index}]")
             continue
         step.params[param] = parsed
