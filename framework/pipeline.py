@@ -10,7 +10,6 @@ docs/pipelines.md.
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -407,7 +406,8 @@ def _run_step(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base
         metrics = {}
         for name, p in step.plugin:
             metric = host.get("metric", name)
-            metrics.update(metric.compute(evaluation, metric.parse_params(p)))
+            with np.errstate(over="ignore", invalid="ignore"):  # non-finite results: null + note in the JSON
+                metrics.update(metric.compute(evaluation, metric.parse_params(p)))
         label = step.name if step.name != f"evaluate{step.index}" else _default_label(document, asset)
         evaluation_entry = {"name": label, "step": step.index, "metrics": metrics}
         if asset.weights is not None and asset.reduced is not None:
@@ -477,6 +477,8 @@ def _default_label(document, asset) -> str:
 
 
 def write_metrics(path, document: dict) -> None:
-    """Write the metrics JSON atomically."""
+    """Write the metrics JSON atomically, strict JSON (non-finite values as null, noted: rigslim.jsonsafe)."""
+    from rigslim.jsonsafe import dumps_strict
+
     with atomic_path(path) as tmp:
-        Path(tmp).write_text(json.dumps(document, indent=2) + "\n")
+        Path(tmp).write_text(dumps_strict(document, indent=2) + "\n")
