@@ -583,7 +583,8 @@ def _table(rows: list[EvaluationRow]) -> str:
     metro_keys = sorted({k for r in rows for k in r.metro})
     names = {"hausdorff_rms_pct": "Metro RMS % mean", "hausdorff_max_pct": "Metro max % mean"}
     head = ["run / evaluation", "method", "k", "reduction (s)", "position RMS % mean", "position RMS % max",
-            "normal RMS rad mean", "normal RMS rad max"] + [names.get(k, k) for k in metro_keys] + \
+            "normal RMS rad mean", "normal RMS rad max", "normal median rad", "normal p95 rad", "normal p99 rad",
+            "normals &gt; 90&deg; (max)", "normal area RMS rad"] + [names.get(k, k) for k in metro_keys] + \
         ["max influences (input &rarr; reduced)", "mean influences"]
     out = ["<table><thead><tr>" + "".join(f'<th class="{"l" if i < 2 else ""}">{h}</th>'
                                            for i, h in enumerate(head)) + "</tr></thead><tbody>"]
@@ -597,6 +598,10 @@ def _table(rows: list[EvaluationRow]) -> str:
                  f"<td>{_fmt(r.k)}</td>", f"<td>{r.seconds:.3f}</td>", f"<td>{_fmt(r.position_mean)}</td>",
                  f"<td>{_fmt(r.position_max)}</td>", f"<td>{_fmt(r.normal_mean)}</td>",
                  f"<td>{_fmt(r.normal_max)}</td>"]
+        cells += [f"<td>{_fmt(r._stat(k, 'mean'))}</td>" for k in ("normal_median_rad", "normal_p95_rad",
+                                                                  "normal_p99_rad")]
+        cells += [f"<td>{_fmt(r._stat('normal_flipped', 'max'))}</td>",
+                  f"<td>{_fmt(r._stat('normal_area_rms_rad', 'mean'))}</td>"]
         cells += [f"<td>{_fmt(r.metro.get(k))}</td>" for k in metro_keys]
         cells += [f"<td>{infl}</td>", f"<td>{_fmt(m.get('mean_influences'))}</td>"]
         out.append("<tr>" + "".join(cells) + "</tr>")
