@@ -276,3 +276,24 @@ def test_compare_measures_lod_levels(tmp_path, capsys):
     assert res[0]["faces"] == 1536 and res[0]["hausdorff_max_pct"] < 0.05 and "normal_rms_rad" in res[0]
     assert res[1]["faces"] < 1536 and res[2]["faces"] < res[1]["faces"]
     assert 0 < res[1]["hausdorff_rms_pct"] < res[2]["hausdorff_rms_pct"] < 1.0
+
+
+ASSIMP_FBX = Path("/usr/share/assimp/models/FBX")
+
+
+@pytest.mark.skipif(not (ASSIMP_FBX / "huesitos.fbx").exists() or __import__("shutil").which("assimp") is None,
+                    reason="assimp-utils / assimp-testmodels missing (tools/setup-testmodels.sh)")
+@pytest.mark.parametrize("name", ["huesitos.fbx", "animation_with_skeleton.fbx"])
+def test_lod_on_freshly_converted_assimp_characters(name, tmp_path, valid):
+    """The FBX characters converted by this machine's assimp (`assimp export ... -fglb2`), as a user would."""
+    import subprocess
+
+    glb = tmp_path / (Path(name).stem + ".glb")
+    subprocess.run(["assimp", "export", str(ASSIMP_FBX / name), str(glb), "-fglb2"], check=True,
+                   capture_output=True, timeout=120)
+    out = tmp_path / "lod.glb"
+    assert main(["lod", str(glb), "-o", str(out)]) == 0
+    valid(out)
+    check_lod_structure(glb, out, 2)
+    assert main(["reduce", str(glb), "-o", str(tmp_path / "k2.glb"), "-k", "2", "--solve", "k-largest"]) == 0
+    valid(tmp_path / "k2.glb")
