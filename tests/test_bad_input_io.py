@@ -340,3 +340,14 @@ def test_long_output_name(tmp_path):
         tmp.write_text("{}")
     assert path.read_text() == "{}"
     no_temporaries(tmp_path)
+
+
+def test_read_only_old_file_is_replaced_and_keeps_its_mode(tmp_path):
+    """The old output's permission bits are given to the new file after it is written, not before."""
+    path = tmp_path / "r.json"
+    path.write_text("old")
+    path.chmod(0o444)
+    with atomic_path(path) as tmp:
+        tmp.write_text("new")
+    assert path.read_text() == "new" and stat.S_IMODE(path.stat().st_mode) == 0o444
+    no_temporaries(tmp_path)

@@ -175,6 +175,7 @@ class _Staged:
     tmp: Path
     target: Path
     kind: str          # "file" (rename), "through" (copy into a device node / FIFO), "dir" (swap folders)
+    mode: int | None = None   # permission bits to give the file before the rename (the old output's)
 
 
 @dataclass
@@ -260,7 +261,10 @@ def _discard(s: _Staged) -> None:
 
 def _fsync(path: Path, directory: bool = False) -> None:
     """Flush a file (or a folder's entries) to the disk, so that a crash after the rename finds the new data."""
-    fd = os.open(path, os.O_RDONLY | (getattr(os, "O_DIRECTORY", 0) if directory else 0))
+    try:
+        fd = os.open(path, os.O_RDONLY | (getattr(os, "O_DIRECTORY", 0) if directory else 0))
+    except PermissionError:   # a write-only file: the rename still happens, unflushed
+        return
     try:
         os.fsync(fd)
     except OSError as e:
@@ -273,6 +277,8 @@ def _fsync(path: Path, directory: bool = False) -> None:
 def _commit_one(s: _Staged) -> None:
     try:
         if s.kind == "file":
+            if s.mode is not None:
+                os.chmod(s.tmp, s.mode)
             _fsync(s.tmp)
             os.replace(s.tmp, s.target)
             with contextlib.suppress(OSError):
@@ -417,11 +423,9 @@ def atomic_path(path, suffix: str | None = None):
     except OSError as e:
         raise output_error(e, target) from None
     _register(tmp)
-    staged = _Staged(tmp, target, kind)
+    staged = _Staged(tmp, target, kind, mode if mode != 0o666 else None)
     try:
         os.close(fd)
-        if mode != 0o666:
-            os.chmod(tmp, mode)
         yield tmp
         if on_staged is not None:
             on_staged(tmp, target)
