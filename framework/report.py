@@ -105,7 +105,7 @@ class EvaluationRow:
 
     def _stat(self, key, which):
         v = self.metrics.get(key)
-        return float(v[which]) if isinstance(v, dict) and which in v else None
+        return float(v[which]) if isinstance(v, dict) and v.get(which) is not None else None
 
     @property
     def position_mean(self):
@@ -138,30 +138,18 @@ def load_document(path) -> dict:
     Raises
     ------
     InputError
-        When the file is missing, not JSON, or has no ``evaluations`` list.
+        When the file is missing, not JSON, has no ``evaluations`` list, or
+        a part the report uses has the wrong type (:mod:`rigslim.report_input`).
     """
-    path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except OSError as e:
-        raise InputError(f"cannot read metrics JSON ({e.strerror})", source=path, field="path",
-                         fix="give the file written by 'rigslim run --metrics FILE.json'") from None
-    except json.JSONDecodeError as e:
-        raise InputError(f"not JSON (line {e.lineno}: {e.msg})", source=path, field="document",
-                         fix="give the file written by 'rigslim run --metrics FILE.json'") from None
-    if not isinstance(doc, dict) or not isinstance(doc.get("evaluations"), list):
-        raise InputError("no 'evaluations' list", source=path, field="evaluations",
-                         fix="run a pipeline with an 'evaluate' step and '--metrics FILE.json'")
-    if not doc["evaluations"]:
-        raise InputError("the document has no evaluation", source=path, field="evaluations",
-                         fix="add an 'evaluate' step to the pipeline")
-    return doc
+    from rigslim.report_input import read_metrics_document
+
+    return read_metrics_document(path)  # UTF-8, bounded, typed (file + JSON path in every message)
 
 
 def _per_frame(metrics, key):
     v = metrics.get(key)
-    if isinstance(v, dict) and isinstance(v.get("per_frame"), list):
-        return np.asarray(v["per_frame"], dtype=np.float64)
+    if isinstance(v, dict) and isinstance(v.get("per_frame"), list):  # null (not finite when written) -> NaN
+        return np.asarray([np.nan if x is None else x for x in v["per_frame"]], dtype=np.float64)
     return None
 
 
@@ -196,7 +184,8 @@ def summarize(document: dict, source: str = "") -> list[EvaluationRow]:
             if sep:  # per-level values of a simplification: "hausdorff_rms_pct@10%", "faces@10%"
                 levels.setdefault(level, {})[name] = value
             elif "metro" in key.lower() or "hausdorff" in key.lower():
-                metro[key] = float(value["mean"]) if isinstance(value, dict) and "mean" in value else value
+                metro[key] = (None if value["mean"] is None else float(value["mean"])) \
+                    if isinstance(value, dict) and "mean" in value else value
         hist = ev.get("influence_histogram") or {}
         rows.append(EvaluationRow(
             label=str(ev.get("name", "evaluation")), run=str(document.get("name", "run")),
@@ -655,6 +644,9 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
     """
     from rigslim import __version__
     from rigslim import report_plots as plots
+    from rigslim.report_input import check_render_size
+
+    check_render_size(width, height)
 
     rows: list[EvaluationRow] = []
     for doc, source in documents:
