@@ -170,8 +170,16 @@ def main(argv=None) -> int:
     previous = None
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGTERM, _terminate)
+    import warnings
+
     try:
-        return args.func(args)
+        # Warnings (numpy's RuntimeWarnings...) are held until the command ends: shown after a success,
+        # dropped when a one-line error explains what went wrong.
+        with warnings.catch_warnings(record=True) as caught:
+            code = args.func(args)
+        for w in caught:
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno, line=w.line)
+        return code
     except RigslimError as e:
         print(f"rigslim: error: {e.one_line()}", file=sys.stderr)
         return EXIT_USER_ERROR

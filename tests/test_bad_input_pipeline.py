@@ -284,3 +284,19 @@ def test_no_runtime_warning_before_an_error(project, capfd):
     V = V * 1e200
     code, lines = run_cli_subprocess(["run", _poisson_project(project, V, F), "-q"], cwd=project)
     assert_one_line(code, lines, "bad.off")
+
+
+def test_warnings_are_dropped_when_an_error_follows(project, capfd, monkeypatch):
+    import warnings
+
+    import rigslim.pipeline
+
+    real = rigslim.pipeline.load_pipeline
+
+    def noisy(*args, **kwargs):
+        warnings.warn("overflow encountered in square", RuntimeWarning)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(rigslim.pipeline, "load_pipeline", noisy)
+    steps = "  - generate: bone-heat\n  - select: k-largest\n    k: true\n"
+    _bad(project, capfd, _pipeline(project, steps=steps), "pipeline.yaml", "steps[2].k")
