@@ -10,8 +10,8 @@ TBB version 2021 update 6 or later" at the first parallel loop.
 :func:`configure` (run when :mod:`rigslim` is imported, before numba) loads
 the wheel's ``libtbb.so.12`` globally, so numba's version check and its
 ``tbbpool`` extension both get it. Without that wheel (or on other systems) it
-takes TBB out of numba's search order (``NUMBA_THREADING_LAYER_PRIORITY="omp
-workqueue"``). A layer the user chose (``NUMBA_THREADING_LAYER`` or
+moves TBB behind the layers that always load (``NUMBA_THREADING_LAYER_PRIORITY=
+"omp workqueue tbb"``; numba wants all three named). A layer the user chose (``NUMBA_THREADING_LAYER`` or
 ``NUMBA_THREADING_LAYER_PRIORITY``) is left alone.
 """
 
@@ -51,7 +51,7 @@ def configure() -> str:
                 raise OSError("tbb wheel too old")
             result = f"tbb ({lib}, interface {version()})"
         except (OSError, AttributeError):
-            os.environ["NUMBA_THREADING_LAYER_PRIORITY"] = "omp workqueue"
+            os.environ["NUMBA_THREADING_LAYER_PRIORITY"] = "omp workqueue tbb"   # workqueue always loads
             result = "omp or workqueue (no usable tbb wheel)"
     _state["done"] = result
     return result
