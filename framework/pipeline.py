@@ -27,6 +27,7 @@ from rigslim.evaluation import Evaluation
 from rigslim.host import PluginHost, get_host
 from rigslim.io.atomic import atomic_path, check_output, output_transaction
 from rigslim.plugin import STEP_STAGES, StepContext
+from rigslim.clips import clip_split, uses_clips
 from rigslim.poses import FrameSplit
 from rigslim.yamlio import load_yaml_file
 from rigslim.weights import influence_counts, validate_weights
@@ -35,10 +36,18 @@ from rigslim.weights import influence_counts, validate_weights
 ROLE_ORDER = ["gltf", "mesh", "skeleton", "cage", "weights", "animation"]
 
 
+class ClipFrames(BaseModel):
+    """One side of a two-clip ``poses:`` (:mod:`rigslim.clips`)."""
+
+    model_config = ConfigDict(extra="forbid")
+    clip: str | int
+    frames: str | int | list[str | int] | None = None
+
+
 class PoseSpec(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    examples: str | int | list[str | int]
-    test: str | int | list[str | int]
+    examples: str | int | list[str | int] | ClipFrames
+    test: str | int | list[str | int] | ClipFrames
 
 
 class PipelineDoc(BaseModel):
@@ -320,7 +329,10 @@ def read_inputs(doc: PipelineDoc, base: Path, host: PluginHost, ctx: StepContext
         asset.provenance.setdefault("inputs", {})[role] = str(file)
     if asset.poses is None and asset.handles is not None:
         asset.provenance["poses"] = "rest pose only"
-    if doc.poses is not None:
+    if doc.poses is not None and uses_clips(doc.poses):
+        gltf = _gltf_inputs(doc.inputs).get("gltf") if "gltf" in doc.inputs else None
+        asset.poses, asset.split = clip_split(doc.poses, asset, base, source, gltf if isinstance(gltf, dict) else None)
+    elif doc.poses is not None:
         if asset.poses is None:
             raise PipelineError("a 'poses' split is given but no animation", source=source,
                                 field="inputs.animation", fix="add 'animation:' under inputs")
@@ -365,7 +377,8 @@ def _run_pipeline(path, *, overrides, metrics_path, host, console, on_evaluation
                   "bbox_diagonal": asset.mesh.bbox_diagonal} if asset.mesh is not None else None),
         "handles": ({"kind": asset.handles.kind, "count": asset.handles.n} if asset.handles else None),
         "frames": ({"examples": asset.split.examples, "test": asset.split.test,
-                    "dropped_from_test": asset.split.dropped} if asset.split else None),
+                    "dropped_from_test": asset.split.dropped,
+                    **({"clips": asset.split.clips} if asset.split.clips else {})} if asset.split else None),
         "steps": [{"stage": "read", "plugin": "inputs", "seconds": time.perf_counter() - t0}],
         "evaluations": [],
     }
