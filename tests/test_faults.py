@@ -147,3 +147,17 @@ def test_a_live_runs_temporary_files_are_kept(work, tmp_path):
     finally:
         sleeper.kill()
         sleeper.wait()
+
+
+def test_interrupt_while_a_fifo_output_waits_for_its_reader(work, tmp_path):
+    """Writing into a FIFO blocks until someone reads it; Ctrl-C must still end the run, renaming nothing."""
+    pipeline, _, before = work
+    fifo = tmp_path / "pipe.json"
+    os.mkfifo(fifo)
+    marker = tmp_path / "marker"
+    proc = driver("through", marker, pipeline, fifo)
+    wait_for(marker, proc)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130 and "Traceback" not in err, err[-2000:]
+    assert snapshot(tmp_path / "out") == before          # w.npz was staged, and removed, not renamed

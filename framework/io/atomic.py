@@ -25,8 +25,9 @@ Every rigslim output goes through :func:`atomic_path` (one file) or
 Inside :func:`output_transaction` (``rigslim run`` wraps a whole pipeline in
 one, ``rigslim report`` its page and renders) nothing is renamed until the
 transaction ends: the staged files are committed together (device
-write-throughs first, since they can still fail, then the renames, with
-SIGINT held back), or all removed if anything failed before.
+write-throughs first, since they can still fail or block on a FIFO, then the
+renames, with SIGINT and SIGTERM held back), or all removed if anything
+failed before.
 """
 
 from __future__ import annotations
@@ -191,10 +192,12 @@ class _Transaction:
         self.staged.append(item)
 
     def commit(self) -> None:
-        order = sorted(self.staged, key=lambda s: s.kind != "through")
+        for s in [s for s in self.staged if s.kind == "through"]:   # may block (a FIFO) or fail: interruptible
+            _commit_one(s)
         with _sigint_held():
-            for s in order:
-                _commit_one(s)
+            for s in self.staged:
+                if s.kind != "through":
+                    _commit_one(s)
             self.staged.clear()
 
     def abort(self) -> None:
@@ -432,6 +435,8 @@ def atomic_path(path, suffix: str | None = None):
         tx = _current.get()
         if tx is not None:
             tx.add(staged)
+        elif kind == "through":
+            _commit_one(staged)
         else:
             with _sigint_held():
                 _commit_one(staged)

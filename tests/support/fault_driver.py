@@ -6,6 +6,7 @@ MODE
     ``solve``      the weight solver writes MARKER and sleeps, so the test can signal the run during the solve;
     ``write:NAME`` when the output NAME's temporary file is filled, it is cut to half its length (a write in
                    progress), MARKER is written and the run sleeps, so the test can signal it during that write;
+    ``through``    MARKER is written when a device node / FIFO output is about to be opened (a FIFO blocks);
     ``none``       no fault.
 The test waits for MARKER, then sends SIGKILL, SIGINT or SIGTERM.
 """
@@ -50,6 +51,16 @@ def main() -> int:
                 _pause(marker, f"write {target}")
 
         atomic.on_staged = on_staged
+    elif mode == "through":
+        from rigslim.io import atomic
+
+        original = atomic._write_through
+
+        def write_through(tmp, target):
+            marker.write_text(f"{os.getpid()} through {target}\n")
+            return original(tmp, target)
+
+        atomic._write_through = write_through
     elif mode != "none":
         raise SystemExit(f"unknown mode {mode}")
     from rigslim.cli import main as cli
