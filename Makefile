@@ -26,7 +26,7 @@ demo: install
 
 ## test-tools: system tools some tests drive (each tools/setup-*.sh installs one, idempotently)
 test-tools:
-	@for script in tools/setup-*.sh; do [ -f "$$script" ] && bash "$$script" || exit 1; done
+	@for script in tools/setup-*.sh; do [ -f "$$script" ] && VENV=$(VENV) bash "$$script" || exit 1; done
 
 ## test: create .venv, install rigslim with test extras and the tools tests need, run pytest
 test: install-test test-tools

@@ -22,6 +22,10 @@ except PackageNotFoundError:  # running from a source tree that is not installed
     __version__ = "0.0.0+unknown"
 
 from rigslim.errors import RigslimError  # noqa: E402
+from rigslim.numba_threads import configure as _configure_numba_threads  # noqa: E402
+
+_configure_numba_threads()  # before numba is imported: a new-enough TBB, or none (rigslim.numba_threads)
+
 from rigslim.hookspecs import hookimpl  # noqa: E402
 
 __all__ = ["__version__", "RigslimError", "hookimpl", "Pipeline", "RunResult", "reduce_weights", "registry",

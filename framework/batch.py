@@ -155,14 +155,16 @@ def prepare(opts: BatchOptions):
 @contextlib.contextmanager
 def dask_client(opts: BatchOptions):
     """A :class:`distributed.Client` on a new LocalCluster, or on ``opts.scheduler``."""
-    import dask
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
     if opts.scheduler:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             try:
-                client = Client(opts.scheduler, timeout="30s")
+                if Path(opts.scheduler).is_file():  # a scheduler file (dask scheduler --scheduler-file)
+                    client = Client(scheduler_file=opts.scheduler, timeout="30s")
+                else:
+                    client = Client(opts.scheduler, timeout="30s")
             except (OSError, TimeoutError) as e:
                 raise InputError(f"cannot reach the Dask scheduler ({e})", source=opts.scheduler,
                                  field="--scheduler", fix="start one with 'dask scheduler' or give its address "
@@ -170,9 +172,28 @@ def dask_client(opts: BatchOptions):
         with client:
             yield client, {"kind": "scheduler", "address": opts.scheduler}
         return
+    with local_cluster(opts.workers, opts.threads_per_worker, opts.memory_limit, opts.dashboard) as (cluster, info):
+        with Client(cluster) as client:
+            yield client, info
+
+
+@contextlib.contextmanager
+def local_cluster(workers: int | None = None, threads_per_worker: int = 1, memory_limit: str | None = None,
+                  dashboard: bool = True):
+    """A :class:`distributed.LocalCluster` of worker processes set up for ``rigslim batch``.
+
+    Each worker process gets ``cores // (workers x threads_per_worker)``
+    BLAS/OpenMP/numba threads (environment variables set before it starts);
+    the scheduler reports a task whose worker died at once (the batch
+    resubmits it, ``--retries``) and gives each worker only as many tasks as
+    it has threads. Yields ``(cluster, info)``.
+    """
+    import dask
+    from distributed import LocalCluster
+
     cores = available_cores()
-    workers = opts.workers or cores
-    blas = max(1, cores // (workers * opts.threads_per_worker))
+    workers = workers or cores
+    blas = max(1, cores // (workers * threads_per_worker))
     env = thread_env(blas)
     config = {
         # --retries is applied by the batch (one resubmission per worker death), so the
@@ -182,17 +203,18 @@ def dask_client(opts: BatchOptions):
         "distributed.scheduler.worker-saturation": 1.0,
         "distributed.nanny.pre-spawn-environ": env,
     }
-    dashboard = ":8787" if opts.dashboard and _has_bokeh() else None
+    address = ":8787" if dashboard and _has_bokeh() else None
     with dask.config.set(config), warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=opts.threads_per_worker, processes=True,
-                               memory_limit=opts.memory_limit or "auto", dashboard_address=dashboard,
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=threads_per_worker, processes=True,
+                               memory_limit=memory_limit or "auto", dashboard_address=address,
                                silence_logs=logging.ERROR, env=env)
-        try:
-            with Client(cluster) as client:
-                yield client, {"kind": "local", "workers": workers, "threads_per_worker": opts.threads_per_worker,
-                               "blas_threads": blas, "cores": cores, "memory_limit": opts.memory_limit or "auto"}
-        finally:
+    try:
+        yield cluster, {"kind": "local", "workers": workers, "threads_per_worker": threads_per_worker,
+                        "blas_threads": blas, "cores": cores, "memory_limit": memory_limit or "auto"}
+    finally:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
             cluster.close()
 
 
@@ -229,7 +251,7 @@ def run_batch(opts: BatchOptions, console=None) -> BatchResult:
     from rich.console import Console
 
     import rigslim
-    from rigslim.batch_task import base_row, run_asset
+    from rigslim.batch_task import _clean, base_row, run_asset
 
     console = console or Console(stderr=True)
     template, jobs = prepare(opts)
@@ -270,8 +292,11 @@ def run_batch(opts: BatchOptions, console=None) -> BatchResult:
                     row = base_row(job.as_dict())
                     row["worker"] = ""
                     row["attempts"] = attempt
-                    row["error"] = _died_reason(job, attempt, exc, opts) if isinstance(exc, KilledWorker) else \
-                        " ".join(f"{type(exc).__name__}: {exc}".split())
+                    if isinstance(exc, KilledWorker):
+                        row["error"] = _died_reason(job, attempt, exc, opts)
+                        _clean(opts.out / job.name)  # what the killed attempt staged must not stay
+                    else:
+                        row["error"] = " ".join(f"{type(exc).__name__}: {exc}".split())
                 fut.release()
                 rows[job.name] = row
                 progress.advance(row["status"])

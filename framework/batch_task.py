@@ -247,6 +247,8 @@ def is_done(record: dict | None, key: dict, folder: Path) -> bool:
 
 def _clean(folder: Path) -> None:
     """Remove the record, the error log and hidden leftovers of interrupted atomic writes."""
+    if not folder.is_dir():
+        return
     for name in (RECORD, ERROR_LOG, ".timeout"):
         with contextlib.suppress(FileNotFoundError):
             (folder / name).unlink()

@@ -80,8 +80,11 @@ def basis_positions(V: np.ndarray, T: np.ndarray, indices: np.ndarray) -> np.nda
 
 
 def per_vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals (``igl.per_vertex_normals``, AREA weighting)."""
-    import igl
+    """Area-weighted unit vertex normals (as ``igl.per_vertex_normals``, AREA weighting, to rounding).
 
-    return igl.per_vertex_normals(np.ascontiguousarray(V, dtype=np.float64), F,
-                                  igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_AREA)
+    Applies the face->vertex operator of F, built once per face array
+    (:mod:`rigslim.plugins.normals.area_weighted`).
+    """
+    from rigslim.plugins.normals.area_weighted import area_weighted_normals
+
+    return area_weighted_normals(V, F)

@@ -1,6 +1,6 @@
 """The ``rigslim`` command line.
 
-``rigslim run PIPELINE.yaml [--metrics FILE.json] [--set STEP.PARAM=VALUE]``
+``rigslim run PIPELINE.yaml [--metrics FILE.json] [--set STEP.PARAM=VALUE | STEP=PLUGIN]``
 runs a pipeline; ``rigslim report METRICS.json [...] -o report.html`` writes an
 HTML report of runs; ``rigslim plugins [--json]`` lists loaded plugins. Errors a
 user can cause print one line and exit with status 2.
@@ -50,6 +50,10 @@ def _cmd_run(args) -> int:
 
 
 def _cmd_report(args) -> int:
+    if any(str(p).lower().endswith(".csv") for p in args.metrics):  # a batch's summary.csv: the batch view
+        from rigslim.report_batch import cmd_report_batch
+
+        return cmd_report_batch(args)
     from rich.console import Console
 
     from rigslim.errors import InputError
@@ -117,11 +121,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("pipeline", help="pipeline YAML file")
     run.add_argument("--metrics", metavar="FILE.json", help="write the metrics document here")
     run.add_argument("--set", action="append", metavar="STEP.PARAM=VALUE",
-                     help="override a step parameter (STEP: step name, stage key, plugin or 1-based index)")
+                     help="override a step parameter, or with STEP=PLUGIN replace a step's plugin "
+                          "(STEP: step name, stage key, plugin or 1-based index)")
     run.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     run.set_defaults(func=_cmd_run)
     report = sub.add_parser("report", help="HTML report of metrics JSON files (table, plots, renders)")
-    report.add_argument("metrics", nargs="+", metavar="METRICS.json", help="metrics documents of 'rigslim run'")
+    report.add_argument("metrics", nargs="+", metavar="METRICS.json", help="metrics documents of 'rigslim run', or one DIR/summary.csv of 'rigslim batch'")
     report.add_argument("-o", "--output", required=True, metavar="REPORT.html", help="write the report here")
     report.add_argument("--png-dir", metavar="DIR", help="also write the renders as PNG files here")
     report.add_argument("--frames", metavar="F1,F2", help="animation frames to render (default: the worst test frame)")
@@ -139,6 +144,9 @@ def build_parser() -> argparse.ArgumentParser:
     plugins = sub.add_parser("plugins", help="list loaded plugins")
     plugins.add_argument("--json", action="store_true", help="machine-readable output")
     plugins.set_defaults(func=_cmd_plugins)
+    from rigslim.gltf_commands import add_commands  # reduce, lod, compare, inspect (docs/gltf.md)
+
+    add_commands(sub)
     from rigslim.batch import add_parser as add_batch_parser
 
     add_batch_parser(sub)
@@ -159,10 +167,19 @@ def main(argv=None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
+    previous = None
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, _terminate)
+        previous = signal.signal(signal.SIGTERM, _terminate)
+    import warnings
+
     try:
-        return args.func(args)
+        # Warnings (numpy's RuntimeWarnings...) are held until the command ends: shown after a success,
+        # dropped when a one-line error explains what went wrong.
+        with warnings.catch_warnings(record=True) as caught:
+            code = args.func(args)
+        for w in caught:
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno, line=w.line)
+        return code
     except RigslimError as e:
         print(f"rigslim: error: {e.one_line()}", file=sys.stderr)
         return EXIT_USER_ERROR
@@ -174,6 +191,9 @@ def main(argv=None) -> int:
         print(f"rigslim: error: {where}{e.strerror or e} (fix: check the path, its permissions and the free space)",
               file=sys.stderr)
         return EXIT_USER_ERROR
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":  # pragma: no cover

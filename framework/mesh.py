@@ -15,6 +15,11 @@ import scipy.sparse as sp
 
 from rigslim.errors import InputError
 
+#: Largest absolute coordinate accepted: squared lengths and areas of larger meshes overflow float64.
+MAX_COORDINATE = 1e150
+#: A face whose area is below this fraction of the squared bounding-box diagonal is degenerate.
+DEGENERATE_AREA = 1e-14
+
 
 @dataclass(frozen=True, eq=False)
 class Mesh:
@@ -54,6 +59,9 @@ class Mesh:
         if not np.isfinite(V).all():
             raise InputError("vertex positions contain NaN or inf", source=where, field="vertices",
                              fix="repair or re-export the mesh")
+        if V.size and np.abs(V).max() > MAX_COORDINATE:
+            raise InputError(f"coordinates up to {np.abs(V).max():.3g} exceed {MAX_COORDINATE:g} (squared lengths "
+                             "overflow)", source=where, field="vertices", fix="rescale the mesh")
         if F.size and (F.min() < 0 or F.max() >= len(V)):
             raise InputError(f"face indices outside 0..{len(V) - 1}", source=where, field="faces",
                              fix="re-export the mesh")
@@ -95,15 +103,66 @@ class Mesh:
         return A
 
     @cached_property
+    def face_areas(self) -> np.ndarray:
+        """(f,) triangle areas ``|(b - a) x (c - a)| / 2``."""
+        a, b, c = (self.V[self.F[:, i]] for i in range(3))
+        return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+
+    @cached_property
+    def laplacian_faces(self) -> np.ndarray:
+        """Faces the Laplacian is built from: those with area (see :attr:`cotmatrix`).
+
+        Raises
+        ------
+        InputError
+            When no face has area (a flat-to-a-line, collinear or
+            single-point mesh): no Laplacian exists, naming the faces.
+        """
+        areas = self.face_areas
+        tol = DEGENERATE_AREA * max(self.bbox_diagonal, np.finfo(float).tiny) ** 2
+        good = areas > tol
+        if not good.any():
+            listed = ", ".join(map(str, range(min(len(self.F), 6)))) + (" ..." if len(self.F) > 6 else "")
+            raise InputError(f"all {len(self.F)} faces ({listed}) have zero area (bounding-box diagonal "
+                             f"{self.bbox_diagonal:.3g}); the Laplacian needs triangles with area",
+                             source=self.source or "mesh", field="faces",
+                             fix="give a surface mesh whose triangles are not collinear or coincident")
+        return self.F[good]
+
+    @cached_property
     def cotmatrix(self) -> sp.csr_matrix:
-        """Cotangent Laplacian ``L`` (``igl.cotmatrix``; negative semi-definite)."""
+        """Cotangent Laplacian ``L`` (``igl.cotmatrix``; negative semi-definite), (m, m).
+
+        Built robustly: degenerate (zero-area) faces, whose cotangents are
+        infinite, are left out (they span no area, so no Dirichlet energy),
+        and vertices no face uses get zero rows and columns (libigl sizes
+        its matrix by the largest index used).
+        """
         import igl
 
-        return sp.csr_matrix(igl.cotmatrix(self.V, self.F))
+        return self._pad(igl.cotmatrix(self.V, self.laplacian_faces))
 
     @cached_property
     def massmatrix(self) -> sp.csr_matrix:
-        """Voronoi mass matrix ``M`` (``igl.massmatrix``, diagonal)."""
+        """Voronoi mass matrix ``M`` (``igl.massmatrix``, diagonal), (m, m), over :attr:`laplacian_faces`.
+
+        Vertices without area (unused, or only in degenerate faces) get a
+        mass of ``1e-8`` times the mean, so ``M`` stays invertible.
+        """
         import igl
 
-        return sp.csr_matrix(igl.massmatrix(self.V, self.F, igl.MASSMATRIX_TYPE_VORONOI))
+        M = self._pad(igl.massmatrix(self.V, self.laplacian_faces, igl.MASSMATRIX_TYPE_VORONOI))
+        d = M.diagonal()
+        if (d <= 0).any():
+            d = np.where(d > 0, d, 1e-8 * d[d > 0].mean())
+            M = sp.diags(d).tocsr()
+        return M
+
+    def _pad(self, A) -> sp.csr_matrix:
+        """A libigl per-vertex matrix as (m, m), zero rows/columns for vertices past the last used."""
+        A = sp.csr_matrix(A)
+        m = self.n_vertices
+        if A.shape != (m, m):
+            A = sp.csr_matrix((A.data, A.indices, np.r_[A.indptr, np.full(m - A.shape[0], A.indptr[-1])]),
+                              shape=(m, m))
+        return A

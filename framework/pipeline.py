@@ -10,7 +10,6 @@ docs/pipelines.md.
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -23,7 +22,8 @@ from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
 
 import rigslim
 from rigslim.asset import Asset
-from rigslim.errors import PipelineError, RigslimError, closest
+from rigslim.clips import clip_split, uses_clips
+from rigslim.errors import PipelineError, RigslimError, brief, closest
 from rigslim.errors import PluginNotFoundError as PluginNotFound
 from rigslim.evaluation import Evaluation
 from rigslim.host import PluginHost, get_host
@@ -32,15 +32,24 @@ from rigslim.metrics_document import SCHEMA_VERSION, merge_levels
 from rigslim.plugin import STEP_STAGES, StepContext
 from rigslim.poses import FrameSplit
 from rigslim.weights import influence_counts
+from rigslim.yamlio import load_yaml_file
 
 #: Order in which input roles are read (others follow, in file order).
 ROLE_ORDER = ["gltf", "mesh", "skeleton", "cage", "weights", "animation"]
 
 
+class ClipFrames(BaseModel):
+    """One side of a two-clip ``poses:`` (:mod:`rigslim.clips`)."""
+
+    model_config = ConfigDict(extra="forbid")
+    clip: str | int
+    frames: str | int | list[str | int] | None = None
+
+
 class PoseSpec(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    examples: str | int | list[str | int]
-    test: str | int | list[str | int]
+    examples: str | int | list[str | int] | ClipFrames
+    test: str | int | list[str | int] | ClipFrames
 
 
 class PipelineDoc(BaseModel):
@@ -105,7 +114,7 @@ def load_pipeline(path, overrides: list[str] = (), host: PluginHost | None = Non
     host = host or get_host()
     path = Path(path)
     if raw is None:
-        raw = _read_yaml(path)
+        raw = load_yaml_file(path)  # UTF-8, no repeated keys, bounded aliases and nesting
     if not isinstance(raw, dict):
         raise PipelineError("the document is not a mapping", source=path, field="top level",
                             fix="start with 'inputs:', 'poses:' and 'steps:'")
@@ -121,23 +130,6 @@ def load_pipeline(path, overrides: list[str] = (), host: PluginHost | None = Non
     for item in overrides:
         _apply_override(item, steps, path, host)
     return doc, steps
-
-
-def _read_yaml(path: Path):
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise PipelineError(f"cannot read pipeline ({e.strerror})", source=path, field="path",
-                            fix="check the path") from None
-    try:
-        raw = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "YAML"
-        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
-        raise PipelineError(f"malformed YAML ({problem})", source=path, field=where,
-                            fix="fix the YAML syntax (indentation, colons, quotes)") from None
-    return raw
 
 
 def _parse_step(index: int, raw: dict, path: Path, host: PluginHost) -> Step:
@@ -191,13 +183,18 @@ def _parse_metrics(value, index, path, host) -> list[tuple[str, dict]]:
                 (n, p), = v.items()
                 items.append((n, p or {}))
             else:
-                raise PipelineError(f"cannot read metric entry {v!r}", source=path,
+                raise PipelineError(f"cannot read metric entry {brief(v)}", source=path,
                                     field=f"steps[{index}].evaluate", fix="list metric names")
     elif isinstance(value, dict):
         items = [(n, p or {}) for n, p in value.items()]
     else:
         raise PipelineError("evaluate needs metric names", source=path, field=f"steps[{index}].evaluate",
                             fix="write e.g. 'evaluate: [position-rms, normal-deviation]'")
+    for n, p in items:
+        if not isinstance(n, str) or not isinstance(p, dict):
+            raise PipelineError(f"metric entry {brief(n)}: {brief(p)} is not 'name: {{parameters}}'", source=path,
+                                field=f"steps[{index}].evaluate", fix="write e.g. 'evaluate: {position-rms: {}}' "
+                                "or a list of metric names")
     for n, p in items:
         try:
             metric = host.get("metric", n)
@@ -220,17 +217,20 @@ def _check_params(plugin, params: dict, path, where: str):
             raise PipelineError(f"unknown parameter '{loc}' for {plugin.stage} '{plugin.name}'", source=path,
                                 field=f"{where}.{loc}", fix=fix) from None
         fields = ", ".join(plugin.Params.model_fields) or "none"
-        raise PipelineError(f"{e['msg'].lower()} (got {e.get('input')!r})" if e["type"] != "missing"
+        raise PipelineError(f"{e['msg'].lower()} (got {brief(e.get('input'))})" if e["type"] != "missing"
                             else "required parameter is missing", source=path, field=f"{where}.{loc}",
                             fix=f"{plugin.stage} '{plugin.name}' takes: {fields}") from None
 
 
 def _apply_override(item: str, steps: list[Step], path: Path, host: PluginHost) -> None:
-    if "=" not in item or "." not in item.split("=", 1)[0]:
-        raise PipelineError(f"--set '{item}' is not STEP.PARAM=VALUE", source=path, field="--set",
-                            fix="write e.g. --set select.k=6")
-    lhs, value = item.split("=", 1)
-    target, param = lhs.rsplit(".", 1)
+    """One ``--set``: ``STEP.PARAM=VALUE`` sets a parameter; ``STEP=PLUGIN`` (or ``STEP.KEY=PLUGIN``,
+    KEY the step's stage key) replaces the step's plugin, keeping the parameters the new plugin takes."""
+    lhs = item.split("=", 1)[0]
+    if "=" not in item or not lhs.strip():
+        raise PipelineError(f"--set '{item}' is not STEP.PARAM=VALUE or STEP=PLUGIN", source=path, field="--set",
+                            fix="write e.g. --set select.k=6 or --set solve=poisson")
+    value = item.split("=", 1)[1]
+    target, param = lhs.rsplit(".", 1) if "." in lhs else (lhs, None)
     matches = [s for s in steps if target in (s.name, s.key, str(s.index)) or
                (isinstance(s.plugin, str) and s.plugin == target)]
     if not matches:
@@ -244,13 +244,22 @@ def _apply_override(item: str, steps: list[Step], path: Path, host: PluginHost) 
         if step.key == "evaluate":
             raise PipelineError("--set cannot change evaluate steps", source=path, field="--set",
                                 fix="edit the pipeline file")
-        if param == step.key:
+        if param is None or param == step.key:
+            if not isinstance(parsed, str) or not parsed.strip():
+                what = "an output path" if step.key in ("write", "report") else "a plugin name"
+                raise PipelineError(f"--set '{item}' gives {parsed!r}, not {what}", source=path, field="--set",
+                                    fix=f"write e.g. --set {target}=NAME (rigslim plugins lists the names)"
+                                    if what == "a plugin name" else f"write e.g. --set {target}=out/file")
+            if step.key not in ("write", "report") and step.name == step.plugin:
+                step.name = parsed  # a default name (the plugin's) follows the plugin
             step.plugin = parsed
             if step.key not in ("write", "report"):
                 try:
                     plugin = host.get(step.stage, parsed)
                 except PluginNotFound as e:
                     raise PipelineError(e.problem, source=path, field="--set", fix=e.fix) from None
+                # Parameters of the old plugin that the new one does not take are dropped.
+                step.params = {k: v for k, v in step.params.items() if k in plugin.Params.model_fields}
                 _check_params(plugin, step.params, path, f"steps[{step.index}]")
             continue
         step.params[param] = parsed
@@ -323,7 +332,10 @@ def read_inputs(doc: PipelineDoc, base: Path, host: PluginHost, ctx: StepContext
         asset.provenance.setdefault("inputs", {})[role] = str(file)
     if asset.poses is None and asset.handles is not None:
         asset.provenance["poses"] = "rest pose only"
-    if doc.poses is not None:
+    if doc.poses is not None and uses_clips(doc.poses):
+        gltf = _gltf_inputs(doc.inputs).get("gltf") if "gltf" in doc.inputs else None
+        asset.poses, asset.split = clip_split(doc.poses, asset, base, source, gltf if isinstance(gltf, dict) else None)
+    elif doc.poses is not None:
         if asset.poses is None:
             raise PipelineError("a 'poses' split is given but no animation", source=source,
                                 field="inputs.animation", fix="add 'animation:' under inputs")
@@ -369,7 +381,8 @@ def _run_pipeline(path, *, overrides, metrics_path, host, console, on_evaluation
                   "bbox_diagonal": asset.mesh.bbox_diagonal} if asset.mesh is not None else None),
         "handles": ({"kind": asset.handles.kind, "count": asset.handles.n} if asset.handles else None),
         "frames": ({"examples": asset.split.examples, "test": asset.split.test,
-                    "dropped_from_test": asset.split.dropped} if asset.split else None),
+                    "dropped_from_test": asset.split.dropped,
+                    **({"clips": asset.split.clips} if asset.split.clips else {})} if asset.split else None),
         "steps": [{"stage": "read", "plugin": "inputs", "seconds": time.perf_counter() - t0}],
         "evaluations": [],
     }
@@ -427,7 +440,8 @@ def _run_evaluate(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, 
     levels: list[dict] = []
     for name, p in step.plugin:
         metric = host.get("metric", name)
-        values = dict(metric.compute(evaluation, metric.parse_params(p), ctx))
+        with np.errstate(over="ignore", invalid="ignore"):  # non-finite results: null + note in the JSON
+            values = dict(metric.compute(evaluation, metric.parse_params(p), ctx))
         merge_levels(levels, values.pop("levels", None) or [])
         metrics.update(values)
     label = step.name if step.name != f"evaluate{step.index}" else _default_label(document, asset)
@@ -484,6 +498,8 @@ def _default_label(document, asset) -> str:
 
 
 def write_metrics(path, document: dict) -> None:
-    """Write the metrics JSON atomically."""
+    """Write the metrics JSON atomically, strict JSON (non-finite values as null, noted: rigslim.jsonsafe)."""
+    from rigslim.jsonsafe import dumps_strict
+
     with atomic_path(path) as tmp:
-        Path(tmp).write_text(json.dumps(document, indent=2) + "\n")
+        Path(tmp).write_text(dumps_strict(document, indent=2) + "\n")

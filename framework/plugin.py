@@ -36,6 +36,8 @@ Example
 
 from __future__ import annotations
 
+import types
+import typing
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,7 +45,20 @@ from typing import TYPE_CHECKING, Any, ClassVar, Generic, TypeVar
 
 import numpy as np
 import scipy.sparse as sp
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, field_validator
+from pydantic_core import PydanticCustomError
+
+
+def _takes_bool(annotation: Any) -> bool:
+    """Whether a field's type admits a bool (``bool``, ``Any``, or a union/Literal holding one)."""
+    if annotation is bool or annotation is Any or annotation is object:
+        return True
+    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
+    if origin is typing.Literal:
+        return any(isinstance(a, bool) for a in args)
+    if origin in (typing.Union, types.UnionType, typing.Annotated):
+        return any(_takes_bool(a) for a in args)
+    return False
 
 if TYPE_CHECKING:
     from rigslim.asset import Asset
@@ -61,9 +76,17 @@ __all__ = [
 
 
 class Params(BaseModel):
-    """Base of every plugin's parameter model: unknown names are errors."""
+    """Base of every plugin's parameter model: unknown names are errors, and ``true``/``false``
+    is not a number (pydantic would read ``k: true`` as ``k = 1``)."""
 
     model_config = ConfigDict(extra="forbid", arbitrary_types_allowed=True)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_bool_as_number(cls, value, info):
+        if isinstance(value, bool) and not _takes_bool(cls.model_fields[info.field_name].annotation):
+            raise PydanticCustomError("bool_not_number", "a yes/no value is not valid here; give a number or name")
+        return value
 
 
 P = TypeVar("P", bound=Params)

@@ -122,12 +122,16 @@ class FrameSplit:
     """Example frames (for fitting) and test frames (for measuring), disjoint.
 
     ``dropped`` lists test frames that were also example frames and so were
-    removed from the test set.
+    removed from the test set. ``clips`` is set when the frames come from named
+    clips (fitting on one clip, testing on another).
     """
 
     examples: list[int]
     test: list[int]
     dropped: list[int]
+    #: Two-clip splits (:mod:`rigslim.clips`): ``{"examples": {"clip", "frames"}, "test": {...}}`` with
+    #: each clip's own frame numbers; the lists above number the stacked poses.
+    clips: dict | None = None
 
     @staticmethod
     def from_specs(examples, test, count: int, *, source: str | None = None) -> "FrameSplit":

@@ -106,7 +106,7 @@ class EvaluationRow:
 
     def _stat(self, key, which):
         v = self.metrics.get(key)
-        return float(v[which]) if isinstance(v, dict) and which in v else None
+        return float(v[which]) if isinstance(v, dict) and v.get(which) is not None else None
 
     @property
     def position_mean(self):
@@ -139,30 +139,18 @@ def load_document(path) -> dict:
     Raises
     ------
     InputError
-        When the file is missing, not JSON, or has no ``evaluations`` list.
+        When the file is missing, not JSON, has no ``evaluations`` list, or
+        a part the report uses has the wrong type (:mod:`rigslim.report_input`).
     """
-    path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except OSError as e:
-        raise InputError(f"cannot read metrics JSON ({e.strerror})", source=path, field="path",
-                         fix="give the file written by 'rigslim run --metrics FILE.json'") from None
-    except json.JSONDecodeError as e:
-        raise InputError(f"not JSON (line {e.lineno}: {e.msg})", source=path, field="document",
-                         fix="give the file written by 'rigslim run --metrics FILE.json'") from None
-    if not isinstance(doc, dict) or not isinstance(doc.get("evaluations"), list):
-        raise InputError("no 'evaluations' list", source=path, field="evaluations",
-                         fix="run a pipeline with an 'evaluate' step and '--metrics FILE.json'")
-    if not doc["evaluations"]:
-        raise InputError("the document has no evaluation", source=path, field="evaluations",
-                         fix="add an 'evaluate' step to the pipeline")
-    return doc
+    from rigslim.report_input import read_metrics_document
+
+    return read_metrics_document(path)  # UTF-8, bounded, typed (file + JSON path in every message)
 
 
 def _per_frame(metrics, key):
     v = metrics.get(key)
-    if isinstance(v, dict) and isinstance(v.get("per_frame"), list):
-        return np.asarray(v["per_frame"], dtype=np.float64)
+    if isinstance(v, dict) and isinstance(v.get("per_frame"), list):  # null (not finite when written) -> NaN
+        return np.asarray([np.nan if x is None else x for x in v["per_frame"]], dtype=np.float64)
     return None
 
 
@@ -199,7 +187,8 @@ def summarize(document: dict, source: str = "") -> list[EvaluationRow]:
                   for lv in ev.get("levels") or [] if isinstance(lv, dict) and "name" in lv}
         for key, value in metrics.items():
             if "metro" in key.lower() or "hausdorff" in key.lower():
-                metro[key] = float(value["mean"]) if isinstance(value, dict) and "mean" in value else value
+                metro[key] = (None if value["mean"] is None else float(value["mean"])) \
+                    if isinstance(value, dict) and "mean" in value else value
         hist = ev.get("influence_histogram") or {}
         rows.append(EvaluationRow(
             label=str(ev.get("name", "evaluation")), run=str(document.get("name", "run")),
@@ -586,7 +575,8 @@ def _table(rows: list[EvaluationRow]) -> str:
     metro_keys = sorted({k for r in rows for k in r.metro})
     names = {"hausdorff_rms_pct": "Metro RMS % mean", "hausdorff_max_pct": "Metro max % mean"}
     head = ["run / evaluation", "method", "k", "reduction (s)", "position RMS % mean", "position RMS % max",
-            "normal RMS rad mean", "normal RMS rad max"] + [names.get(k, k) for k in metro_keys] + \
+            "normal RMS rad mean", "normal RMS rad max", "normal median rad", "normal p95 rad", "normal p99 rad",
+            "normals &gt; 90&deg; (max)", "normal area RMS rad"] + [names.get(k, k) for k in metro_keys] + \
         ["max influences (input &rarr; reduced)", "mean influences"]
     out = ["<table><thead><tr>" + "".join(f'<th class="{"l" if i < 2 else ""}">{h}</th>'
                                            for i, h in enumerate(head)) + "</tr></thead><tbody>"]
@@ -600,6 +590,10 @@ def _table(rows: list[EvaluationRow]) -> str:
                  f"<td>{_fmt(r.k)}</td>", f"<td>{r.seconds:.3f}</td>", f"<td>{_fmt(r.position_mean)}</td>",
                  f"<td>{_fmt(r.position_max)}</td>", f"<td>{_fmt(r.normal_mean)}</td>",
                  f"<td>{_fmt(r.normal_max)}</td>"]
+        cells += [f"<td>{_fmt(r._stat(k, 'mean'))}</td>" for k in ("normal_median_rad", "normal_p95_rad",
+                                                                  "normal_p99_rad")]
+        cells += [f"<td>{_fmt(r._stat('normal_flipped', 'max'))}</td>",
+                  f"<td>{_fmt(r._stat('normal_area_rms_rad', 'mean'))}</td>"]
         cells += [f"<td>{_fmt(r.metro.get(k))}</td>" for k in metro_keys]
         cells += [f"<td>{infl}</td>", f"<td>{_fmt(m.get('mean_influences'))}</td>"]
         out.append("<tr>" + "".join(cells) + "</tr>")
@@ -653,6 +647,9 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
     """
     from rigslim import __version__
     from rigslim import report_plots as plots
+    from rigslim.report_input import check_render_size
+
+    check_render_size(width, height)
 
     rows: list[EvaluationRow] = []
     for doc, source in documents:

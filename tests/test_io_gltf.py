@@ -320,12 +320,12 @@ def test_malformed_documents_are_input_errors(tmp_path):
     js = json.loads(path.read_text())
     js["nodes"][2]["children"] = "three"
     path.write_text(json.dumps(js))
-    with pytest.raises(InputError, match="glTF 2.0 schema"):
+    with pytest.raises(InputError, match=r"nodes\[2\]\.children: input should be a valid list"):
         read_gltf_skin(path)
     js["nodes"][2]["children"] = [3]
     js["meshes"][0]["primitives"][0]["attributes"]["JOINTS_0"] = 99
     path.write_text(json.dumps(js))
-    with pytest.raises(InputError, match="malformed document"):
+    with pytest.raises(InputError, match=r"attributes\.JOINTS_0: index 99 is out of range"):
         read_gltf_skin(path)
 
 

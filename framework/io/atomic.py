@@ -4,9 +4,10 @@ Every rigslim output goes through :func:`atomic_path` (one file) or
 :func:`atomic_dir` (a folder that appears whole). The rules:
 
 - A regular file (or a new path) is written to a temporary file beside it,
-  named ``.NAME.rigslim-tmp-PID-XXXXXXXX[SUFFIX]``, and renamed onto it
-  (``rename(2)`` is atomic), so a reader sees the old or the new complete
-  file, never a partial one. An existing file keeps its permission bits.
+  named ``.NAME.rigslim-tmp-PID-XXXXXXXX[SUFFIX]``, flushed (``fsync``) and
+  renamed onto it (``rename(2)`` is atomic), so a reader -- or the machine
+  after a crash -- sees the old or the new complete file, never a partial
+  one. An existing file keeps its permission bits.
 - A symbolic link is written through: the file it points to is replaced
   atomically, the link stays.
 - A device node, FIFO or socket (``/dev/null``, ``/dev/full``, a pipe) is
@@ -24,8 +25,9 @@ Every rigslim output goes through :func:`atomic_path` (one file) or
 Inside :func:`output_transaction` (``rigslim run`` wraps a whole pipeline in
 one, ``rigslim report`` its page and renders) nothing is renamed until the
 transaction ends: the staged files are committed together (device
-write-throughs first, since they can still fail, then the renames, with
-SIGINT held back), or all removed if anything failed before.
+write-throughs first, since they can still fail or block on a FIFO, then the
+renames, with SIGINT and SIGTERM held back), or all removed if anything
+failed before.
 """
 
 from __future__ import annotations
@@ -174,6 +176,7 @@ class _Staged:
     tmp: Path
     target: Path
     kind: str          # "file" (rename), "through" (copy into a device node / FIFO), "dir" (swap folders)
+    mode: int | None = None   # permission bits to give the file before the rename (the old output's)
 
 
 @dataclass
@@ -189,10 +192,12 @@ class _Transaction:
         self.staged.append(item)
 
     def commit(self) -> None:
-        order = sorted(self.staged, key=lambda s: s.kind != "through")
+        for s in [s for s in self.staged if s.kind == "through"]:   # may block (a FIFO) or fail: interruptible
+            _commit_one(s)
         with _sigint_held():
-            for s in order:
-                _commit_one(s)
+            for s in self.staged:
+                if s.kind != "through":
+                    _commit_one(s)
             self.staged.clear()
 
     def abort(self) -> None:
@@ -257,10 +262,30 @@ def _discard(s: _Staged) -> None:
     _unregister(s.tmp)
 
 
+def _fsync(path: Path, directory: bool = False) -> None:
+    """Flush a file (or a folder's entries) to the disk, so that a crash after the rename finds the new data."""
+    try:
+        fd = os.open(path, os.O_RDONLY | (getattr(os, "O_DIRECTORY", 0) if directory else 0))
+    except PermissionError:   # a write-only file: the rename still happens, unflushed
+        return
+    try:
+        os.fsync(fd)
+    except OSError as e:
+        if e.errno not in (errno.EINVAL, errno.ENOTSUP, errno.EBADF):   # file systems without fsync: fine
+            raise
+    finally:
+        os.close(fd)
+
+
 def _commit_one(s: _Staged) -> None:
     try:
         if s.kind == "file":
+            if s.mode is not None:
+                os.chmod(s.tmp, s.mode)
+            _fsync(s.tmp)
             os.replace(s.tmp, s.target)
+            with contextlib.suppress(OSError):
+                _fsync(s.target.parent, directory=True)
         elif s.kind == "through":
             _write_through(s.tmp, s.target)
             os.unlink(s.tmp)
@@ -401,17 +426,17 @@ def atomic_path(path, suffix: str | None = None):
     except OSError as e:
         raise output_error(e, target) from None
     _register(tmp)
-    staged = _Staged(tmp, target, kind)
+    staged = _Staged(tmp, target, kind, mode if mode != 0o666 else None)
     try:
         os.close(fd)
-        if mode != 0o666:
-            os.chmod(tmp, mode)
         yield tmp
         if on_staged is not None:
             on_staged(tmp, target)
         tx = _current.get()
         if tx is not None:
             tx.add(staged)
+        elif kind == "through":
+            _commit_one(staged)
         else:
             with _sigint_held():
                 _commit_one(staged)

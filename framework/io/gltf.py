@@ -28,7 +28,11 @@ it does not change.
 from __future__ import annotations
 
 import base64
+import binascii
 import json
+import os
+import re
+import stat
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,7 +41,7 @@ from urllib.parse import unquote
 import numpy as np
 import scipy.sparse as sp
 
-from rigslim.errors import InputError
+from rigslim.errors import InputError, brief
 from rigslim.handles import Handles
 from rigslim.mesh import Mesh
 from rigslim.poses import Poses
@@ -51,6 +55,11 @@ TYPE_SIZES = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9
 GLB_MAGIC = 0x46546C67
 CHUNK_JSON = 0x4E4F534A
 CHUNK_BIN = 0x004E4942
+#: Most frames :func:`read_gltf_skin` samples, and most (frames x nodes) local transforms it builds
+#: (128 bytes each): fps and clip length are refused beyond these rather than exhausting memory.
+MAX_FRAMES = 100_000
+MAX_FRAME_NODES = 4_000_000
+_SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*:")
 
 
 # --------------------------------------------------------------------------- document
@@ -68,12 +77,15 @@ class GltfDocument:
         The JSON document exactly as stored.
     buffers : list of bytes
         Contents of ``buffers[i]`` (GLB binary chunk, data URI or external file).
+    allow_external_uris : bool
+        Whether URIs may name files outside the document's folder (see :meth:`uri_bytes`).
     """
 
     path: Path
     json: dict
     buffers: list[bytes]
     _typed: object = field(default=None, repr=False)
+    allow_external_uris: bool = False
 
     @property
     def typed(self):
@@ -91,20 +103,53 @@ class GltfDocument:
         start = bv.get("byteOffset", 0)
         return data[start:start + bv["byteLength"]]
 
-    def uri_bytes(self, uri: str, what: str) -> bytes:
-        """Bytes of a data URI or of a file relative to the document."""
+    def uri_bytes(self, uri: str, what: str, length: int | None = None) -> bytes:
+        """Bytes of a data URI or of a file relative to the document.
+
+        A file URI must name a regular file inside the document's folder
+        after symbolic links are resolved (``../x``, absolute paths and links
+        leading out are refused) unless :attr:`allow_external_uris` is set;
+        other schemes (``file:``, ``http:``) are never read. With ``length``,
+        only that many bytes are read, after checking the file holds them
+        (so ``/dev/zero`` or a huge file cannot exhaust memory).
+        """
+        field_name = f"{what}.uri"
         if uri.startswith("data:"):
             head, _, payload = uri.partition(",")
             if not head.endswith(";base64"):
-                raise InputError(f"{what} has a data URI that is not base64", source=self.path, field=what,
+                raise InputError(f"{what} has a data URI that is not base64", source=self.path, field=field_name,
                                  fix="re-export with base64 data URIs or external files")
-            return base64.b64decode(payload)
-        file = self.path.parent / unquote(uri)
+            try:
+                return base64.b64decode(payload, validate=True)
+            except (binascii.Error, ValueError) as e:
+                raise InputError(f"the data URI is not valid base64 ({e})", source=self.path, field=field_name,
+                                 fix="re-export the file") from None
+        if _SCHEME.match(uri):
+            raise InputError(f"URI '{brief(uri)}' has a scheme rigslim does not read", source=self.path,
+                             field=field_name, fix="give a data: URI or a path relative to the .gltf")
+        folder = self.path.parent.resolve()
+        file = (self.path.parent / unquote(uri)).resolve()
+        if not self.allow_external_uris and not file.is_relative_to(folder):
+            raise InputError(f"'{brief(uri)}' leads outside the glTF's folder ({file})", source=self.path,
+                             field=field_name, fix="move the file next to the .gltf, or set "
+                             "'allow_external_uris: true' on the gltf input if you trust this file")
         try:
-            return file.read_bytes()
+            st = os.stat(file)
         except OSError as e:
-            raise InputError(f"{what} refers to '{uri}', which cannot be read ({e.strerror})", source=self.path,
-                             field=what, fix="keep the .bin/.png files next to the .gltf") from None
+            raise InputError(f"refers to '{brief(uri)}', which cannot be read ({e.strerror})", source=self.path,
+                             field=field_name, fix="keep the .bin/.png files next to the .gltf") from None
+        if not stat.S_ISREG(st.st_mode):
+            raise InputError(f"'{brief(uri)}' is not a regular file", source=self.path, field=field_name,
+                             fix="give the .bin/.png file itself")
+        if length is not None and st.st_size < length:
+            raise InputError(f"'{brief(uri)}' holds {st.st_size} bytes, byteLength says {length}", source=self.path,
+                             field=f"{what}.byteLength", fix="re-export the file")
+        try:
+            with open(file, "rb") as f:
+                return f.read() if length is None else f.read(length)
+        except OSError as e:
+            raise InputError(f"refers to '{brief(uri)}', which cannot be read ({e.strerror})", source=self.path,
+                             field=field_name, fix="keep the .bin/.png files next to the .gltf") from None
 
 
 def _parse_glb(data: bytes, path) -> tuple[dict, bytes | None]:
@@ -129,7 +174,7 @@ def _parse_glb(data: bytes, path) -> tuple[dict, bytes | None]:
     return json.loads(js.decode("utf-8")), binary
 
 
-def load_gltf(path) -> GltfDocument:
+def load_gltf(path, *, allow_external_uris: bool = False) -> GltfDocument:
     """Load a ``.glb`` or ``.gltf`` file with all its buffers.
 
     Parameters
@@ -137,6 +182,9 @@ def load_gltf(path) -> GltfDocument:
     path : path-like
         ``.glb`` (binary container) or ``.gltf`` (JSON with embedded data
         URIs or external ``.bin`` files).
+    allow_external_uris : bool
+        Let buffer and image URIs name files outside the file's folder
+        (:meth:`GltfDocument.uri_bytes`).
 
     Returns
     -------
@@ -155,11 +203,12 @@ def load_gltf(path) -> GltfDocument:
             doc = json.loads(data.decode("utf-8-sig"))
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise InputError(f"malformed glTF JSON ({e})", source=path, field="json", fix="re-export the file") from None
-    version = str(doc.get("asset", {}).get("version", ""))
-    if not version.startswith("2."):
-        raise InputError(f"glTF version '{version}' is not 2.x", source=path, field="asset.version",
-                         fix="convert the file to glTF 2.0 (e.g. with Blender or assimp)")
-    out = GltfDocument(path, doc, [])
+    except RecursionError:
+        raise InputError("the JSON is nested too deeply", source=path, field="json", fix="re-export the file") from None
+    from rigslim.io.gltf_schema import check_document
+
+    check_document(doc, path)
+    out = GltfDocument(path, doc, [], allow_external_uris=bool(allow_external_uris))
     try:  # pygltflib's typed parse rejects properties of the wrong type (a string where a list belongs...)
         out.typed
     except (TypeError, ValueError, AttributeError, KeyError) as e:
@@ -167,7 +216,7 @@ def load_gltf(path) -> GltfDocument:
                          source=path, field="json", fix="re-export the file; check it with the glTF-Validator") from None
     for i, buf in enumerate(doc.get("buffers", [])):
         if "uri" in buf:
-            raw = out.uri_bytes(buf["uri"], f"buffers[{i}]")
+            raw = out.uri_bytes(buf["uri"], f"buffers[{i}]", buf["byteLength"])
         elif i == 0 and binary is not None:
             raw = binary
         else:
@@ -175,7 +224,7 @@ def load_gltf(path) -> GltfDocument:
                              field=f"buffers[{i}]", fix="re-export the file")
         if len(raw) < buf["byteLength"]:
             raise InputError(f"buffers[{i}] holds {len(raw)} bytes, byteLength says {buf['byteLength']}",
-                             source=path, field=f"buffers[{i}]", fix="re-export the file")
+                             source=path, field=f"buffers[{i}].byteLength", fix="re-export the file")
         out.buffers.append(bytes(raw[:buf["byteLength"]]))
     return out
 
@@ -474,12 +523,57 @@ def animation_duration(doc: GltfDocument, index: int) -> float:
     anim = doc.json["animations"][index]
     end = 0.0
     for s in anim.get("samplers", []):
-        acc = doc.json["accessors"][s["input"]]
-        if "max" in acc:
-            end = max(end, float(acc["max"][0]))
-        else:
-            end = max(end, float(np.max(read_accessor(doc, s["input"]))))
+        times = np.asarray(read_accessor(doc, s["input"]), np.float64)
+        times = times[np.isfinite(times)]  # sampler_keys refuses the others with their place
+        if times.size:
+            end = max(end, float(times.max()))
     return end
+
+
+_PATH_WIDTH = {"translation": 3, "rotation": 4, "scale": 3}
+
+
+def sampler_keys(doc: GltfDocument, animation: int, index: int, path: str) -> tuple[np.ndarray, np.ndarray]:
+    """Key times and values of a sampler driving ``path``, checked.
+
+    Times must be finite, non-negative and strictly increasing (glTF 2.0
+    section 3.11); there must be one value per key (three, in-tangent /
+    value / out-tangent, for CUBICSPLINE) of the path's width, finite, and
+    no rotation key may be a zero quaternion.
+    """
+    sampler = doc.json["animations"][animation]["samplers"][index]
+    where = f"animations[{animation}].samplers[{index}]"
+    times = np.asarray(read_accessor(doc, sampler["input"]), np.float64)
+    if times.ndim != 1:
+        raise InputError("key times are not SCALAR", source=doc.path, field=f"{where}.input", fix="re-export the file")
+    bad = ~np.isfinite(times) | (times < 0)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(f"key time {k} is {times[k]}, not a finite time >= 0", source=doc.path,
+                         field=f"{where}.input", fix="re-export the animation")
+    if (np.diff(times) <= 0).any():
+        k = int(np.argmax(np.diff(times) <= 0))
+        raise InputError(f"key times are not strictly increasing (key {k + 1} at {times[k + 1]:.6g} s after "
+                         f"{times[k]:.6g} s)", source=doc.path, field=f"{where}.input", fix="re-export the animation")
+    values = np.asarray(read_accessor(doc, sampler["output"]), np.float64)
+    values = values.reshape(len(values), -1)
+    interp = sampler.get("interpolation", "LINEAR")
+    per_key = 3 if interp == "CUBICSPLINE" else 1
+    width = _PATH_WIDTH[path]
+    if values.shape[1] != width or len(values) != per_key * len(times):
+        raise InputError(f"{len(values)} output values of width {values.shape[1]} for {len(times)} keys; {interp} "
+                         f"{path} needs {per_key * len(times)} of width {width}", source=doc.path,
+                         field=f"{where}.output", fix="re-export the animation")
+    if not np.isfinite(values).all():
+        raise InputError("output values contain NaN or inf", source=doc.path, field=f"{where}.output",
+                         fix="re-export the animation")
+    if path == "rotation":
+        keyed = values.reshape(len(times), per_key, 4)[:, per_key // 2]
+        zero = np.linalg.norm(keyed, axis=1) < 1e-6
+        if zero.any():
+            raise InputError(f"rotation key {int(np.argmax(zero))} is a zero quaternion", source=doc.path,
+                             field=f"{where}.output", fix="re-export the animation with unit quaternions")
+    return times, values
 
 
 def local_matrices(doc: GltfDocument, animation: int | None, t: np.ndarray) -> np.ndarray:
@@ -506,8 +600,7 @@ def local_matrices(doc: GltfDocument, animation: int | None, t: np.ndarray) -> n
                                  field=f"animations[{animation}].channels[{ci}]",
                                  fix="re-export with TRS node transforms")
             sampler = anim["samplers"][ch["sampler"]]
-            times = read_accessor(doc, sampler["input"])
-            values = read_accessor(doc, sampler["output"])
+            times, values = sampler_keys(doc, animation, ch["sampler"], path)
             interp = sampler.get("interpolation", "LINEAR")
             animated.setdefault(node, {})[path] = sample_sampler(times, np.asarray(values, float), interp, t,
                                                                  rotation=path == "rotation")
@@ -650,9 +743,13 @@ def _choose_skin(doc: GltfDocument, skin, mesh) -> tuple[int, list[int]]:
     if mesh is None and js.get("scenes"):
         # only what the default scene shows (levels written as extra scenes or MSFT_lod nodes stay out)
         scene = js["scenes"][js.get("scene", 0)]
-        shown, stack = [], list(reversed(scene.get("nodes", [])))
+        shown, stack, seen = [], list(reversed(scene.get("nodes", []))), set()
         while stack:
             i = stack.pop()
+            if i in seen:  # a cycle or a shared child (check_document refuses both; never loop)
+                raise InputError(f"node {i} is reached twice from scene {js.get('scene', 0)}", source=doc.path,
+                                 field=f"nodes[{i}]", fix="repair the node hierarchy (it must be a tree)")
+            seen.add(i)
             shown.append(i)
             stack.extend(reversed(nodes[i].get("children", [])))
     else:
@@ -696,7 +793,8 @@ def _choose_skin(doc: GltfDocument, skin, mesh) -> tuple[int, list[int]]:
 
 
 def read_gltf_skin(path, *, animation=None, fps: float = 30.0, mesh=None, skin=None,
-                   normalize: bool = True, weld: bool = False, times=None) -> GltfSkin:
+                   normalize: bool = True, weld: bool = False, times=None,
+                   allow_external_uris: bool = False) -> GltfSkin:
     """Read a skinned glTF: merged mesh, joints as handles, weights and sampled poses.
 
     Parameters
@@ -725,6 +823,9 @@ def read_gltf_skin(path, *, animation=None, fps: float = 30.0, mesh=None, skin=N
     times : sequence of float, optional
         Sample the clip at these times (seconds) instead: frame j is
         ``times[j]`` (``fps`` then only labels the frames for writers).
+    allow_external_uris : bool
+        Let buffer and image URIs name files outside the file's folder
+        (by default they must resolve inside it, symbolic links resolved).
 
     Returns
     -------
@@ -738,7 +839,7 @@ def read_gltf_skin(path, *, animation=None, fps: float = 30.0, mesh=None, skin=N
     space. Weights: ``A[v, JOINTS_n[v, c]] += WEIGHTS_n[v, c]`` over all sets
     n and slots c.
     """
-    doc = load_gltf(path)
+    doc = load_gltf(path, allow_external_uris=allow_external_uris)
     try:
         return _read_gltf_skin(doc, animation, fps, mesh, skin, normalize, weld, times)
     except (KeyError, IndexError) as e:
@@ -749,8 +850,8 @@ def read_gltf_skin(path, *, animation=None, fps: float = 30.0, mesh=None, skin=N
 
 def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, weld, times) -> GltfSkin:
     js = doc.json
-    if fps <= 0:
-        raise InputError(f"fps {fps} is not positive", source=doc.path, field="fps", fix="give e.g. fps: 30")
+    if not (np.isfinite(fps) and fps > 0):
+        raise InputError(f"fps {fps} is not a positive number", source=doc.path, field="fps", fix="give e.g. fps: 30")
     skin_index, mesh_indices = _choose_skin(doc, skin, mesh)
     sk = js["skins"][skin_index]
     joints = [int(j) for j in sk["joints"]]
@@ -761,6 +862,18 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, we
             raise InputError(f"{len(ibm)} inverse bind matrices for {n} joints", source=doc.path,
                              field=f"skins[{skin_index}].inverseBindMatrices", fix="re-export the file")
         ibm = ibm[:n]
+        where = f"skins[{skin_index}].inverseBindMatrices"
+        if not np.isfinite(ibm).all():
+            raise InputError("inverse bind matrices contain NaN or inf", source=doc.path, field=where,
+                             fix="re-export the file")
+        with np.errstate(all="ignore"):
+            det = np.linalg.det(ibm[:, :3, :3])
+            scale = np.abs(ibm[:, :3, :3]).max(axis=(1, 2))
+        singular = ~(np.abs(det) > 1e-12 * np.maximum(scale, 1e-300) ** 3)
+        if singular.any():
+            j = int(np.argmax(singular))
+            raise InputError(f"the inverse bind matrix of joint {j} (node {joints[j]}) is singular", source=doc.path,
+                             field=f"{where}[{j}]", fix="re-export the skin with invertible bind matrices")
     else:
         ibm = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
 
@@ -778,8 +891,17 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, we
                                  fix="re-export without Draco compression")
             V = np.asarray(read_accessor(doc, attrs["POSITION"]), float)
             m = len(V)
+            for name in ["POSITION"] + [f"{a}_{s}" for s in sets for a in ("JOINTS", "WEIGHTS")]:
+                count = js["accessors"][attrs[name]]["count"]
+                if count != m or (name == "POSITION" and V.shape != (m, 3)):
+                    raise InputError(f"{name} has {count} elements of type {js['accessors'][attrs[name]]['type']}; "
+                                     f"the primitive has {m} VEC3 positions", source=doc.path,
+                                     field=f"{where}.attributes.{name}", fix="re-export the file")
             idx = (np.asarray(read_accessor(doc, prim["indices"]), np.int64) if "indices" in prim
                    else np.arange(m, dtype=np.int64))
+            if idx.ndim != 1 or (len(idx) and (idx.min() < 0 or idx.max() >= m)):
+                raise InputError(f"indices must be SCALAR vertex numbers below {m}", source=doc.path,
+                                 field=f"{where}.indices", fix="re-export the file")
             F = _triangles(prim.get("mode", 4), idx)
             for s in sets:
                 J = np.asarray(read_accessor(doc, attrs[f"JOINTS_{s}"]), np.int64).reshape(m, -1)
@@ -838,7 +960,16 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, we
     elif anim is None:
         t = np.zeros(1)
     else:
-        t = np.arange(int(np.floor(animation_duration(doc, anim) * fps + 1e-3)) + 1) / fps
+        duration = animation_duration(doc, anim)
+        frames = np.floor(duration * fps + 1e-3) + 1
+        if frames > MAX_FRAMES:
+            raise InputError(f"{duration:.6g} s at {fps:g} fps is {frames:.6g} frames, more than {MAX_FRAMES}",
+                             source=doc.path, field="fps", fix="sample fewer frames: a lower fps or 'times:'")
+        t = np.arange(int(frames)) / fps
+    if len(t) * max(len(nodes), 1) > MAX_FRAME_NODES:
+        raise InputError(f"{len(t)} frames of {len(nodes)} nodes exceed the limit of {MAX_FRAME_NODES} sampled "
+                         "transforms", source=doc.path, field="times" if times is not None else "fps",
+                         fix="sample fewer frames")
     local = local_matrices(doc, anim, t)
     world = world_matrices(local, parent) if len(nodes) else local
     T = np.einsum("jpab,jbc->pjac", world[joints], ibm)[:, :, :3, :]

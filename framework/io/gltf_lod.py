@@ -275,6 +275,50 @@ def hierarchy_attributes(skin: GltfSkin, hier, data: list[PrimitiveData]) -> lis
     return out
 
 
+def closest_point_barycentric(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates (n, 3) of the closest point of triangle (a, b, c) to p, row by row.
+
+    Ericson, Real-Time Collision Detection (2005), sec. 5.1.5: the Voronoi regions of the
+    vertices, then the edges, then the face; degenerate triangles fall back to the nearest vertex.
+    """
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = (ab * ap).sum(1), (ac * ap).sum(1)
+    bp = p - b
+    d3, d4 = (ab * bp).sum(1), (ac * bp).sum(1)
+    cp = p - c
+    d5, d6 = (ab * cp).sum(1), (ac * cp).sum(1)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    out = np.empty((len(p), 3))
+    den = va + vb + vc
+    safe = np.where(np.abs(den) > 0, den, 1.0)
+    v, w = vb / safe, vc / safe
+    out[:] = np.stack([1 - v - w, v, w], 1)                                           # inside the face
+    tiny = np.finfo(float).tiny
+
+    def put(mask, bary):
+        out[mask] = bary[mask]
+
+    e_bc = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
+    t = (d4 - d3) / np.maximum((d4 - d3) + (d5 - d6), tiny)
+    put(e_bc, np.stack([0 * t, 1 - t, t], 1))
+    e_ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+    t = d2 / np.maximum(d2 - d6, tiny)
+    put(e_ac, np.stack([1 - t, 0 * t, t], 1))
+    e_ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+    t = d1 / np.maximum(d1 - d3, tiny)
+    put(e_ab, np.stack([1 - t, t, 0 * t], 1))
+    one = np.ones(len(p))
+    zero = np.zeros(len(p))
+    put((d6 >= 0) & (d5 <= d6), np.stack([zero, zero, one], 1))
+    put((d3 >= 0) & (d4 <= d3), np.stack([zero, one, zero], 1))
+    put((d1 <= 0) & (d2 <= 0), np.stack([one, zero, zero], 1))
+    bad = ~np.isfinite(out).all(axis=1) | (np.abs(den) <= 0) & ~(e_bc | e_ac | e_ab)
+    if bad.any():                                                                     # degenerate: nearest corner
+        dist = np.stack([np.linalg.norm(q[bad] - p[bad], axis=1) for q in (a, b, c)], 1)
+        out[bad] = np.eye(3)[np.argmin(dist, axis=1)]
+    return out
+
+
 def level_representatives(hier, vertex_ids: np.ndarray) -> np.ndarray:
     """(m,) the level vertex (hierarchy id) that stands for each original vertex (-1 if none).
 
@@ -296,8 +340,58 @@ def level_representatives(hier, vertex_ids: np.ndarray) -> np.ndarray:
     return np.where(present[cur], cur, -1)
 
 
+def projected_attributes(points: np.ndarray, owners: np.ndarray, V: np.ndarray, Fw: np.ndarray, Ff: np.ndarray,
+                         rep: np.ndarray, X: np.ndarray, start: int) -> np.ndarray:
+    """Attributes of new level vertices by projection onto the source faces they replace.
+
+    Parameters
+    ----------
+    points : (q, 3) rest positions of the new vertices; owners : (q,) their hierarchy ids.
+    V : (m, 3) welded rest positions; Fw, Ff : (f, 3) a primitive's faces (welded / file corners).
+    rep : (m,) the level vertex of each welded vertex; X : (count, C) the primitive's file attributes.
+
+    Returns
+    -------
+    (q, C) array (NaN where a vertex has no face in this primitive)
+
+    Notes
+    -----
+    The candidates of new vertex c are the source faces with a corner that
+    c replaced (``rep[corner] = c``): the patch c stands for. Its value is
+    the barycentric interpolation of the file corners' attributes at the
+    closest point of the closest candidate face (Cignoni et al. 1998's
+    attribute resampling, restricted to the patch so that it never crosses a
+    locked UV seam).
+    """
+    out = np.full((len(points), X.shape[1]), np.nan)
+    if not len(points) or not len(Fw):
+        return out
+    slot = {int(h): i for i, h in enumerate(owners)}
+    R = rep[Fw]
+    pf, pq = [], []
+    for corner in range(3):
+        hit = np.flatnonzero(np.isin(R[:, corner], owners))
+        pf.append(hit)
+        pq.append(np.fromiter((slot[int(h)] for h in R[hit, corner]), np.int64, len(hit)))
+    pf, pq = np.concatenate(pf), np.concatenate(pq)
+    if not len(pf):
+        return out
+    a, b, c = V[Fw[pf, 0]], V[Fw[pf, 1]], V[Fw[pf, 2]]
+    p = points[pq]
+    bary = closest_point_barycentric(p, a, b, c)
+    closest = bary[:, :1] * a + bary[:, 1:2] * b + bary[:, 2:] * c
+    d2 = ((closest - p) ** 2).sum(axis=1)
+    order = np.lexsort((pf, d2, pq))                       # per vertex: nearest face first (ties: lowest face)
+    first = order[np.r_[True, pq[order][1:] != pq[order][:-1]]]
+    corners = Ff[pf[first]] - start
+    vals = np.einsum("qk,qkc->qc", bary[first], X[corners])
+    out[pq[first]] = vals
+    return out
+
+
 def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | None = None,
-                     attributes: list[np.ndarray] | None = None) -> list[LevelPrimitive]:
+                     attributes: list[np.ndarray] | None = None, transfer: str = "project"
+                     ) -> list[LevelPrimitive]:
     """One :class:`LevelPrimitive` per source primitive for a level taken from ``hier``.
 
     Parameters
@@ -310,6 +404,12 @@ def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | No
         With ``vertex_ids`` into ``hier``.
     data, attributes :
         :func:`primitive_data` and :func:`hierarchy_attributes`, when several levels share them.
+    transfer : {"project", "collapse"}
+        Attributes of vertices made by collapses: ``project`` (default)
+        interpolates the source corners at the closest point of the source
+        faces the vertex replaced (:func:`projected_attributes`);
+        ``collapse`` interpolates along the collapses
+        (:func:`hierarchy_attributes`).
 
     Notes
     -----
@@ -323,8 +423,12 @@ def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | No
     if level.vertex_ids is None:
         raise StepError(f"level '{level.label}' was not taken from a progressive hierarchy", field="levels",
                         fix="use a hierarchy decimator (quartic, mohr-gleicher, decoro-rusinkiewicz) for glTF LODs")
+    if transfer not in ("project", "collapse"):
+        raise StepError(f"unknown attribute transfer '{transfer}'", field="transfer", fix="use project or collapse")
     data = primitive_data(skin) if data is None else data
-    attributes = hierarchy_attributes(skin, hier, data) if attributes is None else attributes
+    if transfer == "collapse" and attributes is None:
+        attributes = hierarchy_attributes(skin, hier, data)
+    attributes = attributes if attributes is not None else [None] * len(data)
     m = hier.n_original
     ids = np.asarray(level.vertex_ids, np.int64)
     rep = level_representatives(hier, ids)
@@ -332,6 +436,7 @@ def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | No
     vmap = _vertex_map(skin)
     out = []
     for d, sl, (Fw, Ff), A in zip(data, skin.slices, welded_faces(skin, data), attributes):
+        Ff_all_slice = Ff
         R = rep[Fw]
         keep = (R >= 0).all(axis=1) & (R[:, 0] != R[:, 1]) & (R[:, 1] != R[:, 2]) & (R[:, 2] != R[:, 0])
         R, Ff = R[keep], Ff[keep]
@@ -354,7 +459,13 @@ def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | No
         X = np.empty((len(uniq), sum(w for _, w in cols)))
         if X.shape[1]:
             X[orig] = d.matrix()[local[orig]]
-            X[~orig] = A[hv[~orig]]
+            if transfer == "collapse":
+                X[~orig] = A[hv[~orig]]
+            else:
+                Y = projected_attributes(hier.V[hv[~orig]], hv[~orig], hier.V[:m], Fw, Ff_all_slice, rep,
+                                         d.matrix(), sl.start)
+                _normalise_blocks(Y, cols)
+                X[~orig] = Y
         if np.isnan(X).any():
             raise StepError(f"level '{level.label}': a vertex of primitive {d.index} has no attribute value",
                             field="levels", fix="report this file; simplify with seams locked")
@@ -416,3 +527,46 @@ def level_document(doc: GltfDocument, level: int) -> GltfDocument:
         if "skin" in src:
             nodes[i]["skin"] = src["skin"]
     return GltfDocument(doc.path, js, doc.buffers)
+
+
+def split_levels(path, outputs) -> None:
+    """Write each ``MSFT_lod`` level of a file as a file of its own (the level's meshes on the original nodes).
+
+    Parameters
+    ----------
+    path : path-like
+        A file written with ``lod: true``.
+    outputs : list of path-like
+        One per level, finest first (``len(outputs)`` levels are written).
+    """
+    from rigslim.io.gltf import load_gltf
+    from rigslim.io.gltf_write import write_pruned
+
+    doc = load_gltf(path)
+    lods = lod_nodes(doc.json)
+    level_ids = {j for ids in lods.values() for j in ids}
+    if len(outputs) > lod_level_count(doc.json):
+        raise StepError(f"{len(outputs)} outputs for {lod_level_count(doc.json)} levels", field="--split",
+                        fix="give one output per level")
+    first = min(level_ids) if level_ids else len(doc.json.get("nodes", []))
+    if any(j < first for j in level_ids) or len(doc.json["nodes"]) - first != len(level_ids):
+        raise StepError("the LOD nodes are not the last nodes of the document", field="MSFT_lod",
+                        fix="split files written by rigslim's glTF writer")
+    for level, out in enumerate(outputs, 1):
+        js = level_document(doc, level).json
+        js["nodes"] = js["nodes"][:first]
+        for node in js["nodes"]:
+            node.get("extensions", {}).pop("MSFT_lod", None)
+            if "extensions" in node and not node["extensions"]:
+                node.pop("extensions")
+            node.get("extras", {}).pop("MSFT_screencoverage", None)
+            if "extras" in node and not node["extras"]:
+                node.pop("extras")
+        for anim in js.get("animations", []):
+            anim["channels"] = [c for c in anim.get("channels", []) if c.get("target", {}).get("node", 0) < first]
+        used = js.get("extensionsUsed", [])
+        if "MSFT_lod" in used:
+            used.remove("MSFT_lod")
+            if not used:
+                js.pop("extensionsUsed")
+        write_pruned(out, doc, js)

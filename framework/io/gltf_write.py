@@ -878,3 +878,46 @@ def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.
     if clamp is not None:
         stats.update({"clamped_vertices": 0, "most_negative": 0.0} | clamp)
     return stats
+
+
+# --------------------------------------------------------------------------- pruned copies (one file per level)
+
+
+def write_pruned(path, doc, js: dict) -> None:
+    """Write ``js`` (a modified copy of ``doc.json``) without the meshes, accessors and bufferViews nothing uses.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.glb`` or ``.gltf``.
+    doc : GltfDocument
+        Where the bufferViews' bytes come from (``js`` uses its numbering).
+    js : dict
+        The document to write; changed in place (unused entries dropped, indices renumbered).
+    """
+    path = Path(path)
+    used_meshes = {n["mesh"] for n in js.get("nodes", []) if "mesh" in n}
+    drop = set(range(len(js.get("meshes", [])))) - used_meshes
+
+    def mesh_refs(j):
+        for n in j.get("nodes", []):
+            if "mesh" in n:
+                yield n, "mesh"
+
+    _drop(js, "meshes", drop, mesh_refs)
+    used = {c[k] for c, k in _accessor_refs(js)}
+    _drop(js, "accessors", set(range(len(js.get("accessors", [])))) - used, _accessor_refs)
+    used_views = {c[k] for c, k in _view_refs(js)}
+    old_views = list(range(len(js.get("bufferViews", []))))
+    keep = [i for i in old_views if i in used_views]
+    _drop(js, "bufferViews", set(old_views) - used_views, _view_refs)
+    blob = _Blob(js)
+    js["bufferViews"] = [blob.add_view(doc.buffer_view_bytes(i), template=view)
+                         for i, view in zip(keep, js.get("bufferViews", []))]
+    if not js["bufferViews"]:
+        js.pop("bufferViews")
+    data = blob.bytes()
+    js["buffers"] = [{"byteLength": len(data)}] if data else []
+    if not data:
+        js.pop("buffers")
+    _write_document(path, js, data)

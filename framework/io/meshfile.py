@@ -35,11 +35,19 @@ def read_mesh(path) -> Mesh:
                          fix="use one of " + ", ".join(MESH_SUFFIXES))
     import igl
 
-    try:
-        V, F = igl.read_triangle_mesh(str(path))
-    except Exception as e:  # libigl raises RuntimeError/ValueError with its own text
-        raise InputError(f"libigl could not read it ({e})", source=path, field="contents",
-                         fix="check that it is a valid triangle mesh") from None
+    from rigslim.native import native_stderr
+
+    with native_stderr() as said:
+        try:
+            V, F = igl.read_triangle_mesh(str(path))
+            failed = None
+        except Exception as e:  # libigl raises RuntimeError/ValueError with its own text
+            failed = e
+    if failed is not None:  # libigl's own diagnosis (printed to fd 2) is the useful part
+        reason = said.first_line() or str(failed).replace(str(path), "the file")
+        raise InputError(f"libigl could not read it ({reason})", source=path, field="contents",
+                         fix="check that it is a valid triangle mesh")
+    said.replay()
     if V.size == 0 or F.size == 0:
         raise InputError("no vertices or no triangles", source=path, field="contents",
                          fix="check that it is a valid, non-empty triangle mesh")
@@ -63,11 +71,19 @@ def read_medit_surface(path):
     _check_file(path)
     import igl
 
-    try:
-        VV, T, _ = igl.readMESH(str(path))
-    except Exception as e:
-        raise InputError(f"libigl could not read it ({e})", source=path, field="contents",
-                         fix="give a MEDIT .mesh file with Vertices and Tetrahedra") from None
+    from rigslim.native import native_stderr
+
+    with native_stderr() as said:
+        try:
+            VV, T, _ = igl.readMESH(str(path))
+            failed = None
+        except Exception as e:
+            failed = e
+    if failed is not None:
+        reason = said.first_line() or str(failed).replace(str(path), "the file")
+        raise InputError(f"libigl could not read it ({reason})", source=path, field="contents",
+                         fix="give a MEDIT .mesh file with Vertices and Tetrahedra")
+    said.replay()
     if T.size == 0:
         raise InputError("no tetrahedra", source=path, field="Tetrahedra",
                          fix="give a tetrahedral MEDIT mesh")

@@ -48,4 +48,32 @@ def read_tgf(path) -> Handles:
     if B.min() < 0 or B.max() >= len(joints):
         raise InputError(f"a bone refers to a joint outside 1..{len(joints)}", source=path, field="bones",
                          fix="repair the TGF file")
-    return Handles.skeleton(np.array(joints), B, source=str(path))
+    _check_forest(B, path)
+    J = np.array(joints)
+    if not np.isfinite(J).all():
+        raise InputError("joint positions contain NaN or inf", source=path, field="joints", fix="repair the TGF file")
+    return Handles.skeleton(J, B, source=str(path))
+
+
+def _check_forest(B: np.ndarray, path) -> None:
+    """Bones ``parent -> child`` (0-based joints) must form a forest: no self-loop, one parent per joint, no cycle."""
+    parent: dict[int, int] = {}
+    for i, (a, b) in enumerate(B.tolist()):
+        if a == b:
+            raise InputError(f"bone {i + 1} joins joint {a + 1} to itself", source=path, field=f"bones[{i + 1}]",
+                             fix="repair the TGF file (bones are 'parent child' pairs of different joints)")
+        if b in parent:
+            raise InputError(f"joint {b + 1} has two parents (joints {parent[b] + 1} and {a + 1})", source=path,
+                             field=f"bones[{i + 1}]", fix="repair the TGF file (the skeleton must be a tree)")
+        parent[b] = a
+    done: set[int] = set()
+    for start in parent:
+        chain, j = [], start
+        while j in parent and j not in done:
+            if j in chain:
+                cycle = chain[chain.index(j):]
+                raise InputError("the bones form a cycle through joints " + " -> ".join(str(c + 1) for c in cycle[:8]),
+                                 source=path, field="bones", fix="repair the TGF file (the skeleton must be a tree)")
+            chain.append(j)
+            j = parent[j]
+        done.update(chain)

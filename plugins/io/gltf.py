@@ -27,13 +27,14 @@ class GltfReader(Reader):
         normalize: bool = True
         weld: bool = True
         times: list[float] | None = None
+        allow_external_uris: bool = False
 
     def read(self, path, asset, params, ctx):
         from rigslim.io.gltf import read_gltf_skin
 
         skin = read_gltf_skin(path, animation=params.animation, fps=params.fps, mesh=params.mesh,
                               skin=params.skin, normalize=params.normalize, weld=params.weld,
-                              times=params.times)
+                              times=params.times, allow_external_uris=params.allow_external_uris)
         asset.mesh, asset.handles, asset.weights, asset.poses = skin.mesh, skin.handles, skin.weights, skin.poses
         asset.extras["gltf"] = skin
         clip = "rest pose only" if skin.animation is None else \

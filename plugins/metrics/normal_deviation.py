@@ -1,4 +1,22 @@
-"""Normal deviation ([P10] fig. 10): RMS angle between reduced and full normals."""
+"""Normal deviation ([P10] fig. 10): the angle between reduced and full normals, RMS and robust statistics.
+
+Per test frame and vertex, ``theta_v = atan2(|n_v x nhat_v|, n_v . nhat_v)``
+between the reduced deformation's normal ``n_v`` (the asset's normal
+estimator) and the area-weighted normal ``nhat_v`` of the full deformation.
+Per frame the metric reports
+
+- ``normal_rms_rad``: ``sqrt(mean_v theta_v^2)`` ([P10]'s measure);
+- ``normal_median_rad``, ``normal_p95_rad``, ``normal_p99_rad``: percentiles
+  of ``theta_v`` (linear interpolation, ``numpy.percentile``);
+- ``normal_flipped``: how many vertices turn by more than 90 degrees;
+- ``normal_area_rms_rad``: ``sqrt(sum_v A_v theta_v^2 / sum_v A_v)`` with the
+  rest mesh's Voronoi vertex areas ``A_v`` (the mass matrix diagonal).
+
+A few flipped normals can make the whole RMS (on a 2k-vertex character, 4
+flipped vertices were all of a 0.11 rad RMS while the median was 0), so the
+percentiles and the flipped count say whether an error is spread or local.
+Each is aggregated over frames as ``{"mean", "max", "per_frame"}``.
+"""
 
 from __future__ import annotations
 
@@ -7,22 +25,39 @@ import numpy as np
 from rigslim.plugin import Metric, aggregate
 
 
-def normal_rms_angle(N: np.ndarray, Nhat: np.ndarray) -> float:
-    """``sqrt(mean_v angle(n_v, nhat_v)^2)`` in radians, for unit normals.
-
-    The angle is ``atan2(|n x nhat|, n . nhat)``, accurate for small angles too.
-    """
+def normal_angles(N: np.ndarray, Nhat: np.ndarray) -> np.ndarray:
+    """Per-vertex angle (rad) ``atan2(|n x nhat|, n . nhat)`` between unit normals, accurate for small angles."""
     cross = np.linalg.norm(np.cross(N, Nhat), axis=1)
     dot = np.einsum("ij,ij->i", N, Nhat)
-    return float(np.sqrt(np.mean(np.arctan2(cross, dot) ** 2)))
+    return np.arctan2(cross, dot)
+
+
+def normal_rms_angle(N: np.ndarray, Nhat: np.ndarray) -> float:
+    """``sqrt(mean_v angle(n_v, nhat_v)^2)`` in radians, for unit normals."""
+    return float(np.sqrt(np.mean(normal_angles(N, Nhat) ** 2)))
+
+
+def normal_statistics(theta: np.ndarray, areas: np.ndarray | None = None) -> dict:
+    """RMS, median, 95th and 99th percentiles, count above 90 degrees and (with ``areas``)
+    the area-weighted RMS of per-vertex angles ``theta``."""
+    out = {"normal_rms_rad": float(np.sqrt(np.mean(theta ** 2))),
+           "normal_median_rad": float(np.percentile(theta, 50)),
+           "normal_p95_rad": float(np.percentile(theta, 95)),
+           "normal_p99_rad": float(np.percentile(theta, 99)),
+           "normal_flipped": int(np.count_nonzero(theta > 0.5 * np.pi))}
+    if areas is not None and areas.sum() > 0:
+        out["normal_area_rms_rad"] = float(np.sqrt(np.sum(areas * theta ** 2) / np.sum(areas)))
+    return out
 
 
 class NormalDeviation(Metric):
     name = "normal-deviation"
-    summary = ("RMS over vertices of the angle (rad) between the reduced deformation's normals "
-               "(asset's normal estimator) and area-weighted normals of the full deformation")
+    summary = ("angle (rad) between the reduced deformation's normals (asset's normal estimator) and "
+               "area-weighted normals of the full deformation: RMS, median, p95, p99, count > 90 deg, "
+               "area-weighted RMS")
 
     def compute(self, evaluation, params, ctx=None):
-        per_frame = [normal_rms_angle(evaluation.reduced_normals(j), evaluation.full_normals(j))
-                     for j in range(len(evaluation))]
-        return {"normal_rms_rad": aggregate(per_frame)}
+        areas = np.asarray(evaluation.mesh.massmatrix.diagonal(), dtype=np.float64)
+        frames = [normal_statistics(normal_angles(evaluation.reduced_normals(j), evaluation.full_normals(j)), areas)
+                  for j in range(len(evaluation))]
+        return {key: aggregate([f[key] for f in frames]) for key in frames[0]} if frames else {}

@@ -162,10 +162,10 @@ def cage_rest_positions(handles) -> np.ndarray:
 class ApproximateAffineNormals(NormalEstimator):
     name = "approximate-affine"
     summary = ("cages: normals moved by the inverse transpose of the w^2-weighted affine fit of each "
-               "vertex's handles, normalize(adj(X) P n) (numpy, opencl or opengl)")
+               "vertex's handles, normalize(adj(X) P n) (numpy, cpu, opencl or opengl)")
 
     class Params(Params):
-        #: Where to evaluate: numpy reference, the OpenCL kernel, or the GLSL vertex shader.
+        #: Where to evaluate: numpy reference, the compiled cpu kernel, the OpenCL kernel, or the GLSL vertex shader.
         backend: Backend = "numpy"
         #: OpenCL device spec (opencl backend only).
         device: str | None = None

@@ -1,7 +1,7 @@
 """Normal estimation on a deformer back end (OpenCL kernel or GLSL shader).
 
 The blended-matrix and approximate-affine estimators take ``backend:
-numpy | opencl | opengl``. For the GPU back ends the estimator binds the
+numpy | cpu | opencl | opengl``. For the compiled and GPU back ends the estimator binds the
 deformer of that back end with in-kernel normals once per (mesh, weights,
 handles) and reads the normals it computes beside the positions, so that an
 evaluation measures exactly what the kernel or shader produces.
@@ -13,7 +13,7 @@ from typing import Literal
 
 import numpy as np
 
-Backend = Literal["numpy", "opencl", "opengl"]
+Backend = Literal["numpy", "cpu", "opencl", "opengl"]
 
 _bound: dict = {}
 
@@ -30,6 +30,8 @@ def bound_deformer(backend: str, mode: str, mesh, weights, handles, device: str 
         from rigslim.plugins.deformers.opencl_deformer import OpenCLDeformer as cls
     elif backend == "opengl":
         from rigslim.plugins.deformers.opengl_deformer import OpenGLDeformer as cls
+    elif backend == "cpu":
+        from rigslim.plugins.deformers.cpu_deformer import CPUDeformer as cls
     else:
         from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer as cls
     deformer = cls()

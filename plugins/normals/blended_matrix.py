@@ -82,10 +82,10 @@ def normals_from_linear_parts(R: np.ndarray, N0: np.ndarray) -> np.ndarray:
 
 class BlendedMatrixNormals(NormalEstimator):
     name = "blended-matrix"
-    summary = "skeletons: rest normals times the inverse transpose of sum_l w_l R_l (numpy, opencl or opengl)"
+    summary = "skeletons: rest normals times the inverse transpose of sum_l w_l R_l (numpy, cpu, opencl or opengl)"
 
     class Params(Params):
-        #: Where to evaluate: numpy reference, the OpenCL kernel, or the GLSL vertex shader.
+        #: Where to evaluate: numpy reference, the compiled cpu kernel, the OpenCL kernel, or the GLSL vertex shader.
         backend: Backend = "numpy"
         #: OpenCL device spec (opencl backend only).
         device: str | None = None

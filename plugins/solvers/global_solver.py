@@ -172,6 +172,10 @@ def global_solve(prob, *, method: str = "direct", max_direct_unknowns: int | Non
     # The eliminated system N^T H N z = -N^T (H a_p + f), assembled blockwise in the
     # null-space coordinates (no (m k)^2 Hessian; rigslim.plugins.solvers.nullspace).
     system = nullspace_system(prob)
+    if system.unknowns == 0:  # k = 1 (or every slot fixed): the constraints alone give the weights
+        alpha = np.where(prob.valid, system.base, 0.0)
+        return alpha, dict(solver="direct", factorisation="none", energy=prob.energy(alpha), unknowns=0, nonzeros=0,
+                           kkt_residual=0.0, seconds=time.perf_counter() - t0)
     A = system.matrix().tocsr()
     z, backend = spd_solve(A, system.rhs)
     alpha = system.weights(z)

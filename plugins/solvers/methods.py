@@ -31,10 +31,11 @@ import time
 from typing import Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from rigslim.errors import StepError
 from rigslim.plugin import Params, WeightSolver
+from rigslim.plugins.solvers.auto_lambda import GRID, choose_position_weight
 from rigslim.plugins.solvers.global_solver import global_solve
 from rigslim.plugins.solvers.local_solver import feasible_start, kkt_residual, local_solve
 from rigslim.plugins.solvers.multilevel_solver import multilevel_solve
@@ -75,8 +76,25 @@ class LaplacianParams(ReductionParams):
 
 
 class PoissonParams(LaplacianParams):
-    position_weight: float = Field(0.0, ge=0, description="lambda: weight of the geometric (position) term; "
-                                                          "0 is the paper's Poisson method")
+    position_weight: float | Literal["auto"] = Field(
+        0.0, description="lambda: weight of the geometric (position) term; 0 is the paper's Poisson method; "
+                         "'auto' picks it on held-out example poses")
+    position_weight_grid: list[float] = Field(list(GRID), min_length=1, description="position_weight: auto "
+                                              "tries these lambdas")
+
+    @field_validator("position_weight")
+    @classmethod
+    def _nonnegative(cls, v):
+        if v != "auto" and v < 0:
+            raise ValueError("position_weight must be >= 0 or 'auto'")
+        return v
+
+    @field_validator("position_weight_grid")
+    @classmethod
+    def _grid(cls, v):
+        if any(x < 0 for x in v):
+            raise ValueError("every lambda of the grid must be >= 0")
+        return v
 
 
 def project_feasible(prob, target, start) -> np.ndarray:
@@ -186,4 +204,12 @@ class PoissonSolver(WeightSolver):
     Params = PoissonParams
 
     def solve(self, asset, params, ctx):
-        return reduce_weights(asset, "poisson", params, ctx)[0]
+        if params.position_weight != "auto":
+            return reduce_weights(asset, "poisson", params, ctx)[0]
+        asset.require("mesh", "handles", "weights", "influences", "poses", "split", step="solve: poisson")
+        lam, search = choose_position_weight(asset, params, params.position_weight_grid)
+        reduced, _ = reduce_weights(asset, "poisson", params.model_copy(update={"position_weight": lam}), ctx)
+        if ctx is not None and hasattr(ctx, "report"):
+            ctx.report["position_weight"] = lam
+            ctx.report["position_weight_auto"] = search
+        return reduced

@@ -1,0 +1,570 @@
+"""Per-vertex sparse fits of the example poses over all input influences (the ``best-fit`` kernel).
+
+For vertex v with input influences ``S_v`` (the stored entries of row v of the
+input weights ``A``), the basis of influence j in example pose p is
+``b_j^p = T_j^p [v; 1]`` and the full deformation is ``y^p = sum_j a_{v,j} b_j^p``.
+Stacking the p poses (D = 3p rows), the fit is
+
+    min_w  ||B_v w - y_v||^2   s.t.  w >= 0,  1^T w = 1,  w_j = 0 for j not in S_v
+
+([P10] eq. 3 over the whole input support instead of a fixed set). The input
+weights themselves reach zero error when they are non-negative, so the fit
+matters because of *which* optimum the method returns: the Lawson & Hanson
+active-set method (Lawson & Hanson, *Solving Least Squares Problems*, 1974,
+ch. 23), adapted to the sum-to-one row, starts from the single best influence
+and adds, one at a time, the influence whose bound multiplier
+``mu_j = g_j - g_F`` (``g = B^T (B w - y)``, ``g_F`` its common value on the
+free set) is most negative, so it stops at a *sparse* optimum.
+
+Two selections use it (``by``):
+
+- ``weight``: the k influences with the largest weights of that fit;
+- ``error``: greedy backward elimination from that fit's support: while more
+  than k influences remain, drop the one whose removal raises the error of the
+  (re-solved, warm-started) fit the least; influences the current fit gives
+  zero weight go first, at no cost. When the support has at most k
+  influences it is already the least-error set.
+
+Implementation: numba, parallel over vertices (``prange``); per vertex the
+basis is built from the pose transforms, the free-set systems are
+``(|F| + 1)``-square KKT solves. :func:`sparse_fit_reference` is the plain
+Python/numpy reference of the same iteration (tests check both agree).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+#: Ridge of the free-set Gram matrix, relative to its largest diagonal entry.
+RIDGE = 1e-12
+#: Bound multipliers above ``-MU_TOL * max_j |b_j|^2`` count as non-negative (KKT holds).
+MU_TOL = 1e-10
+
+
+@njit(cache=True)
+def _vertex_basis(v, T, cols):  # pragma: no cover - numba
+    """(n, 3p) rows ``b_j = [T_j^1 [v;1]; ...; T_j^p [v;1]]`` for handles ``cols``."""
+    p = T.shape[0]
+    n = cols.shape[0]
+    B = np.empty((n, 3 * p))
+    for a in range(n):
+        h = cols[a]
+        for q in range(p):
+            for c in range(3):
+                B[a, 3 * q + c] = (T[q, h, c, 0] * v[0] + T[q, h, c, 1] * v[1] + T[q, h, c, 2] * v[2]
+                                   + T[q, h, c, 3])
+    return B
+
+
+@njit(cache=True)
+def _solve_inplace(K, r, size):  # pragma: no cover - numba
+    """Gaussian elimination with partial pivoting on ``K[:size, :size] x = r[:size]``; x overwrites r."""
+    for c in range(size):
+        piv = c
+        big = abs(K[c, c])
+        for i in range(c + 1, size):
+            if abs(K[i, c]) > big:
+                big = abs(K[i, c])
+                piv = i
+        if piv != c:
+            for j in range(size):
+                t = K[c, j]
+                K[c, j] = K[piv, j]
+                K[piv, j] = t
+            t = r[c]
+            r[c] = r[piv]
+            r[piv] = t
+        if K[c, c] == 0.0:
+            K[c, c] = 1e-300
+        for i in range(c + 1, size):
+            f = K[i, c] / K[c, c]
+            if f != 0.0:
+                for j in range(c, size):
+                    K[i, j] -= f * K[c, j]
+                r[i] -= f * r[c]
+    for c in range(size - 1, -1, -1):
+        s = r[c]
+        for j in range(c + 1, size):
+            s -= K[c, j] * r[j]
+        r[c] = s / K[c, c]
+
+
+@njit(cache=True)
+def _inverse(K, size):  # pragma: no cover - numba
+    """Inverse of ``K[:size, :size]`` (Gauss-Jordan with partial pivoting; K is overwritten)."""
+    Kinv = np.eye(size)
+    for c in range(size):
+        piv = c
+        big = abs(K[c, c])
+        for i in range(c + 1, size):
+            if abs(K[i, c]) > big:
+                big = abs(K[i, c])
+                piv = i
+        if piv != c:
+            for j in range(size):
+                t = K[c, j]
+                K[c, j] = K[piv, j]
+                K[piv, j] = t
+                t = Kinv[c, j]
+                Kinv[c, j] = Kinv[piv, j]
+                Kinv[piv, j] = t
+        if K[c, c] == 0.0:
+            K[c, c] = 1e-300
+        d = 1.0 / K[c, c]
+        for j in range(size):
+            K[c, j] *= d
+            Kinv[c, j] *= d
+        for i in range(size):
+            if i != c and K[i, c] != 0.0:
+                f = K[i, c]
+                for j in range(size):
+                    K[i, j] -= f * K[c, j]
+                    Kinv[i, j] -= f * Kinv[c, j]
+    return Kinv
+
+
+@njit(cache=True)
+def _gradient(G, c, x, F, nf, g):  # pragma: no cover - numba
+    """``g = G x - c`` (half the gradient of the fit error; ``x`` is zero outside ``F[:nf]``)."""
+    n = G.shape[0]
+    for a in range(n):
+        s = -c[a]
+        for i in range(nf):
+            s += G[a, F[i]] * x[F[i]]
+        g[a] = s
+
+
+@njit(cache=True)
+def _error(G, c, yy, x, F, nf):  # pragma: no cover - numba
+    """``|B^T x - y|^2 = x^T G x - 2 c^T x + y^T y`` over the support ``F[:nf]``."""
+    e = yy
+    for i in range(nf):
+        fi = F[i]
+        e -= 2.0 * c[fi] * x[fi]
+        for j in range(nf):
+            e += x[fi] * G[fi, F[j]] * x[F[j]]
+    return max(e, 0.0)
+
+
+@njit(cache=True)
+def _settle(G, c, x, F, nf, infree, ridge, max_outer, K, z, entering):  # pragma: no cover - numba
+    """Inner loop of Lawson & Hanson: move ``x`` towards the sum-to-one minimiser on the free set
+    ``F[:nf]``, dropping variables that reach zero, until that minimiser is feasible.
+    Returns ``(nf, ok)``; ``ok`` is False when the ``entering`` variable (last of ``F``) was
+    rejected at once (round-off: it cannot lower the error) and has been removed again."""
+    for it in range(max_outer):
+        for i in range(nf):
+            for j in range(nf):
+                K[i, j] = G[F[i], F[j]]
+            K[i, i] += ridge
+            K[i, nf] = 1.0
+            K[nf, i] = 1.0
+            z[i] = c[F[i]]
+        K[nf, nf] = 0.0
+        z[nf] = 1.0
+        _solve_inplace(K, z, nf + 1)
+        if it == 0 and entering >= 0 and z[nf - 1] <= 0.0:
+            infree[entering] = False
+            return nf - 1, False
+        alpha = 1.0
+        for i in range(nf):
+            if z[i] <= 0.0:
+                xi = x[F[i]]
+                t = xi / (xi - z[i])
+                if t < alpha:
+                    alpha = t
+        for i in range(nf):
+            x[F[i]] += alpha * (z[i] - x[F[i]])
+        if alpha >= 1.0:
+            break
+        # Drop the variables that reached zero (keep the order of the rest).
+        keep = 0
+        for i in range(nf):
+            if x[F[i]] > 1e-15:
+                F[keep] = F[i]
+                keep += 1
+            else:
+                x[F[i]] = 0.0
+                infree[F[i]] = False
+        nf = keep
+    return nf, True
+
+
+@njit(cache=True)
+def _lawson_hanson(G, c, yy, allowed, x, F, nf, tol, ridge, max_outer, K, z, settle):  # pragma: no cover
+    """Sum-to-one NNLS ``min x^T G x - 2 c^T x`` over the ``allowed`` variables, from the feasible ``x``
+    whose free set is ``F[:nf]`` (``x`` and ``F`` are updated in place; ``K``, ``z`` are scratch).
+    ``settle``: first move to the minimiser on ``F`` (when ``x`` is not yet optimal there).
+    Returns ``(nf, squared error)``."""
+    n = G.shape[0]
+    g = np.empty(n)
+    infree = np.zeros(n, dtype=np.bool_)
+    for i in range(nf):
+        infree[F[i]] = True
+    if settle:
+        nf, _ = _settle(G, c, x, F, nf, infree, ridge, max_outer, K, z, -1)
+    for _ in range(max_outer):
+        _gradient(G, c, x, F, nf, g)
+        gF = 0.0
+        for i in range(nf):
+            gF += g[F[i]]
+        gF /= max(nf, 1)
+        best = -1
+        bestmu = -tol
+        for a in range(n):
+            if allowed[a] and not infree[a]:
+                mu = g[a] - gF
+                if mu < bestmu:
+                    bestmu = mu
+                    best = a
+        if best < 0:
+            break
+        F[nf] = best
+        infree[best] = True
+        nf, ok = _settle(G, c, x, F, nf + 1, infree, ridge, max_outer, K, z, best)
+        if not ok:
+            break
+    return nf, _error(G, c, yy, x, F, nf)
+
+
+@njit(cache=True)
+def _fit_vertex(B, avals, k, by_error, swaps):  # pragma: no cover - numba
+    """One vertex: fitted weights over its influences (n,), the selected set (n,) and the error."""
+    n = B.shape[0]
+    G = B @ B.T
+    c = G @ avals
+    yy = 0.0
+    scale = 1e-300
+    for a in range(n):
+        yy += avals[a] * c[a]
+        scale = max(scale, G[a, a])
+    tol = MU_TOL * scale
+    ridge = RIDGE * scale
+    max_outer = 3 * n + 10
+    K = np.empty((n + 1, n + 1))
+    K2 = np.empty((n + 1, n + 1))
+    z = np.empty(n + 1)
+    x = np.zeros(n)
+    F = np.zeros(n + 1, dtype=np.int64)
+    Fc = np.zeros(n + 1, dtype=np.int64)
+    allowed = np.ones(n, dtype=np.bool_)
+    # Start: the single influence of least error G_jj - 2 c_j + y^T y (lowest index on ties).
+    j0 = 0
+    for a in range(1, n):
+        if G[a, a] - 2.0 * c[a] < G[j0, j0] - 2.0 * c[j0]:
+            j0 = a
+    x[j0] = 1.0
+    F[0] = j0
+    nf, err = _lawson_hanson(G, c, yy, allowed, x, F, 1, tol, ridge, max_outer, K, z, False)
+    inset = x > 0.0
+    if not by_error:
+        return x, inset, err
+    # Backward elimination: drop the influence whose removal raises the fit error least.
+    ns = nf
+    if ns <= k:
+        return x, inset, err  # the least-error fit already uses at most k influences
+    while ns > k:
+        bestj = -1
+        for j in range(n):
+            if inset[j] and x[j] == 0.0:
+                bestj = j  # free: the fit does not use it
+                break
+        if bestj >= 0:
+            inset[bestj] = False
+            ns -= 1
+            continue
+        # Removing j from the free set P (= the set now) under the sum-to-one row alone raises the
+        # error by x_j^2 / (K^-1)_jj (K the KKT matrix on P), a lower bound of the non-negative
+        # fit's increase, exact when the downdated x stays >= 0. Candidates are tried by
+        # increasing bound until the bound exceeds the best exact increase found.
+        nf = 0
+        for a in range(n):
+            if inset[a]:
+                F[nf] = a
+                nf += 1
+        for i in range(nf):
+            for j in range(nf):
+                K[i, j] = G[F[i], F[j]]
+            K[i, i] += ridge
+            K[i, nf] = 1.0
+            K[nf, i] = 1.0
+        K[nf, nf] = 0.0
+        Kinv = _inverse(K, nf + 1)
+        bound = np.empty(nf)
+        for i in range(nf):
+            xi = x[F[i]]
+            bound[i] = xi * xi / max(Kinv[i, i], 1e-300)
+        order = np.argsort(bound)
+        beste = np.inf
+        bestx = x
+        for oi in range(nf):
+            i = order[oi]
+            if err + bound[i] >= beste:
+                break
+            j = F[i]
+            xc = x.copy()
+            f = x[j] / max(Kinv[i, i], 1e-300)
+            neg = False
+            for l in range(nf):
+                xc[F[l]] -= f * Kinv[l, i]
+                if l != i and xc[F[l]] < 0.0:
+                    neg = True
+            xc[j] = 0.0
+            if neg:
+                allowed[:] = inset
+                allowed[j] = False
+                xc[:] = x
+                xc[j] = 0.0
+                nfc = 0
+                for a in range(n):
+                    if xc[a] > 0.0:
+                        xc[a] /= 1.0 - x[j]
+                        Fc[nfc] = a
+                        nfc += 1
+                nfc, ec = _lawson_hanson(G, c, yy, allowed, xc, Fc, nfc, tol, ridge, max_outer, K2, z, True)
+            else:
+                ec = err + bound[i]
+            if ec < beste:
+                beste = ec
+                bestj = j
+                bestx = xc
+        inset[bestj] = False
+        ns -= 1
+        x = bestx
+        err = beste
+    # Exchange passes: the best swap of a member i for a non-member j that lowers the error.
+    g = np.empty(n)
+    for _ in range(swaps):
+        best_gain_e = err * (1.0 - 1e-9) - 1e-15 * yy
+        besti = -1
+        bestj = -1
+        bestx = x
+        for i in range(n):
+            if not inset[i]:
+                continue
+            allowed[:] = inset
+            allowed[i] = False
+            xi = x.copy()
+            nfi = 0
+            if x[i] < 1.0:
+                xi[i] = 0.0
+                for a in range(n):
+                    if xi[a] > 0.0:
+                        xi[a] /= 1.0 - x[i]
+                        Fc[nfi] = a
+                        nfi += 1
+            else:  # i carries everything: restart from the best other member
+                xi[i] = 0.0
+                j1 = -1
+                for a in range(n):
+                    if allowed[a] and (j1 < 0 or G[a, a] - 2.0 * c[a] < G[j1, j1] - 2.0 * c[j1]):
+                        j1 = a
+                if j1 < 0:
+                    continue
+                xi[j1] = 1.0
+                Fc[0] = j1
+                nfi = 1
+            nfi, _ = _lawson_hanson(G, c, yy, allowed, xi, Fc, nfi, tol, ridge, max_outer, K2, z, True)
+            _gradient(G, c, xi, Fc, nfi, g)
+            gF = 0.0
+            for l in range(nfi):
+                gF += g[Fc[l]]
+            gF /= max(nfi, 1)
+            for j in range(n):
+                if inset[j] or g[j] - gF >= -tol:
+                    continue
+                allowed[:] = inset
+                allowed[i] = False
+                allowed[j] = True
+                xc = xi.copy()
+                for l in range(nfi):
+                    F[l] = Fc[l]
+                nfc, ec = _lawson_hanson(G, c, yy, allowed, xc, F, nfi, tol, ridge, max_outer, K, z, False)
+                if ec < best_gain_e:
+                    best_gain_e = ec
+                    besti = i
+                    bestj = j
+                    bestx = xc
+        if besti < 0:
+            break
+        inset[besti] = False
+        inset[bestj] = True
+        x = bestx
+        err = best_gain_e
+    return x, inset, err
+
+
+@njit(parallel=True, cache=True)
+def _fit_all(V, T, indptr, indices, data, k, by_error, swaps, fit, member, errors):  # pragma: no cover - numba
+    m = V.shape[0]
+    for v in prange(m):
+        lo = indptr[v]
+        hi = indptr[v + 1]
+        if hi == lo:
+            continue
+        B = _vertex_basis(V[v], T, indices[lo:hi])
+        x, inset, e = _fit_vertex(B, data[lo:hi], k, by_error, swaps)
+        for a in range(hi - lo):
+            fit[lo + a] = x[a]
+            member[lo + a] = inset[a]
+        errors[v] = e
+
+
+def sparse_fit(V, T, A, k: int, by: str = "weight", swaps: int = 0):
+    """Sum-to-one NNLS fits of the example poses over each vertex's input influences.
+
+    Parameters
+    ----------
+    V : (m, 3) array
+        Rest positions.
+    T : (p, n, 3, 4) array
+        Example-pose handle transforms.
+    A : (m, n) csr_matrix
+        Input weights (sorted indices).
+    k : int
+    by : {"weight", "error"}
+        ``error``: backward elimination from the fit's support down to k influences.
+
+    Returns
+    -------
+    fit : (nnz,) array
+        Fitted weight of every stored entry of ``A`` (``by: error``: the fit on the final set).
+    member : (nnz,) bool array
+        ``by: error``: the final set (at most k per row); ``by: weight``: the fit's support.
+    errors : (m,) array
+        Squared example-pose error ``||B_v^T w - y_v||^2`` of that fit.
+    """
+    V = np.ascontiguousarray(V, dtype=np.float64)
+    T = np.ascontiguousarray(T, dtype=np.float64)
+    fit = np.zeros(A.nnz)
+    member = np.zeros(A.nnz, dtype=bool)
+    errors = np.zeros(V.shape[0])
+    _fit_all(V, T, A.indptr.astype(np.int64), A.indices.astype(np.int64), np.ascontiguousarray(A.data),
+             int(k), by == "error", int(swaps), fit, member, errors)
+    return fit, member, errors
+
+
+# --------------------------------------------------------------------------- numpy reference
+
+def _reference_error(G, c, yy, x):
+    return max(float(yy - 2.0 * c @ x + x @ G @ x), 0.0)
+
+
+def _reference_lh(G, c, yy, allowed, x, F, tol, ridge, settle=False):
+    """Python transcription of :func:`_lawson_hanson` (same order of operations)."""
+    F = list(F)
+    n = len(G)
+
+    def inner(F, entering):
+        for it in range(3 * n + 10):
+            nf = len(F)
+            K = np.zeros((nf + 1, nf + 1))
+            K[:nf, :nf] = G[np.ix_(F, F)] + ridge * np.eye(nf)
+            K[:nf, nf] = K[nf, :nf] = 1.0
+            z = np.linalg.solve(K, np.r_[c[F], 1.0])[:nf]
+            if it == 0 and entering and z[-1] <= 0.0:
+                return F[:-1], False
+            neg = z <= 0.0
+            alpha = min(1.0, float(np.min(x[F][neg] / (x[F][neg] - z[neg]), initial=1.0)))
+            x[F] += alpha * (z - x[F])
+            if alpha >= 1.0:
+                break
+            x[[j for j in F if x[j] <= 1e-15]] = 0.0
+            F = [j for j in F if x[j] > 1e-15]
+        return F, True
+
+    if settle:
+        F, _ = inner(F, False)
+    for _ in range(3 * n + 10):
+        g = G[:, F] @ x[F] - c
+        gF = g[F].mean()
+        mu = np.where(allowed & ~np.isin(np.arange(n), F), g - gF, np.inf)
+        best = int(np.argmin(mu))
+        if not mu[best] < -tol:
+            break
+        F, ok = inner(F + [best], True)
+        if not ok:
+            break
+    return x, F, max(float(yy - 2.0 * c @ x + x @ G @ x), 0.0)
+
+
+def sparse_fit_reference(V, T, A, k: int, by: str = "weight", swaps: int = 0):
+    """Numpy reference of :func:`sparse_fit` (a Python loop over vertices; for tests)."""
+    A = A.tocsr()
+    m = A.shape[0]
+    fit = np.zeros(A.nnz)
+    member = np.zeros(A.nnz, dtype=bool)
+    errors = np.zeros(m)
+    for v in range(m):
+        lo, hi = A.indptr[v], A.indptr[v + 1]
+        if hi == lo:
+            continue
+        cols = A.indices[lo:hi]
+        Tv = T[:, cols]                                            # (p, n, 3, 4)
+        B = (np.einsum("pncd,d->npc", Tv[..., :3], V[v]) + Tv[..., 3].transpose(1, 0, 2)).reshape(len(cols), -1)
+        G = B @ B.T
+        c = G @ A.data[lo:hi]
+        yy = float(A.data[lo:hi] @ c)
+        scale = max(float(G.diagonal().max()), 1e-300)
+        tol, ridge = MU_TOL * scale, RIDGE * scale
+        n = len(cols)
+        x = np.zeros(n)
+        j0 = int(np.argmin(G.diagonal() - 2.0 * c))
+        x[j0] = 1.0
+        x, F, e = _reference_lh(G, c, yy, np.ones(n, bool), x, [j0], tol, ridge)
+        x0 = x.copy()
+        inset = x > 0
+        while by == "error" and inset.sum() > k:
+            zero = np.flatnonzero(inset & (x == 0))
+            if zero.size:
+                inset[zero[0]] = False
+                continue
+            best = (np.inf, -1, None)
+            for j in np.flatnonzero(inset):
+                allowed = inset.copy()
+                allowed[j] = False
+                xc = x.copy()
+                xc[j] = 0.0
+                xc[xc > 0] /= 1.0 - x[j]
+                xc, _, ec = _reference_lh(G, c, yy, allowed, xc, list(np.flatnonzero(xc > 0)), tol, ridge, True)
+                if ec < best[0]:
+                    best = (ec, j, xc)
+            e, j, x = best
+            inset[j] = False
+        for _ in range(swaps if by == "error" and (int((x0 > 0).sum())) > k else 0):
+            best = (e * (1.0 - 1e-9) - 1e-15 * yy, -1, -1, None)
+            for i in np.flatnonzero(inset):
+                allowed = inset.copy()
+                allowed[i] = False
+                xi = x.copy()
+                if x[i] < 1.0:
+                    xi[i] = 0.0
+                    xi[xi > 0] /= 1.0 - x[i]
+                else:
+                    xi[i] = 0.0
+                    cand = np.flatnonzero(allowed)
+                    if not cand.size:
+                        continue
+                    xi[cand[np.argmin(G.diagonal()[cand] - 2.0 * c[cand])]] = 1.0
+                xi, Fi, _ = _reference_lh(G, c, yy, allowed, xi, list(np.flatnonzero(xi > 0)), tol, ridge, True)
+                g = G[:, Fi] @ xi[Fi] - c
+                gF = g[Fi].mean()
+                for j in range(n):
+                    if inset[j] or g[j] - gF >= -tol:
+                        continue
+                    allowed = inset.copy()
+                    allowed[i] = False
+                    allowed[j] = True
+                    xc, _, ec = _reference_lh(G, c, yy, allowed, xi.copy(), Fi, tol, ridge)
+                    if ec < best[0]:
+                        best = (ec, i, j, xc)
+            if best[1] < 0:
+                break
+            e, i, j, x = best
+            inset[i] = False
+            inset[j] = True
+        fit[lo:hi] = x
+        member[lo:hi] = inset
+        errors[v] = e
+    return fit, member, errors

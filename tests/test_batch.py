@@ -1,0 +1,309 @@
+"""``rigslim batch`` on a real Dask cluster (no mocks).
+
+One LocalCluster of 2 worker processes is started for the module (the same
+set-up ``rigslim batch`` makes, :func:`rigslim.batch.local_cluster`) and the
+batches reach it with ``--scheduler``; one test starts the command's own
+local cluster. The assets are the bundled small glTF characters (62 to 130
+vertices) so that every batch takes seconds.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("distributed")
+pyarrow = pytest.importorskip("pyarrow")
+
+from rigslim.batch import local_cluster  # noqa: E402
+from rigslim.cli import main  # noqa: E402
+
+GLTF = Path(__file__).resolve().parents[1] / "examples" / "data" / "gltf"
+
+TEMPLATE = """\
+name: "{name}-k2"
+inputs:
+  gltf: "{input}"
+  fps: 30
+poses:
+  examples: "0:10:2"
+  test: "1:10:2"
+steps:
+  - select: k-largest
+    k: 2
+  - solve: k-largest
+  - evaluate: [position-rms, normal-deviation, max-influences]
+  - write: "{name}-k2.glb"
+"""
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    with local_cluster(workers=2, threads_per_worker=1, dashboard=False) as (c, _):
+        yield c
+
+
+@pytest.fixture(scope="module")
+def client(cluster):
+    from distributed import Client
+
+    with Client(cluster) as cl:
+        yield cl
+
+
+@pytest.fixture
+def library(tmp_path):
+    """8 assets: 7 small characters (huesitos variants and RiggedFigure with its .bin) and a corrupt .glb."""
+    lib = tmp_path / "lib"
+    lib.mkdir()
+    for i in range(6):
+        shutil.copy(GLTF / "huesitos.glb", lib / f"bones{i}.glb")
+    shutil.copytree(GLTF / "RiggedFigure", lib / "figure")
+    data = (GLTF / "huesitos.glb").read_bytes()
+    (lib / "broken.glb").write_bytes(data[: len(data) // 3])  # a truncated download
+    template = tmp_path / "template.yaml"
+    template.write_text(TEMPLATE)
+    return lib, template
+
+
+def _batch(template, assets, out, cluster, *extra):
+    return main(["batch", str(template), *map(str, assets), "--out", str(out), "--scheduler",
+                 cluster.scheduler_address, "-q", *extra])
+
+
+def _rows(out: Path) -> dict[str, dict]:
+    with open(out / "summary.csv", newline="") as fh:
+        return {r["name"]: r for r in csv.DictReader(fh)}
+
+
+def test_corrupt_asset_fails_alone_and_rerun_skips(library, tmp_path, cluster, capsys):
+    lib, template = library
+    out = tmp_path / "out"
+    assert _batch(template, [lib], out, cluster) == 1
+    rows = _rows(out)
+    assert len(rows) == 8
+    assert {n for n, r in rows.items() if r["status"] == "ok"} == {f"bones{i}" for i in range(6)} | {"RiggedFigure"}
+    broken = rows["broken"]
+    assert broken["status"] == "failed"
+    # the same line `rigslim run` prints for this asset's pipeline
+    capsys.readouterr()
+    assert main(["run", str(out / "broken" / "pipeline.yaml"), "-q"]) == 2
+    assert broken["error"] == capsys.readouterr().err.strip()
+    assert broken["error"].startswith("rigslim: error: ") and "broken.glb" in broken["error"]
+    for name, r in rows.items():
+        if r["status"] != "ok":
+            continue
+        folder = out / name
+        assert (folder / f"{name}-k2.glb").stat().st_size > 0
+        assert json.loads((folder / "metrics.json").read_text())["evaluations"]
+        assert (folder / "record.json").is_file()
+        assert int(r["vertices"]) > 0 and int(r["faces"]) > 0 and int(r["joints"]) > 1
+        assert int(r["input_influences"]) == 4 and int(r["output_influences"]) == 2
+        assert float(r["position_rms_pct_mean"]) >= 0 and float(r["seconds"]) > 0
+        assert r["worker"].startswith("tcp://") and float(r["peak_memory_mb"]) > 0
+    assert not (out / "broken" / "record.json").exists()
+    assert len({r["worker"] for r in rows.values()}) == 2  # both workers took assets
+    # parquet and json carry the same rows
+    table = pyarrow.parquet.read_table(out / "summary.parquet").to_pylist()
+    doc = json.loads((out / "summary.json").read_text())
+    assert [r["name"] for r in table] == [r["name"] for r in doc["rows"]] == list(rows)
+    assert doc["counts"] == {"ok": 7, "skipped": 0, "failed": 1}
+    for t, d in zip(table, doc["rows"]):
+        assert t["status"] == d["status"] and t["position_rms_pct_max"] == d["position_rms_pct_max"]
+
+    # rerun: every good asset is skipped (outputs untouched), the corrupt one fails again
+    mtimes = {n: (out / n / f"{n}-k2.glb").stat().st_mtime_ns for n in rows if n != "broken"}
+    assert _batch(template, [lib], out, cluster) == 1
+    again = _rows(out)
+    assert {n for n, r in again.items() if r["status"] == "skipped"} == set(mtimes)
+    assert again["broken"]["status"] == "failed"
+    assert {n: (out / n / f"{n}-k2.glb").stat().st_mtime_ns for n in mtimes} == mtimes
+    assert again["bones0"]["position_rms_pct_mean"] == rows["bones0"]["position_rms_pct_mean"]
+
+    # a changed input reruns that asset only; --force reruns all
+    (lib / "bones3.glb").write_bytes((GLTF / "huesitos.glb").read_bytes() + b"\0\0\0\0")
+    (lib / "broken.glb").unlink()
+    assert _batch(template, [lib], out, cluster) == 0
+    third = _rows(out)
+    assert third["bones3"]["status"] == "ok" and third["bones0"]["status"] == "skipped"
+    assert _batch(template, [lib], out, cluster, "--force") == 0
+    assert {r["status"] for r in _rows(out).values()} == {"ok"}
+
+
+def _kill_once_while_writing(marker, name):
+    """Worker-side hook: SIGKILL this worker when it has staged ``name``'s output, once (marker file)."""
+    import signal
+
+    import rigslim.io.atomic as atomic
+
+    def hook(tmp, target):
+        if Path(target).name == name and not os.path.exists(marker):
+            Path(marker).write_text(str(os.getpid()))
+            os.kill(os.getpid(), signal.SIGKILL)
+
+    atomic.on_staged = hook
+
+
+def _remove_hook():
+    import rigslim.io.atomic as atomic
+
+    atomic.on_staged = None
+
+
+def test_killed_worker_is_retried_and_leaves_no_partial_output(library, tmp_path, cluster, client):
+    lib, template = library
+    (lib / "broken.glb").unlink()
+    out = tmp_path / "out"
+    marker = tmp_path / "killed"
+    client.run(_kill_once_while_writing, str(marker), "bones2-k2.glb")
+    try:
+        assert _batch(template, [lib], out, cluster, "--retries", "1") == 0
+    finally:
+        client.run(_remove_hook)
+    assert marker.is_file()  # a worker really was killed, holding bones2 with its output staged
+    rows = _rows(out)
+    assert rows["bones2"]["status"] == "ok" and rows["bones2"]["attempts"] == "2"
+    assert all(r["attempts"] == "1" for n, r in rows.items() if n != "bones2")
+    folder = out / "bones2"
+    assert sorted(p.name for p in folder.iterdir()) == ["bones2-k2.glb", "metrics.json", "pipeline.yaml",
+                                                        "record.json"]
+    assert (folder / "bones2-k2.glb").read_bytes()[:4] == b"glTF"
+    client.wait_for_workers(2, timeout=60)  # the nanny restarted the killed worker
+
+
+def test_worker_deaths_past_retries_fail_with_the_reason(library, tmp_path, cluster, client):
+    lib, template = library
+    out = tmp_path / "out"
+    marker = tmp_path / "killed"
+    client.run(_kill_once_while_writing, str(marker), "bones1-k2.glb")
+    try:
+        assert _batch(template, [lib / "bones1.glb", lib / "bones4.glb"], out, cluster, "--retries", "0") == 1
+    finally:
+        client.run(_remove_hook)
+    rows = _rows(out)
+    assert rows["bones4"]["status"] == "ok"
+    assert rows["bones1"]["status"] == "failed" and "died" in rows["bones1"]["error"]
+    assert "--retries 0" in rows["bones1"]["error"]
+    assert not any(p.name.startswith(".") or p.name == "record.json" for p in (out / "bones1").iterdir())
+    assert not (out / "bones1" / "bones1-k2.glb").exists()
+    client.wait_for_workers(2, timeout=60)
+
+
+def _sleep_in_python(name):
+    import time
+
+    import rigslim.io.atomic as atomic
+
+    def hook(tmp, target):
+        if Path(target).name == name:
+            for _ in range(6000):  # 60 s in small sleeps: the deadline's exception lands between them
+                time.sleep(0.01)
+
+    atomic.on_staged = hook
+
+
+def test_timeout_fails_the_asset(library, tmp_path, cluster, client):
+    lib, template = library
+    out = tmp_path / "out"
+    client.run(_sleep_in_python, "bones5-k2.glb")
+    try:
+        code = _batch(template, [lib / "bones5.glb", lib / "bones0.glb"], out, cluster, "--timeout", "3")
+    finally:
+        client.run(_remove_hook)
+    assert code == 1
+    rows = _rows(out)
+    assert rows["bones0"]["status"] == "ok"
+    assert rows["bones5"]["status"] == "failed" and rows["bones5"]["error"] == "timed out after 3 s (--timeout)"
+    assert not (out / "bones5" / "bones5-k2.glb").exists() and not (out / "bones5" / "record.json").exists()
+
+
+def test_manifest_overrides(library, tmp_path, cluster):
+    lib, template = library
+    manifest = tmp_path / "assets.csv"
+    manifest.write_text("asset,name,k,inputs.fps\n"
+                        "lib/bones0.glb,one,1,\n"
+                        "lib/bones1.glb,three,3,\n"
+                        "lib/bones2.glb,default,,\n"
+                        "lib/figure/RiggedFigure.gltf,figure,3,24\n")
+    out = tmp_path / "out"
+    assert _batch(template, [manifest], out, cluster) == 0
+    rows = _rows(out)
+    assert {n: int(r["output_influences"]) for n, r in rows.items()} == {"one": 1, "three": 3, "default": 2,
+                                                                          "figure": 3}
+    assert rows["one"]["asset"] == str(lib / "bones0.glb")
+    assert (out / "three" / "three-k2.glb").is_file()  # {name} is the manifest's name
+    figure = (out / "figure" / "pipeline.yaml").read_text()
+    assert "fps: 24" in figure and "k: 3" in figure
+    # a changed override reruns only that asset
+    manifest.write_text(manifest.read_text().replace("lib/bones1.glb,three,3,", "lib/bones1.glb,three,4,"))
+    assert _batch(template, [manifest], out, cluster) == 0
+    rows = _rows(out)
+    assert rows["three"]["status"] == "ok" and int(rows["three"]["output_influences"]) == 4
+    assert {rows[n]["status"] for n in ("one", "default", "figure")} == {"skipped"}
+
+
+def test_summary_metrics_equal_rigslim_run(library, tmp_path, cluster):
+    lib, template = library
+    out = tmp_path / "out"
+    assert _batch(template, [lib / "figure", lib / "bones0.glb"], out, cluster) == 0
+    summary = {r["name"]: r for r in json.loads((out / "summary.json").read_text())["rows"]}
+    csv_rows = _rows(out)
+    for name in ("RiggedFigure", "bones0"):
+        metrics = tmp_path / f"{name}.json"
+        assert main(["run", str(out / name / "pipeline.yaml"), "--metrics", str(metrics), "-q"]) == 0
+        doc = json.loads(metrics.read_text())
+        (ev,) = doc["evaluations"]
+        checked = 0
+        for key, value in ev["metrics"].items():
+            if isinstance(value, dict):
+                for stat in ("mean", "max"):
+                    assert summary[name][f"{key}_{stat}"] == value[stat]
+                    assert float(csv_rows[name][f"{key}_{stat}"]) == value[stat]
+                    checked += 1
+            else:
+                assert summary[name][key] == value
+        assert checked >= 4
+        assert summary[name]["vertices"] == doc["mesh"]["vertices"]
+        assert summary[name]["joints"] == doc["handles"]["count"]
+
+
+def test_bad_template_or_arguments_exit_2(library, tmp_path, capsys):
+    lib, template = library
+    out = tmp_path / "out"
+    no_input = tmp_path / "fixed.yaml"
+    no_input.write_text(TEMPLATE.replace("{input}", str(lib / "bones0.glb")))
+    bad_plugin = tmp_path / "bad.yaml"
+    bad_plugin.write_text(TEMPLATE.replace("solve: k-largest", "solve: k-larges"))
+    manifest = tmp_path / "m.csv"
+    manifest.write_text("asset,kk\nlib/bones0.glb,3\n")
+    cases = [
+        ([str(no_input), str(lib)], "never uses {input}"),
+        ([str(bad_plugin), str(lib)], "did you mean 'k-largest'"),
+        ([str(template), str(manifest)], "column 'kk' sets nothing"),
+        ([str(template), str(lib), "--workers", "0"], "--workers"),
+        ([str(template), str(tmp_path / "empty-dir-missing.csv")], "manifest not found"),
+    ]
+    for argv, text in cases:
+        assert main(["batch", *argv, "--out", str(out), "-q"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("rigslim: error: ") and text in err and "\n" not in err
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_command_starts_its_own_local_cluster(library, tmp_path, capsys):
+    lib, template = library
+    out = tmp_path / "out"
+    code = main(["batch", str(template), str(lib / "bones0.glb"), str(lib / "figure"), "--out", str(out),
+                 "--workers", "1", "--no-dashboard"])
+    assert code == 0
+    rows = _rows(out)
+    assert {r["status"] for r in rows.values()} == {"ok"}
+    cores = len(os.sched_getaffinity(0))
+    assert {int(r["threads"]) for r in rows.values()} == {cores}  # 1 worker x 1 thread: all cores to BLAS
+    captured = capsys.readouterr()
+    assert "2 assets" in captured.out and "2 ok" in captured.out

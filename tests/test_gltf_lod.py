@@ -1,0 +1,180 @@
+"""Per-primitive glTF levels of detail (rigslim.io.gltf_lod): seams, attributes along collapses, backends."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rigslim.io.gltf import read_gltf_skin
+from rigslim.io.gltf_lod import (collapse_parameters, hierarchy_attributes, input_weights_normalized,
+                                 level_primitives, level_representatives, primitive_data, seam_vertices)
+
+GLTF = Path(__file__).resolve().parents[1] / "examples" / "data" / "gltf"
+TUBE = GLTF / "tube_two_materials.glb"
+
+
+@pytest.fixture(scope="module")
+def tube():
+    return read_gltf_skin(TUBE, weld=True, fps=10)
+
+
+def _decimate(skin, backend="numba", lock=True, targets=(0.5, 0.25)):
+    from rigslim.asset import Asset
+    from rigslim.host import get_host
+    from rigslim.plugin import StepContext
+    from rigslim.poses import FrameSplit
+
+    asset = Asset(mesh=skin.mesh, handles=skin.handles, weights=skin.weights, poses=skin.poses,
+                  split=FrameSplit.from_specs(f"0:{len(skin.poses)}:2", f"1:{len(skin.poses)}:2", len(skin.poses)))
+    asset.extras["gltf"] = skin
+    plugin = get_host().get("articulated-decimation", "quartic")
+    ctx = StepContext()
+    plugin.apply(asset, plugin.parse_params({"targets": list(targets), "max_bones": 4, "backend": backend,
+                                                "lock_seams": lock}), ctx)
+    return asset.hierarchy, asset.levels, ctx.report
+
+
+def test_seams_are_the_uv_seam_and_the_material_boundaries(tube):
+    locked = seam_vertices(tube)
+    V = tube.mesh.V
+    theta = np.mod(np.arctan2(V[:, 2], V[:, 0]), 2 * np.pi)
+    on_u_seam = np.isclose(theta, 0, atol=1e-6) | np.isclose(theta, 2 * np.pi, atol=1e-6)
+    on_ring_12 = np.isclose(V[:, 1], 1.0)                              # Legs mesh | Torso mesh
+    front_back = np.isclose(theta, np.pi, atol=1e-6) & (V[:, 1] >= 1.0 - 1e-9)   # Skin | Cloth primitives
+    expected = on_u_seam | on_ring_12 | front_back
+    assert np.array_equal(locked, expected)
+
+
+def test_locked_vertices_never_move(tube):
+    hier, levels, report = _decimate(tube)
+    locked = np.flatnonzero(seam_vertices(tube))
+    assert report["locked_seam_vertices"] == len(locked)
+    touched = np.isin(hier.collapses, locked)
+    assert not touched.any()
+    for level in levels:
+        rep = level_representatives(hier, level.vertex_ids)
+        assert np.array_equal(rep[locked], locked)
+
+
+def test_backends_agree_with_locked_vertices(elephant, monkeypatch):
+    """The numpy reference and the compiled loop make the same collapses when vertices are locked.
+
+    On a real piece of the elephant (as tests/test_decimation_compiled.py; the glTF samples are mirror
+    symmetric, so equal costs would tie-break by heap order), with a random fifth of the vertices locked.
+    """
+    import scipy.sparse as sp
+
+    import rigslim.plugins.decimation.articulated as articulated
+    from rigslim.asset import Asset
+    from rigslim.mesh import Mesh
+
+    V, F = elephant.mesh.V, elephant.mesh.F                 # the 900 faces nearest the busiest vertex
+    W = elephant.weights.toarray()
+    c = V[int(np.argmax((W > 0).sum(axis=1)))]
+    far = np.linalg.norm(V - c, axis=1)[F].max(axis=1)
+    Fk = F[far <= np.sort(far)[900]]
+    used = np.unique(Fk)
+    remap = np.full(len(V), -1)
+    remap[used] = np.arange(len(used))
+    piece = Asset(mesh=Mesh(V[used], remap[Fk]), weights=sp.csr_matrix(W[used]), poses=elephant.poses,
+                  split=elephant.split)
+    locked = np.random.default_rng(3).random(piece.mesh.n_vertices) < 0.2
+    monkeypatch.setattr(articulated, "seam_lock", lambda asset: locked)
+    from rigslim.host import get_host
+    from rigslim.plugin import StepContext
+
+    plugin = get_host().get("articulated-decimation", "quartic")
+    hs = []
+    for backend in ("numpy", "numba"):
+        piece.extras.clear()
+        ctx = StepContext()
+        plugin.apply(piece, plugin.parse_params({"backend": backend, "min_faces": 100, "max_bones": 4}), ctx)
+        assert ctx.report["locked_seam_vertices"] == int(locked.sum())
+        hs.append(piece.hierarchy)
+    assert hs[0].n_collapses > 200
+    np.testing.assert_array_equal(hs[0].collapses, hs[1].collapses)
+    assert not np.isin(hs[0].collapses, np.flatnonzero(locked)).any()
+
+
+def test_attributes_interpolate_along_collapses(tube):
+    """x_c = (1 - t) x_a + t x_b with t the projection of v_c onto the edge, recursively; normals unit."""
+    hier, levels, _ = _decimate(tube)
+    data = primitive_data(tube)
+    A = hierarchy_attributes(tube, hier, data)
+    t = collapse_parameters(hier)
+    m = hier.n_original
+    cols = data[0].columns()
+    assert [k for k, _ in cols] == ["NORMAL", "TEXCOORD_0"]
+    for i in range(0, hier.n_collapses, 37):
+        a, b = hier.collapses[i]
+        p = A[0]                                 # the legs primitive
+        if np.isnan(p[a]).any() or np.isnan(p[b]).any():
+            continue
+        uv = (1 - t[i]) * p[a, 3:5] + t[i] * p[b, 3:5]
+        assert np.allclose(p[m + i, 3:5], uv)
+        assert np.isclose(np.linalg.norm(p[m + i, :3]), 1.0)
+        e = hier.V[b] - hier.V[a]
+        assert np.isclose(t[i], np.clip((hier.V[m + i] - hier.V[a]) @ e / (e @ e), 0, 1))
+
+
+def test_level_uvs_follow_the_surface(tube):
+    """On the tube, u = angle / 2 pi and v = 1 - y / 2: the level's interpolated UVs stay close to that."""
+    hier, levels, _ = _decimate(tube)
+    for level in levels:
+        for part in level_primitives(tube, hier, level):
+            P, uv = part.positions, part.attributes["TEXCOORD_0"]
+            assert np.abs(uv[:, 1] - (1 - P[:, 1] / 2)).max() < 0.02
+            ang = np.mod(np.arctan2(P[:, 2], P[:, 0]), 2 * np.pi) / (2 * np.pi)
+            du = np.abs(uv[:, 0] - ang)
+            du = np.minimum(du, 1 - du)                  # the seam: u = 0 and u = 1 at one position
+            assert du.max() < 0.03
+            assert part.faces.max() < len(P) and len(part.weight_rows) == len(P)
+
+
+def test_level_faces_partition_the_level(tube):
+    hier, levels, _ = _decimate(tube)
+    for level in levels:
+        parts = level_primitives(tube, hier, level)
+        assert sum(len(p.faces) for p in parts) == level.n_faces
+        assert [p.slice_index for p in parts] == [0, 1, 2]
+
+
+def test_input_weights_normalized(tmp_path):
+    assert not input_weights_normalized(read_gltf_skin(GLTF / "animation_with_skeleton.glb"))
+    assert not input_weights_normalized(read_gltf_skin(TUBE))
+    assert input_weights_normalized(read_gltf_skin(GLTF / "simple_skin.gltf"))
+
+
+def test_closest_point_barycentric_matches_libigl():
+    """Every Voronoi region (vertices, edges, face) against igl.point_mesh_squared_distance, one triangle each."""
+    import igl
+
+    from rigslim.io.gltf_lod import closest_point_barycentric
+
+    rng = np.random.default_rng(5)
+    T = rng.normal(size=(300, 3, 3))
+    p = rng.normal(size=(300, 3)) * 1.5
+    bary = closest_point_barycentric(p, T[:, 0], T[:, 1], T[:, 2])
+    assert (bary >= -1e-12).all() and np.allclose(bary.sum(axis=1), 1)
+    mine = np.einsum("qk,qkc->qc", bary, T)
+    for i in range(len(p)):
+        d2, _, C = igl.point_mesh_squared_distance(p[i:i + 1], T[i], np.array([[0, 1, 2]]))
+        assert np.allclose(mine[i], C[0], atol=1e-9)
+
+
+@pytest.mark.parametrize("transfer, tol_v, tol_u", [("project", 0.01, 0.01), ("collapse", 0.05, 0.05)])
+def test_transfers_against_the_tube_parametrisation(tube, transfer, tol_v, tol_u):
+    """Projection onto the replaced source faces follows u = angle / 2 pi, v = 1 - y / 2 closely; the
+    interpolation along collapses less so (the quartic optimum slides off the collapsed edges)."""
+    hier, levels, _ = _decimate(tube)
+    worst = 0.0
+    for level in levels:
+        for part in level_primitives(tube, hier, level, transfer=transfer):
+            P, uv = part.positions, part.attributes["TEXCOORD_0"]
+            ang = np.mod(np.arctan2(P[:, 2], P[:, 0]), 2 * np.pi) / (2 * np.pi)
+            du = np.abs(uv[:, 0] - ang)
+            worst = max(worst, np.abs(uv[:, 1] - (1 - P[:, 1] / 2)).max() / tol_v,
+                        np.minimum(du, 1 - du).max() / tol_u)
+    assert worst < 1.0
