@@ -81,7 +81,7 @@ def bench_mvc(log) -> list[dict]:
 
 
 def bench_cheb(log) -> list[dict]:
-    from rigslim.cage import build_cage, enclosure
+    from rigslim.plugins.generators.cage import build_cage, enclosure
     from rigslim.io import read_mesh, read_tgf
     from rigslim.plugins.generators.bone_heat import bone_heat_weights
     from rigslim.plugins.generators.harmonic import harmonic_coordinates

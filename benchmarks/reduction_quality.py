@@ -40,7 +40,7 @@ VALIDATION = "2:457:7"
 def frame_errors(asset, reduced, frames):
     """Per-frame (position % of diagonal, normal rad) on the given frame numbers."""
     from rigslim.blend import linear_blend, per_vertex_normals
-    from rigslim.plugins.metrics.normal_deviation import normal_rms_angle
+    from rigslim.numerics.normal_error import normal_rms_angle
 
     V, F = asset.mesh.V, asset.mesh.F
     diag = asset.mesh.bbox_diagonal

@@ -115,7 +115,7 @@ def run_method(asset, method: str, min_faces: int, max_bones, test_stride: int, 
     from rigslim.evaluation import Evaluation
     from rigslim.host import get_host
     from rigslim.plugin import StepContext
-    from rigslim.plugins.metrics.metro import metro_distance
+    from rigslim.numerics.surface_distance import metro_distance
 
     host = get_host()
     plugin = host.get("articulated-decimation", method)
@@ -173,7 +173,7 @@ def gltfpack_comparison(gltfpack: str, samples: int, ratios=(0.1, 0.02)):
     from rigslim.plugin import StepContext
     from rigslim.plugins.decimation.articulated import limited_weights
     from rigslim.plugins.decimation.static_qslim import nearest_vertex_weights
-    from rigslim.plugins.metrics.metro import metro_distance
+    from rigslim.numerics.surface_distance import metro_distance
 
     asset = elephant(0)
     W4 = limited_weights(asset.weights, 4)

@@ -83,8 +83,8 @@ def per_vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     """Area-weighted unit vertex normals (as ``igl.per_vertex_normals``, AREA weighting, to rounding).
 
     Applies the face->vertex operator of F, built once per face array
-    (:mod:`rigslim.plugins.normals.area_weighted`).
+    (:mod:`rigslim.numerics.area_weighted_normals`).
     """
-    from rigslim.plugins.normals.area_weighted import area_weighted_normals
+    from rigslim.numerics.area_weighted_normals import area_weighted_normals
 
     return area_weighted_normals(V, F)

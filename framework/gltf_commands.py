@@ -124,15 +124,6 @@ def _header(command: str) -> dict:
             "rigslim_version": rigslim.__version__}
 
 
-def _validate_if_available(paths) -> dict | None:
-    """Khronos validator error counts of written files, when the validator is installed (else None)."""
-    try:
-        from rigslim.io.gltf_validator import validate_gltf, validation_errors
-        return {str(p): len(validation_errors(validate_gltf(p))) for p in paths}
-    except Exception:      # validator not installed (node/npm missing): the report says so
-        return None
-
-
 # --------------------------------------------------------------------------- reduce
 
 
@@ -330,12 +321,12 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
 
     Notes
     -----
-    Per frame j, :func:`rigslim.plugins.metrics.metro.metro_distance` gives
+    Per frame j, :func:`rigslim.numerics.surface_distance.metro_distance` gives
     the two-sided sampled RMS ``r_j`` and max ``h_j``; the results are
     ``mean_j r_j`` and ``max_j h_j``.
     """
     from rigslim.blend import per_vertex_normals
-    from rigslim.plugins.metrics.metro import metro_distance
+    from rigslim.numerics.surface_distance import metro_distance
 
     count, clip_name, _ = clip_frames(ref, clip, fps)
     chosen = parse_frames_spec(frames, count)

@@ -208,7 +208,7 @@ def test_quartic_beats_baselines_on_test_poses(asset):
     """On a bending tube, the optimised vertices deform closer to the original on unseen poses (Metro RMS)."""
     pytest.importorskip("pymeshlab")
     from rigslim.blend import linear_blend
-    from rigslim.plugins.metrics.metro import metro_distance
+    from rigslim.numerics.surface_distance import metro_distance
 
     def test_error(method):
         _, levels = decimate(asset, method, targets=[120])
@@ -239,7 +239,7 @@ def test_endpoint_candidates_never_cost_more_than_mohr_gleicher(asset):
     """With endpoint candidates, every edge's quartic cost is at most Mohr-Gleicher's on the same quadrics."""
     from rigslim.plugins.decimation.collapse import SimplifyState
     from rigslim.plugins.decimation.models import MohrGleicherModel, QuarticModel
-    from rigslim.quadrics import per_pose_quadrics
+    from rigslim.plugins.decimation.quadrics import per_pose_quadrics
 
     T = asset.example_poses().T
     Q, X = per_pose_quadrics(asset.mesh.V, asset.mesh.F, asset.weights, T)

@@ -13,7 +13,7 @@ from rigslim.mesh import Mesh
 from rigslim.plugin import StepContext
 from rigslim.plugins.decimation.collapse import SimplifyState
 from rigslim.plugins.decimation.models import DeCoroModel, MohrGleicherModel, QuarticModel
-from rigslim.quadrics import per_pose_quadrics
+from rigslim.plugins.decimation.quadrics import per_pose_quadrics
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Per-pose quadrics and the alternating quartic solves (rigslim.quadrics)."""
+"""Per-pose quadrics and the alternating quartic solves (rigslim.plugins.decimation.quadrics)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 import scipy.sparse as sp
 
 from rigslim.mesh import Mesh
-from rigslim.quadrics import (alternate, bone_limit, per_pose_quadrics, position_step, quadric_error,
+from rigslim.plugins.decimation.quadrics import (alternate, bone_limit, per_pose_quadrics, position_step, quadric_error,
                               quartic_error, vertex_quadrics, weight_step)
 
 

@@ -11,7 +11,7 @@ import pytest
 
 from rigslim.cli import main
 from rigslim.io.gltf import load_gltf, read_accessor, skinning_sets
-from rigslim.io.gltf_validator import validate_gltf, validation_errors, validator_available
+from support.gltf_validator import validate_gltf, validation_errors, validator_available
 
 GLTF = Path(__file__).resolve().parents[1] / "examples" / "data" / "gltf"
 #: Every skinned glTF character bundled in examples/data/gltf (assimp conversions, Khronos samples, the tube).

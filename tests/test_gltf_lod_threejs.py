@@ -4,7 +4,7 @@ The page imports three.js r160 and its GLTFLoader (tools/node, installed by
 tools/setup-gltf-validator.sh) through an import map of data URLs, parses
 the .glb from a base64 string, plays the first clip to a given time, and
 renders with WebGL (SwiftShader, software) into a canvas whose pixels the
-test reads over the DevTools protocol (the client of rigslim.report_browser).
+test reads over the DevTools protocol (the client of support.report_browser).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from rigslim.cli import main
-from rigslim.report_browser import find_chromium
+from support.report_browser import find_chromium
 
 ROOT = Path(__file__).resolve().parents[1]
 THREE = ROOT / "tools" / "node" / "node_modules" / "three"
@@ -74,7 +74,7 @@ def render_glb(path: Path, t: float, *, eye=(3.2, 1.4, 3.2), target=(0.0, 1.0, 0
     """RGB image (h, w, 3) of a .glb as three.js renders it at clip time t."""
     from PIL import Image
 
-    from rigslim.report_browser import WebSocket, _CDP
+    from support.report_browser import WebSocket, _CDP
 
     loader = (THREE / "examples/jsm/loaders/GLTFLoader.js").read_text()
     loader = loader.replace("'../utils/BufferGeometryUtils.js'", "'bgu'")

@@ -363,7 +363,7 @@ def test_weld_merges_seam_vertices_and_keeps_rows_summing_to_one():
 
 @pytest.fixture(scope="module")
 def threejs():
-    from rigslim.io.gltf_validator import threejs_available, threejs_skinned_positions
+    from support.gltf_validator import threejs_available, threejs_skinned_positions
 
     if not threejs_available():
         pytest.fail("three.js missing: run tools/setup-gltf-validator.sh (make test-tools)")

@@ -9,7 +9,7 @@ import pytest
 
 from rigslim.errors import RigslimError
 from rigslim.io.gltf import read_gltf_skin, skinning_sets
-from rigslim.io.gltf_validator import validate_gltf, validation_errors, validator_available
+from support.gltf_validator import validate_gltf, validation_errors, validator_available
 from rigslim.pipeline import run_pipeline
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"

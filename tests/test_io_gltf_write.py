@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 from rigslim.blend import linear_blend
 from rigslim.errors import InputError, StepError
 from rigslim.io.gltf import load_gltf, read_accessor, read_gltf_skin, skinning_sets
-from rigslim.io.gltf_validator import validate_gltf, validation_errors, validator_available
+from support.gltf_validator import validate_gltf, validation_errors, validator_available
 from rigslim.io.gltf_write import (export_skinned, matrix_quaternion, quantize_weights, skinning_sets_arrays,
                                    write_gltf)
 from rigslim.poses import Poses
@@ -390,7 +390,7 @@ def test_clamp_negative_weights(tmp_path, valid):
 
 def test_threejs_plays_the_exported_elephant_like_libigl(tmp_path, valid, elephant_small):
     """A viewer's view: three.js's GLTFLoader and skinning give the libigl deformation of k = 4 weights."""
-    from rigslim.io.gltf_validator import threejs_available, threejs_skinned_positions
+    from support.gltf_validator import threejs_available, threejs_skinned_positions
 
     if not threejs_available():
         pytest.fail("three.js missing: run tools/setup-gltf-validator.sh (make test-tools)")

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from rigslim.plugins.metrics.normal_deviation import normal_rms_angle
+from rigslim.numerics.normal_error import normal_rms_angle
 from rigslim.plugins.metrics.position_rms import position_rms
 
 

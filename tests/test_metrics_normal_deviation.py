@@ -5,7 +5,8 @@ import pytest
 
 from rigslim.blend import per_vertex_normals
 from rigslim.mesh import Mesh
-from rigslim.plugins.metrics.normal_deviation import NormalDeviation, normal_angles, normal_statistics
+from rigslim.numerics.normal_error import normal_angles, normal_statistics
+from rigslim.plugins.metrics.normal_deviation import NormalDeviation
 
 
 def grid(n=10):

@@ -9,7 +9,7 @@ import pytest
 
 pytest.importorskip("pymeshlab")
 
-from rigslim.plugins.metrics.metro import metro_distance  # noqa: E402
+from rigslim.numerics.surface_distance import metro_distance  # noqa: E402
 
 
 def grid(n=20, z=0.0):

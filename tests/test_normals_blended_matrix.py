@@ -10,8 +10,9 @@ from rigslim.blend import blended_matrices, per_vertex_normals
 from rigslim.errors import StepError
 from rigslim.handles import Handles
 from rigslim.mesh import Mesh
-from rigslim.plugins.metrics.normal_deviation import normal_rms_angle
-from rigslim.plugins.normals.blended_matrix import BlendedMatrixNormals, blended_matrix_normals, cofactor_apply
+from rigslim.numerics.normal_error import normal_rms_angle
+from rigslim.numerics.blended_normals import blended_matrix_normals, cofactor_apply
+from rigslim.plugins.normals.blended_matrix import BlendedMatrixNormals
 from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.k_largest import k_largest_weights
 

@@ -76,3 +76,23 @@ def test_every_plugin_keeps_the_contract(stage, name, plugin):
     expected = [p for p in inspect.signature(getattr(base, call)).parameters if p != "self"]
     got = [p for p in inspect.signature(getattr(plugin, call)).parameters][:len(expected)]
     assert got == expected, f"{stage} '{name}': {call}{tuple(got)} should take {tuple(expected)}"
+
+
+def test_no_plugin_package_imports_another_and_the_core_imports_none():
+    """Plugin packages meet only through rigslim's public modules and the host (no cross-package imports)."""
+    import re
+
+    root = ROOT
+    offenders = []
+    for package in sorted(p for p in (root / "plugins").iterdir() if (p / "__init__.py").exists()):
+        for path in package.rglob("*.py"):
+            for other in re.findall(r"rigslim\.plugins\.(\w+)", path.read_text()):
+                if other != package.name:
+                    offenders.append(f"{path.relative_to(root)} -> rigslim.plugins.{other}")
+    for path in (root / "framework").rglob("*.py"):
+        text = path.read_text()
+        if path.name != "plugin.py" and re.search(r"^\s*(from|import) rigslim\.plugins", text, re.M):
+            offenders.append(f"{path.relative_to(root)} imports a plugin package")
+        if re.search(r"^\s*(from|import) support\b", text, re.M):
+            offenders.append(f"{path.relative_to(root)} imports a test helper")
+    assert offenders == []

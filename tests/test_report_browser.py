@@ -7,7 +7,7 @@ import io
 import numpy as np
 import pytest
 
-from rigslim.report_browser import check_page, find_chromium
+from support.report_browser import check_page, find_chromium
 
 pytestmark = [pytest.mark.browser,
               pytest.mark.skipif(find_chromium() is None,

@@ -14,7 +14,7 @@ from rigslim.plugins.selection.sparse_fit import sparse_fit, sparse_fit_referenc
 from rigslim.plugins.solvers.global_solver import global_solve
 from rigslim.plugins.solvers.local_solver import local_solve
 from rigslim.plugins.solvers.problem import build_problem
-from rigslim.plugins.solvers.synthetic import cage_asset, tube_asset
+from support.synthetic import cage_asset, tube_asset
 from rigslim.poses import FrameSplit, Poses
 from rigslim.numerics.small_qp import solve_small_qps
 

@@ -9,7 +9,7 @@ from rigslim.plugin import StepContext
 from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.auto_lambda import choose_position_weight, held_out_errors
 from rigslim.plugins.solvers.methods import PoissonParams, PoissonSolver, reduce_weights
-from rigslim.plugins.solvers.synthetic import tube_asset
+from support.synthetic import tube_asset
 from rigslim.poses import FrameSplit
 
 

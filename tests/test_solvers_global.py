@@ -7,7 +7,7 @@ import scipy.sparse as sp
 from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.global_solver import assemble_hessian, global_solve, linear_term
 from rigslim.plugins.solvers.problem import build_problem
-from rigslim.plugins.solvers.synthetic import cage_asset, tube_asset
+from support.synthetic import cage_asset, tube_asset
 
 
 @pytest.mark.parametrize("method", ["geometric", "smooth", "poisson"])

@@ -10,7 +10,7 @@ from rigslim.pipeline import run_pipeline
 from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.methods import (LaplacianParams, PoissonParams, ReductionParams,
                                              reduce_weights)
-from rigslim.plugins.solvers.synthetic import cage_asset, tube_asset
+from support.synthetic import cage_asset, tube_asset
 
 PARAMS = {"geometric": ReductionParams, "smooth": LaplacianParams, "poisson": PoissonParams}
 

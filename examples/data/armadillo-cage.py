@@ -2,7 +2,7 @@
 
     .venv/bin/python examples/data/armadillo-cage.py
 
-Writes ``armadillo-cage.obj`` (:func:`rigslim.cage.build_cage`: offset 3 % of
+Writes ``armadillo-cage.obj`` (:func:`rigslim.plugins.generators.cage.build_cage`: offset 3 % of
 the bounding-box diagonal, decimated to 110 vertices as in the paper's
 "110 -> 8" armadillo, inflated until every vertex is inside) and
 ``armadillo-cage-anim.dmat``: 30 frames of cage poses in libigl's stacked
@@ -58,7 +58,7 @@ def main():
     sys.path.insert(0, str(HERE.parents[1]))
     import igl
 
-    from rigslim.cage import build_cage, enclosure
+    from rigslim.plugins.generators.cage import build_cage, enclosure
     from rigslim.handles import cage_transforms
     from rigslim.io import read_mesh, write_dmat
     from rigslim.io.animation import transforms_to_stacked

@@ -1,8 +1,17 @@
-"""Numerics that more than one stage uses.
+"""Numerics that more than one stage (or the core) uses; each module is one job, named after it.
 
-- :mod:`rigslim.numerics.k_largest`: the k largest entries of each row (influence sets, [P10] section 3);
-- :mod:`rigslim.numerics.small_qp`: batches of small equality- and bound-constrained QPs (the local
-  solver's per-vertex solve, docs/algorithms.md section 2).
+- :mod:`~rigslim.numerics.k_largest`: the k largest entries of each row (influence sets, [P10] section 3);
+- :mod:`~rigslim.numerics.small_qp`: batches of small equality- and bound-constrained QPs (the local
+  solver's per-vertex solve, docs/algorithms.md section 2);
+- :mod:`~rigslim.numerics.area_weighted_normals`: area-weighted vertex normals (the reference normals);
+- :mod:`~rigslim.numerics.blended_normals`: normals through the inverse transpose of blended matrices
+  (skeletons, docs/algorithms.md section 3);
+- :mod:`~rigslim.numerics.affine_normals`: normals through a per-vertex affine fit of the handles
+  (cages, [P10] section 5);
+- :mod:`~rigslim.numerics.normal_error`: angles between normals and their statistics ([P10] fig. 10);
+- :mod:`~rigslim.numerics.surface_distance`: the two-sided Metro distance between surfaces.
 
-Numerics that only one plugin package uses live in that package.
+Numerics that only one plugin package uses live in that package (the quadrics in
+``rigslim.plugins.decimation``, the colourings and the multilevel solver in ``rigslim.plugins.solvers``,
+the cage builder in ``rigslim.plugins.generators``).
 """

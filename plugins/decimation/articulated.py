@@ -75,7 +75,7 @@ def target_label(method: str, t: float, faces: int) -> str:
 
 def limited_weights(A, max_bones: int | None) -> np.ndarray:
     """Dense (m, n) weights, each row cut to its ``max_bones`` largest entries and renormalised."""
-    from rigslim.quadrics import bone_limit
+    from rigslim.plugins.decimation.quadrics import bone_limit
 
     W = sp.csr_matrix(A).toarray()
     if max_bones is not None and W.shape[1] > max_bones:
@@ -106,7 +106,7 @@ class ArticulatedDecimator(Decimator):
 
     def decimate(self, asset: Asset, params: DecimationParams, ctx: StepContext) -> Decimation:
         from rigslim.plugins.decimation.collapse import simplify
-        from rigslim.quadrics import per_pose_quadrics
+        from rigslim.plugins.decimation.quadrics import per_pose_quadrics
 
         step = f"decimate: {self.name}"
         asset.require("mesh", "weights", "poses", "split", step=step)

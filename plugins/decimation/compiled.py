@@ -1,6 +1,6 @@
 """Compiled (numba) kernels of the articulated simplifier: per-edge costs and the greedy collapse loop.
 
-The numpy path (:mod:`rigslim.quadrics`, :mod:`rigslim.plugins.decimation.models`,
+The numpy path (:mod:`rigslim.plugins.decimation.quadrics`, :mod:`rigslim.plugins.decimation.models`,
 :func:`rigslim.plugins.decimation.collapse.simplify` with ``backend="numpy"``)
 is the reference; these kernels compute the same things one edge at a time,
 so that nothing is padded, no work is spent on converged edges and the
@@ -421,7 +421,7 @@ def _top(a, K, mask, n, keep):
 
 @njit(cache=True)
 def _bone_limit(a, K, mask, n, out, keep):
-    """Keep the n largest weights and renormalise (``rigslim.quadrics.bone_limit`` for one row)."""
+    """Keep the n largest weights and renormalise (``rigslim.plugins.decimation.quadrics.bone_limit`` for one row)."""
     _top(a, K, mask, n, keep)
     s = 0.0
     for k in range(K):

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from rigslim.plugins.decimation.collapse import EdgeCostModel, SimplifyState, blended_transforms
-from rigslim.quadrics import WEIGHT_RIDGE, alternate, bone_limit, position_step, quadric_error, quartic_error
+from rigslim.plugins.decimation.quadrics import WEIGHT_RIDGE, alternate, bone_limit, position_step, quadric_error, quartic_error
 
 
 BACKENDS = ("numpy", "numba")
@@ -49,7 +49,7 @@ class QuarticModel(EdgeCostModel):
     Parameters
     ----------
     Q : (m, P, 4, 4) per-pose quadrics of the original vertices.
-    iterations, tol, max_bones, nonnegative : see :func:`rigslim.quadrics.alternate`.
+    iterations, tol, max_bones, nonnegative : see :func:`rigslim.plugins.decimation.quadrics.alternate`.
     endpoints : bool
         Also consider keeping either endpoint (position and weights) and take
         whichever of the three candidates has the least quartic error.

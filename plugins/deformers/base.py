@@ -188,7 +188,7 @@ def rest_normal_data(mode: str | None, mesh, weights, handles) -> np.ndarray | N
     if mode == "blended-matrix":
         out[:, :3] = N0
         return out
-    from rigslim.plugins.normals.approximate_affine import affine_fit_rest
+    from rigslim.numerics.affine_normals import affine_fit_rest
 
     fit = affine_fit_rest(weights, handles.cage.V, N0)
     out[:, :3] = N0

@@ -37,8 +37,8 @@ class NumpyBound(BoundDeformer):
 
     def _normals(self, T, X):
         """Normals of pose T (X: its blended transforms); rest-pose data is computed on the first call."""
-        from rigslim.plugins.normals.approximate_affine import affine_fit_rest, approximate_affine_normals
-        from rigslim.plugins.normals.blended_matrix import normals_from_linear_parts
+        from rigslim.numerics.affine_normals import affine_fit_rest, approximate_affine_normals
+        from rigslim.numerics.blended_normals import normals_from_linear_parts
 
         if self._normal_data is None:
             N0 = per_vertex_normals(self.mesh.V, self.mesh.F)

@@ -148,7 +148,7 @@ class OpenCLDeformer(Deformer):
     ``v' = X_v [v; 1]``; with normals, ``n' = sign(det R) normalize(cof(R) n)``
     (blended matrix, ``R`` the 3x3 part of ``X_v``) or
     ``n' = sign(det X) normalize(adj(X) (P + lambda I) n)`` (approximate affine,
-    see :mod:`rigslim.plugins.normals.approximate_affine`). The numpy
+    see :mod:`rigslim.numerics.affine_normals`). The numpy
     reference is :class:`rigslim.plugins.deformers.numpy_deformer.NumpyDeformer`.
     """
 

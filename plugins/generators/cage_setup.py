@@ -48,7 +48,7 @@ def prepare_cage(asset, params: CageParams, ctx, step: str) -> Mesh:
         ``["skeleton_poses"]``, and ``asset.poses`` becomes the skinned cage
         poses. ``ctx.report["cage"]`` records the cage's size and enclosure.
     """
-    from rigslim.cage import build_cage, enclosure, skinned_cage_poses, transfer_weights
+    from rigslim.plugins.generators.cage import build_cage, enclosure, skinned_cage_poses, transfer_weights
 
     old = asset.handles
     skeleton_poses = old is not None and not old.is_cage and asset.poses is not None

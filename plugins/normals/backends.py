@@ -26,15 +26,10 @@ def bound_deformer(backend: str, mode: str, mesh, weights, handles, device: str 
         return entry[3]
     if entry is not None:
         entry[3].close()
-    if backend == "opencl":
-        from rigslim.plugins.deformers.opencl_deformer import OpenCLDeformer as cls
-    elif backend == "opengl":
-        from rigslim.plugins.deformers.opengl_deformer import OpenGLDeformer as cls
-    elif backend == "cpu":
-        from rigslim.plugins.deformers.cpu_deformer import CPUDeformer as cls
-    else:
-        from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer as cls
-    deformer = cls()
+    from rigslim.host import get_host
+
+    # the deformer plugin of that name, through the host: no plugin package imports another
+    deformer = get_host().get("deformer", backend)
     raw = {"normals": mode}
     if device is not None and backend == "opencl":
         raw["device"] = device

@@ -26,7 +26,7 @@ import numpy as np
 
 from rigslim.blend import linear_blend, per_vertex_normals
 from rigslim.errors import StepError
-from rigslim.plugins.metrics.normal_deviation import normal_rms_angle
+from rigslim.numerics.normal_error import normal_rms_angle
 from rigslim.poses import FrameSplit
 
 #: Default lambda grid (dimensionless; see :func:`rigslim.plugins.solvers.problem.build_problem`).

@@ -11,7 +11,7 @@ with ``R = X - Y``. Each update solves the k-variable QP
 ``min 1/2 x^T H_v x + (h_v - H_v alpha_v)^T x`` s.t. ``C_v x = d_v`` [, ``x >= 0``]
 exactly (:func:`rigslim.numerics.small_qp.solve_small_qps`, or the OpenCL kernel
 ``small_qp.cl``), so the energy never increases. Vertices of one colour of
-a distance-2 colouring (:mod:`rigslim.coloring`) share no term of ``Q``,
+a distance-2 colouring (:mod:`rigslim.plugins.solvers.coloring`) share no term of ``Q``,
 so they are solved as one batch; afterwards ``Q R`` is updated by
 ``Q[:, S] (Delta X_S)``. A sweep visits every colour once.
 
@@ -28,7 +28,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from rigslim.coloring import color_classes, distance2_coloring
+from rigslim.plugins.solvers.coloring import color_classes, distance2_coloring
 from rigslim.numerics.small_qp import solve_small_qps
 
 

@@ -17,7 +17,7 @@ of a multigrid V-cycle on the null-space system
 - post-smoothing: the same sweep with the colours in reverse order,
 
 so the cycle is symmetric and preconditions conjugate gradients
-(:mod:`rigslim.multilevel`). CG stops when the reduced gradient
+(:mod:`rigslim.plugins.solvers.multilevel`). CG stops when the reduced gradient
 ``||N (H alpha + f)||`` falls below ``tolerance`` times its value at the
 start; the report holds iterations, energies and that residual.
 """
@@ -29,8 +29,8 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from rigslim.coloring import color_classes, color_graph
-from rigslim.multilevel import MultilevelSystem
+from rigslim.plugins.solvers.coloring import color_classes, color_graph
+from rigslim.plugins.solvers.multilevel import MultilevelSystem
 from rigslim.plugins.solvers.nullspace import nullspace_system
 
 

@@ -3,7 +3,7 @@
 import numpy as np
 import scipy.sparse as sp
 
-from rigslim.coloring import (color_classes, color_graph, distance2_coloring, distance2_graph,
+from rigslim.plugins.solvers.coloring import (color_classes, color_graph, distance2_coloring, distance2_graph,
                               is_valid_coloring)
 
 

@@ -15,7 +15,7 @@ fragmented server messages), so no browser automation package is needed:
 
 Command line (writes the screenshot used in docs/reports.md)::
 
-    python -m rigslim.report_browser out/report.html --screenshot docs/images/report.png --width 1100
+    PYTHONPATH=tests python -m support.report_browser out/report.html --screenshot docs/images/report.png --width 1100
 """
 
 from __future__ import annotations
@@ -289,7 +289,7 @@ def check_page(path, *, width: int = 1200, height: int = 900, timeout: float = 6
 def main(argv=None) -> int:
     import argparse
 
-    parser = argparse.ArgumentParser(prog="python -m rigslim.report_browser",
+    parser = argparse.ArgumentParser(prog="PYTHONPATH=tests python -m support.report_browser",
                                      description="check a report in headless Chromium; save a screenshot")
     parser.add_argument("html")
     parser.add_argument("--screenshot", metavar="PNG")

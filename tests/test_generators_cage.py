@@ -1,4 +1,4 @@
-"""Automatic cages, weight transfer and skinned cage poses (rigslim.cage)."""
+"""Automatic cages, weight transfer and skinned cage poses (rigslim.plugins.generators.cage)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from rigslim.cage import build_cage, enclosure, skinned_cage_poses, transfer_weights
+from rigslim.plugins.generators.cage import build_cage, enclosure, skinned_cage_poses, transfer_weights
 from rigslim.errors import StepError
 from rigslim.mesh import Mesh
 from rigslim.poses import Poses

@@ -8,7 +8,7 @@ import pytest
 
 from rigslim.blend import linear_blend, per_vertex_normals
 from rigslim.errors import InputError
-from rigslim.plugins.normals.area_weighted import VertexNormalOperator, area_weighted_normals, operator_for
+from rigslim.numerics.area_weighted_normals import VertexNormalOperator, area_weighted_normals, operator_for
 
 
 def igl_normals(V, F):

@@ -1,11 +1,11 @@
-"""Multilevel-preconditioned CG on block-sparse SPD systems (rigslim.multilevel)."""
+"""Multilevel-preconditioned CG on block-sparse SPD systems (rigslim.plugins.solvers.multilevel)."""
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from rigslim.coloring import color_classes, color_graph
-from rigslim.multilevel import ColoredBlockSmoother, MultilevelSystem
+from rigslim.plugins.solvers.coloring import color_classes, color_graph
+from rigslim.plugins.solvers.multilevel import ColoredBlockSmoother, MultilevelSystem
 
 
 def _grid_bilaplacian(n=40, r=2, seed=0):
