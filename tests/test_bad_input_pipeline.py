@@ -104,7 +104,7 @@ def test_deep_block_nesting(project, capfd):
 def test_binary_file_as_pipeline(project, capfd):
     p = project / "pipeline.yaml"
     p.write_bytes((DATA / "cheburashka-anim.dmat").read_bytes()[:4096])
-    assert "UTF-8" in _bad(project, capfd, p, "pipeline.yaml") or True
+    assert "not UTF-8 text" in _bad(project, capfd, p, "pipeline.yaml", "path")
 
 
 def test_png_as_pipeline(project, capfd):
@@ -132,7 +132,7 @@ def test_duplicate_parameter_key(project, capfd):
 
 
 def test_merge_keys_still_work(project, capfd):
-    text = ("defaults: &d {k: 2}\n" if False else "") + CHEB.format(
+    text = CHEB.format(
         mesh="cheburashka.off", skeleton="cheburashka.tgf", animation="cheburashka-anim.dmat",
         steps="  - generate: bone-heat\n  - select: k-largest\n    <<: {k: 2}\n  - solve: k-largest")
     code, lines = run_cli(["run", _pipeline(project, text), "-q"], capfd)
@@ -149,10 +149,9 @@ def test_bool_is_not_an_int(project, capfd):
 
 
 def test_bool_still_fine_for_bool_parameters(project, capfd):
-    steps = "  - generate: bone-heat\n  - select: k-largest\n    k: 2\n  - solve: k-largest\n    nonnegative: true\n"
+    steps = "  - generate: bone-heat\n    visibility: false\n  - select: k-largest\n    k: 2\n  - solve: k-largest\n"
     code, lines = run_cli(["run", _pipeline(project, steps=steps), "-q"], capfd)
-    assert code in (0, 2), lines
-    assert not any("yes/no" in line for line in lines), lines
+    assert code == 0, lines
 
 
 def test_metric_parameters_not_a_mapping(project, capfd):
