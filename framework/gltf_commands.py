@@ -73,10 +73,16 @@ def _gltf_input(path: Path, clip, fps: float, frames: int) -> dict:
     return spec
 
 
+#: Most example poses the commands fit to (long clips are subsampled evenly).
+MAX_EXAMPLE_POSES = 24
+
+
 def _poses(frames: int) -> dict:
+    """Example frames ``0, s, 2s, ...`` (at most :data:`MAX_EXAMPLE_POSES`) and test frames halfway between."""
     if frames < 2:
         return {"examples": "0", "test": "1"}
-    return {"examples": f"0:{frames}:2", "test": f"1:{frames}:2"}
+    step = max(2, -(-frames // MAX_EXAMPLE_POSES))
+    return {"examples": f"0:{frames}:{step}", "test": f"{max(1, step // 2)}:{frames}:{step}"}
 
 
 def _run(pipeline: dict, args, console) -> tuple[object, float]:
@@ -170,7 +176,7 @@ def cmd_reduce(args) -> int:
     metrics = result.evaluations[-1]["metrics"] if result.evaluations else {}
     world = {}
     if frames >= 2:     # the test frames again, in world units, from the written file
-        world = compare(src, out, clip=args.clip, frames=f"1:{frames}:2", fps=args.fps, hausdorff=False)
+        world = compare(src, out, clip=args.clip, frames=_poses(frames)["test"], fps=args.fps, hausdorff=False)
         world = {k: world[k] for k in ("position_rms_m", "position_max_m", "position_rms_pct", "normal_rms_rad",
                                        "reference_diagonal_m") if k in world}
     doc = _header("reduce") | {"input": str(src), "output": str(out), "clip": clip, "clip_seconds": duration,

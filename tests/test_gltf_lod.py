@@ -178,3 +178,46 @@ def test_transfers_against_the_tube_parametrisation(tube, transfer, tol_v, tol_u
             worst = max(worst, np.abs(uv[:, 1] - (1 - P[:, 1] / 2)).max() / tol_v,
                         np.minimum(du, 1 - du).max() / tol_u)
     assert worst < 1.0
+
+
+def test_attribute_quadrics_measure_displacement_along_the_uv_field(tube):
+    """Zero at every vertex's own position; grows with the UV change when the vertex slides along the tube."""
+    from rigslim.io.gltf_lod import attribute_quadrics
+
+    Q = attribute_quadrics(tube, {"TEXCOORD": 1.0})
+    V = tube.mesh.V
+    h = np.c_[V, np.ones(len(V))]
+    assert np.abs(np.einsum("vi,vij,vj->v", h, Q, h)).max() < 1e-12
+    assert not attribute_quadrics(tube, {"COLOR": 1.0}).any()          # no colours: no term
+    # an interior vertex moved along y by dy changes v = 1 - y/2 by dy/2: cost = sum area (dy/2)^2 over its faces
+    locked = seam_vertices(tube)
+    i = int(np.flatnonzero(~locked & (np.abs(V[:, 1] - 0.5) < 1e-9))[0])
+    dy = 1e-3
+    p = np.r_[V[i] + [0, dy, 0], 1.0]
+    faces = np.flatnonzero((tube.mesh.F == i).any(axis=1))
+    P = V[tube.mesh.F[faces]]
+    area = 0.5 * np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1).sum()
+    assert p @ Q[i] @ p == pytest.approx(area * (dy / 2) ** 2, rel=1e-3)
+
+
+def test_attribute_term_is_one_more_pose(tube):
+    """With weights, the decimator appends the term (report ``attribute_term``) and every level stays valid."""
+    from rigslim.asset import Asset
+    from rigslim.host import get_host
+    from rigslim.plugin import StepContext
+    from rigslim.poses import FrameSplit
+
+    n = len(tube.poses)
+    asset = Asset(mesh=tube.mesh, handles=tube.handles, weights=tube.weights, poses=tube.poses,
+                  split=FrameSplit.from_specs(f"0:{n}:2", f"1:{n}:2", n))
+    asset.extras["gltf"] = tube
+    plugin = get_host().get("articulated-decimation", "quartic")
+    ctx = StepContext()
+    plugin.decimate(asset, plugin.parse_params({"targets": [0.5], "attribute_weights": {"TEXCOORD": 1.0}}), ctx)
+    assert ctx.report["attribute_term"] is True
+    level = asset.extras["levels"][0]
+    assert level.n_faces <= 0.5 * tube.mesh.n_faces + 2
+    assert np.allclose(level.weights.values.sum(axis=1), 1)
+    ctx = StepContext()
+    plugin.decimate(asset, plugin.parse_params({"targets": [0.5]}), ctx)
+    assert ctx.report["attribute_term"] is False

@@ -570,3 +570,80 @@ def split_levels(path, outputs) -> None:
             if not used:
                 js.pop("extensionsUsed")
         write_pruned(out, doc, js)
+
+
+# --------------------------------------------------------------------------- attribute quadrics
+
+
+def _attribute_weight(name: str, weights: dict[str, float]) -> float:
+    """Weight of an attribute: its full name (``TEXCOORD_1``) first, then its family (``TEXCOORD``)."""
+    if name in weights:
+        return float(weights[name])
+    return float(weights.get(name.rsplit("_", 1)[0] if name[-1].isdigit() else name, 0.0))
+
+
+def attribute_quadrics(skin: GltfSkin, weights: dict[str, float], data: list[PrimitiveData] | None = None
+                       ) -> np.ndarray:
+    """Per welded vertex, a 4x4 quadric of the rest position that measures attribute displacement.
+
+    Parameters
+    ----------
+    skin : GltfSkin
+        Read with ``weld=True`` (the mesh the decimators simplify).
+    weights : dict
+        Weight of each attribute, by name (``TEXCOORD_0``) or family
+        (``TEXCOORD``, ``COLOR``, ``NORMAL``, ``TANGENT``, a custom ``_NAME``);
+        missing ones weigh 0.
+
+    Returns
+    -------
+    (m, 4, 4) array
+
+    Notes
+    -----
+    Garland & Heckbert 1998 extend a face's plane quadric to attributes: on
+    face f each attribute channel is the linear field ``s(p) = g_f . p + d_f``
+    with ``g_f . n_f = 0`` and ``s(p_i) = s_i`` at the corners (a 4x4 solve
+    per face and channel). Corner i of f adds
+    ``lambda_a area_f (g_f . p + d_f - s_i)^2 = [p; 1]^T (area_f q q^T) [p; 1]``,
+    ``q = [g_f; d_f - s_i]``, to its vertex: zero where the vertex is, and
+    growing as a collapse slides the vertex along the surface away from where
+    the texture (or colour, normal) had its value. Keeping the corner's value
+    fixed, instead of optimising the attribute as GH98 and Hoppe 1999 do
+    (a Schur complement at every edge), keeps it a 4x4 quadric of the rest
+    position that sums under collapses like the plane quadrics, so the
+    decimators carry it as one more "pose" with identity bone transforms.
+    """
+    data = primitive_data(skin) if data is None else data
+    V = skin.mesh.V
+    m = len(V)
+    Q = np.zeros((m, 4, 4))
+    for d, sl, (Fw, Ff) in zip(data, skin.slices, welded_faces(skin, data)):
+        chans = []
+        for name, arr in d.attributes.items():
+            lam = _attribute_weight(name, weights)
+            if lam > 0:
+                chans.append(np.sqrt(lam) * arr)
+        if not chans or not len(Fw):
+            continue
+        S = np.hstack(chans)[Ff - sl.start]                              # (f, 3, C) corner values
+        P = V[Fw]                                                        # (f, 3, 3)
+        n = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+        area2 = np.linalg.norm(n, axis=1)
+        ok = area2 > 1e-300 * max(1.0, float(np.abs(V).max()) ** 2)
+        if not ok.any():
+            continue
+        P, S, Fw, n, area2 = P[ok], S[ok], Fw[ok], n[ok], area2[ok]
+        n = n / area2[:, None]
+        M = np.zeros((len(P), 4, 4))
+        M[:, :3, :3] = P
+        M[:, :3, 3] = 1.0
+        M[:, 3, :3] = n
+        rhs = np.concatenate([S, np.zeros((len(P), 1, S.shape[2]))], axis=1)   # (f, 4, C)
+        gd = np.linalg.solve(M, rhs)                                     # (f, 4, C): g (3), d (1) per channel
+        for i in range(3):
+            q = gd.copy()
+            q[:, 3, :] -= S[:, i, :]                                     # [g; d - s_i]
+            Qi = 0.5 * area2[:, None, None] * np.einsum("fac,fbc->fab", q, q)
+            np.add.at(Q, Fw[:, i], Qi)
+    return Q
