@@ -332,3 +332,12 @@ def test_buffer_file_shorter_than_byte_length(project, capfd):
     doc["buffers"][3]["byteLength"] = 10 ** 9
     line = _bad(project, capfd, doc)
     assert "buffers[3]" in line and "byteLength" in line
+
+
+def test_non_affine_inverse_bind_matrix(project, capfd):
+    doc = _doc()
+    ibm = np.tile(np.eye(4, dtype=np.float32).T.ravel(), 2)
+    ibm[15] = 0.0  # column-major: the last row of joint 0's matrix is (0, 0, 0, 0)
+    _set_floats(doc, 4, ibm)
+    line = _bad(project, capfd, doc)
+    assert "skins[0].inverseBindMatrices[0]" in line and "affine" in line

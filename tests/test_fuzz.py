@@ -109,7 +109,15 @@ def worker():
 def check(worker: Worker, kind: str, suffix: str, payload: bytes):
     """The property: the reader succeeds or raises a RigslimError with one short line."""
     status, detail = worker.run(kind, suffix, payload)
-    assert status in ("ok", "error"), f"{kind} case ({len(payload)} bytes) gave {status}:\n{detail}"
+    if status not in ("ok", "error"):
+        import hashlib
+        import tempfile
+
+        keep = Path(os.environ.get("RIGSLIM_FUZZ_FAILURES", Path(tempfile.gettempdir()) / "rigslim-fuzz-failures"))
+        keep.mkdir(parents=True, exist_ok=True)
+        saved = keep / f"{kind}-{hashlib.sha1(payload).hexdigest()[:12]}{suffix}"
+        saved.write_bytes(payload)
+        pytest.fail(f"{kind} case ({len(payload)} bytes, saved as {saved}) gave {status}:\n{detail}")
     if status == "error":
         assert "\n" not in detail and len(detail) <= MAX_LINE, f"not one short line: {detail[:600]!r}"
 

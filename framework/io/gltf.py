@@ -870,6 +870,12 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, we
             det = np.linalg.det(ibm[:, :3, :3])
             scale = np.abs(ibm[:, :3, :3]).max(axis=(1, 2))
         singular = ~(np.abs(det) > 1e-12 * np.maximum(scale, 1e-300) ** 3)
+        affine = np.abs(ibm[:, 3, :] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) <= 1e-6 * np.maximum(scale, 1.0)
+        if not affine.all():
+            j = int(np.argmin(affine))
+            raise InputError(f"the inverse bind matrix of joint {j} (node {joints[j]}) is not affine (last row "
+                             f"{np.round(ibm[j, 3], 6).tolist()}, not [0, 0, 0, 1])", source=doc.path,
+                             field=f"{where}[{j}]", fix="re-export the skin")
         if singular.any():
             j = int(np.argmax(singular))
             raise InputError(f"the inverse bind matrix of joint {j} (node {joints[j]}) is singular", source=doc.path,
