@@ -299,3 +299,20 @@ def test_warnings_are_dropped_when_an_error_follows(project, capfd, monkeypatch)
     monkeypatch.setattr(rigslim.pipeline, "load_pipeline", noisy)
     steps = "  - generate: bone-heat\n  - select: k-largest\n    k: true\n"
     _bad(project, capfd, _pipeline(project, steps=steps), "pipeline.yaml", "steps[2].k")
+
+
+@pytest.mark.parametrize("name, text", [
+    ("one-corner.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1"),  # libigl 2.6 corrupts its heap on this
+    ("two-corners.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\nf 1 2 3\n"),  # libigl would drop it silently
+    ("one-corner.off", "OFF\n3 2 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n1 0\n"),
+])
+def test_faces_with_fewer_than_three_corners(project, capfd, name, text):
+    (project / name).write_text(text)
+    line = _bad(project, capfd, _pipeline(project, mesh=name), name, "line", subprocess=True)
+    assert "corner" in line
+
+
+def test_libigl_stdout_diagnosis_goes_into_the_line(project, capfd):
+    (project / "short.off").write_text("OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n")  # a face missing
+    code, lines = run_cli_subprocess(["run", _pipeline(project, mesh="short.off"), "-q"], cwd=project)
+    assert_one_line(code, lines, "short.off", "bad line")

@@ -3,7 +3,7 @@
 Inputs are mutations of the bundled data: pipelines from examples/,
 the .glb/.gltf characters (truncated, bytes flipped, JSON fields replaced by
 hostile values such as -1, 2**31, "10", true, null, huge strings), DMAT,
-TGF, OBJ files and a metrics JSON. The property: every input either reads
+TGF, OBJ and OFF files (with their Laplacian) and a metrics JSON. The property: every input either reads
 or raises rigslim's own error with a one-line message of at most
 :data:`rigslim.errors.MAX_LINE` characters.
 
@@ -214,6 +214,7 @@ def test_worker_reads_the_untouched_files(worker):
     assert worker.run("gltf", ".gltf", json.dumps(GLTF).encode())[0] == "ok"
     assert worker.run("tgf", ".tgf", (DATA / "cheburashka.tgf").read_bytes())[0] == "ok"
     assert worker.run("obj", ".obj", (DATA / "armadillo-cage.obj").read_bytes())[0] == "ok"
+    assert worker.run("obj", ".off", OFF)[0] == "ok"
     assert worker.run("dmat", ".dmat", (DATA / "cheburashka-anim.dmat").read_bytes())[0] == "ok"
     for p in PIPELINES:
         assert worker.run("yaml", ".yaml", p.read_bytes())[0] == "ok", p
@@ -334,10 +335,28 @@ def test_tgf(worker, data):
     check(worker, "tgf", ".tgf", data.draw(byte_mutations(seed)))
 
 
-@examples(200)
+def _off_seed() -> bytes:
+    """The armadillo cage (110 vertices) as OFF text."""
+    lines = (DATA / "armadillo-cage.obj").read_text().splitlines()
+    V = [line.split()[1:4] for line in lines if line.startswith("v ")]
+    F = [[str(int(t.split("/")[0]) - 1) for t in line.split()[1:]] for line in lines if line.startswith("f ")]
+    return ("OFF\n" + f"{len(V)} {len(F)} 0\n" + "".join(" ".join(v) + "\n" for v in V)
+            + "".join(f"{len(f)} " + " ".join(f) + "\n" for f in F)).encode()
+
+
+OFF = _off_seed()
+
+
+@examples(150)
 @given(data=st.data())
 def test_obj(worker, data):
     check(worker, "obj", ".obj", data.draw(byte_mutations((DATA / "armadillo-cage.obj").read_bytes())))
+
+
+@examples(150)
+@given(data=st.data())
+def test_off(worker, data):
+    check(worker, "obj", ".off", data.draw(byte_mutations(OFF)))
 
 
 REPORT = {"name": "fuzz", "steps": [{"stage": "read", "plugin": "inputs", "seconds": 0.1},
