@@ -366,3 +366,33 @@ def test_manifest_errors_are_one_line(tmp_path):
         with pytest.raises(InputError, match=message) as e:
             collect_assets([str(tmp_path / file)])
         assert "\n" not in str(e.value) and file in str(e.value)
+
+
+def test_simplification_levels_give_hausdorff_columns_per_level(tmp_path):
+    """A LOD template: Hausdorff (metro) at each level becomes its own summary column, in every format."""
+    pytest.importorskip("pymeshlab")
+    from rigslim.batch import BatchOptions, BatchResult, write_summary
+    from rigslim.batch_assets import collect_assets, load_template
+    from rigslim.batch_task import run_asset
+
+    template = tmp_path / "lod.yaml"
+    template.write_text(TEMPLATE.replace("""  - select: k-largest
+    k: 2
+  - solve: k-largest
+  - evaluate: [position-rms, normal-deviation, max-influences]
+  - write: "{name}-k2.glb"
+""", """  - decimate: quartic
+    targets: [0.5, 0.25]
+    max_bones: 2
+  - evaluate: [metro]
+"""))
+    (job,) = collect_assets([str(GLTF / "huesitos.glb")])
+    row = run_asset(job.as_dict(), load_template(template), str(template), str(tmp_path / "out"))
+    assert row["status"] == "ok", row["error"]
+    levels = sorted(k for k in row if k.startswith("hausdorff_max_pct@") and k.endswith("_max"))
+    assert len(levels) == 2 and all(row[k] > 0 for k in levels)
+    assert row["output_influences"] <= 2
+    write_summary(BatchOptions(template, [], tmp_path / "out"), BatchResult([row], 1.0))
+    table = pyarrow.parquet.read_table(tmp_path / "out" / "summary.parquet")
+    assert set(levels) <= set(table.column_names)
+    assert _rows(tmp_path / "out")["huesitos"][levels[0]] == repr(row[levels[0]])
