@@ -53,6 +53,9 @@ class DecimationParams(Params):
     lock_seams: bool = True
     """For a mesh read from glTF: never move a vertex on a UV/colour seam or a material (primitive) boundary
     (:func:`rigslim.io.gltf_lod.seam_vertices`), so every level keeps them exactly."""
+    seams_collapse_along: bool = True
+    """With ``lock_seams``: seam vertices may still collapse with each other along their seam (both
+    sides keep their own attributes; :func:`rigslim.io.gltf_lod.seam_structure`); false keeps every seam vertex."""
     min_normal_cos: float = Field(default=0.0, ge=-1.0, le=1.0)
     """Refuse collapses that turn a surviving face's normal by more than arccos(this), in any pose."""
     area_weighted: bool = True
@@ -125,17 +128,20 @@ def attribute_term(asset, weights: dict[str, float], Q, T, X):
             np.concatenate([X, asset.mesh.V[None]]))
 
 
-def seam_lock(asset) -> np.ndarray | None:
-    """Seam and material-boundary vertices of a mesh read from glTF (None for other inputs).
+def seam_lock(asset, along: bool = True):
+    """Seam and material-boundary vertices of a mesh read from glTF, and how they may collapse.
 
-    Only when ``asset.mesh`` is still the mesh the glTF reader made (a step may have replaced it).
+    Returns ``(locked, seams)``: ``locked`` (m,) bool, ``seams`` ``(along, charts)`` for
+    :func:`rigslim.plugins.decimation.collapse.simplify` (None when ``along`` is false), or
+    ``(None, None)`` for other inputs, or when a step replaced the mesh the glTF reader made.
     """
-    from rigslim.io.gltf_lod import seam_vertices
+    from rigslim.io.gltf_lod import seam_structure
 
     source = asset.extras.get("gltf")
     if source is None or source.mesh is not asset.mesh:
-        return None
-    return seam_vertices(source)
+        return None, None
+    locked, may, charts = seam_structure(source)
+    return locked, ((may, charts) if along else None)
 
 
 class ArticulatedDecimator(Decimator):
@@ -160,10 +166,10 @@ class ArticulatedDecimator(Decimator):
         Q, T, X = attribute_term(asset, params.attribute_weights, Q, T, X)
         W = limited_weights(asset.weights, params.max_bones)
         model = self.model(Q, W, T, params)
-        locked = seam_lock(asset) if params.lock_seams else None
+        locked, seams = seam_lock(asset, params.seams_collapse_along) if params.lock_seams else (None, None)
         hier = simplify(mesh.V, mesh.F, W, T, X, model, min_faces=min_faces, keep_boundary=params.keep_boundary,
                         min_normal_cos=params.min_normal_cos, progress=ctx.progress, method=self.name,
-                        params=params.model_dump(), backend=params.backend, locked=locked)
+                        params=params.model_dump(), backend=params.backend, locked=locked, seams=seams)
         levels = [hier.at_faces(f, target_label(self.name, t, f)) for t, f in zip(params.targets, faces)]
         levels += [hier.at_error(e, f"{self.name}-err{e:g}") for e in params.error_targets]
         levels += [hier.adaptive(a.budget(mesh.V), a.label or f"{self.name}-adaptive{i + 1}")
@@ -173,6 +179,7 @@ class ArticulatedDecimator(Decimator):
         asset.extras["levels"] = levels
         if locked is not None:
             ctx.report["locked_seam_vertices"] = int(locked.sum())
+            ctx.report["seam_vertices_collapsing_along"] = int(seams[0].sum()) if seams is not None else 0
         ctx.report.update({
             "collapses": hier.n_collapses, "input_faces": mesh.n_faces,
             "final_faces": hier.faces_after(hier.n_collapses), "example_poses": len(asset.example_poses().T),
