@@ -341,3 +341,12 @@ def test_non_affine_inverse_bind_matrix(project, capfd):
     _set_floats(doc, 4, ibm)
     line = _bad(project, capfd, doc)
     assert "skins[0].inverseBindMatrices[0]" in line and "affine" in line
+
+
+def test_accessor_of_the_wrong_type(project, capfd):
+    doc = _doc()
+    doc["skins"][0]["inverseBindMatrices"] = 3  # a VEC4 accessor (the weights)
+    assert "skins[0].inverseBindMatrices" in _bad(project, capfd, doc)
+    doc = _doc()
+    doc["meshes"][0]["primitives"][0]["attributes"]["POSITION"] = 4  # a MAT4 accessor
+    assert "attributes.POSITION" in _bad(project, capfd, doc)
