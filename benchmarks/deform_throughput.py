@@ -21,9 +21,17 @@ Timings per frame, median over the poses after one warm-up frame:
 positions, weights and indices, handle records, rest normals) and every
 output written once (positions, normals).
 
+``--quick`` (under 3 minutes on the 2-core CPU machine) times every CPU
+back end, the compiled ``cpu`` deformer (fixed and compact layouts), OpenCL
+on the CPU device (PoCL) and OpenGL on llvmpipe when present, at k = 8 and
+k = 4 with and without normals, against numpy with the full weights
+(positions), together with the machine's copy bandwidth and the recomputed
+normals of the full deformation, all in one run; see :func:`run_quick`.
+
 Usage::
 
     .venv/bin/python -m benchmarks.deform_throughput                # full size, writes docs/results/deform.{json,md}
+    .venv/bin/python -m benchmarks.deform_throughput --quick --json docs/results/deform-cpu.json   # + .md
     .venv/bin/python -m benchmarks.deform_throughput --levels 1 --frames 3 --out /tmp/deform
     python3 benchmarks/deform_throughput.py --device gpu             # on a machine with a GPU
 """
@@ -103,6 +111,12 @@ def run(levels: int, frames: int, backends: list[str], ks: list[int | None], dev
     deformers = {"numpy": NumpyDeformer()}
     devices = {"numpy": f"{cpu_model()} ({os.cpu_count()} logical CPUs), numpy {np.__version__}"}
     params = {"numpy": {}}
+    if "cpu" in backends:
+        from rigslim.plugins.deformers.cpu_deformer import CPUDeformer
+
+        deformers["cpu"] = CPUDeformer()
+        devices["cpu"] = f"{cpu_model()} ({os.cpu_count()} logical CPUs), numba"
+        params["cpu"] = {}
     if "opencl" in backends:
         from rigslim.opencl import OpenCLUnavailable, get_runtime
         from rigslim.plugins.deformers.opencl_deformer import OpenCLDeformer
@@ -241,6 +255,224 @@ def markdown(doc: dict) -> str:
     return "\n".join(lines)
 
 
+#: Keys of every ``--quick`` row (the issue's schema; tests check them).
+QUICK_ROW_KEYS = ("backend", "weights", "layout", "normals", "device_ms", "frame_ms", "gbps")
+
+
+def copy_bandwidth(nbytes: int = 512 << 20, repeats: int = 5) -> dict:
+    """Copy bandwidth in GB/s (bytes read + bytes written per second), best of ``repeats``.
+
+    Two probes over the same ``nbytes`` buffers: ``numpy.copyto`` (one thread) and a
+    numba ``prange`` copy over all cores (the threads the cpu deformer uses).
+    ``copy_gbps`` is the higher of the two, the bar the kernels are held to.
+    """
+    from rigslim.plugins.deformers.cpu_kernels import copy_rows
+
+    rows = max(1, nbytes // 64)
+    src = np.ones((rows, 16), dtype=np.float32)
+    dst = np.empty_like(src)
+    copy_rows(src[:8], dst[:8])          # compile outside the timing
+    out = {}
+    for name, fn in (("numpy_copyto", lambda: np.copyto(dst, src)), ("numba_parallel", lambda: copy_rows(src, dst))):
+        best = float("inf")
+        for _ in range(repeats):
+            t = time.perf_counter()
+            fn()
+            best = min(best, time.perf_counter() - t)
+        out[name] = 2 * src.nbytes / best / 1e9
+    out["bytes"] = int(src.nbytes)
+    out["copy_gbps"] = max(out["numpy_copyto"], out["numba_parallel"])
+    return out
+
+
+def time_frames(frame, bound, poses, normals: bool) -> tuple[float, float]:
+    """Median (device_ms, frame_ms) over the poses after one warm-up frame; ``frame(T, normals)`` is one frame."""
+    frame(poses[0], normals)
+    device, wall = [], []
+    for T in poses:
+        t = time.perf_counter()
+        frame(T, normals)
+        wall.append(time.perf_counter() - t)
+        device.append(bound.last_seconds)
+    return 1e3 * statistics.median(device), 1e3 * statistics.median(wall)
+
+
+def run_quick(levels: int = 3, frames: int = 8, ks=(8, 4), copy_mib: int = 512, log=print) -> dict:
+    """Every CPU back end on the same mesh and poses in one run, with the copy bandwidth.
+
+    A frame is what a caller runs per pose with the outputs already allocated:
+    numpy ``deform(T)`` (the float64 reference, full weights, positions);
+    ``launch(T, normals)`` of the cpu deformer (handle table + one kernel call),
+    of OpenCL (upload, kernel, read-back into preallocated host arrays) and of
+    OpenGL (upload, draw, read-back). ``device_ms`` is the kernel's own time
+    (``last_seconds``), ``frame_ms`` the wall time of the frame, and
+    ``gbps = bytes_per_frame / frame_ms`` with every input read once and every
+    output written once (``bytes_per_frame`` of each bound deformer).
+    """
+    from benchmarks.datasets import elephant
+    from rigslim.plugins.deformers.cpu_deformer import CPUDeformer
+    from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
+    from rigslim.numerics.area_weighted_normals import operator_for
+    from rigslim.plugins.selection.k_largest import k_largest
+    from rigslim.plugins.solvers.k_largest import k_largest_weights
+    from rigslim.weights import influence_counts
+
+    started = time.perf_counter()
+    load_start = os.getloadavg()[0]
+    asset = elephant(levels=levels)
+    mesh, W = asset.mesh, asset.weights
+    test = asset.split.test
+    step = max(1, len(test) // frames)
+    chosen = test[::step][:frames]
+    poses = asset.poses.T[chosen]
+    log(f"elephant subdivided {levels}x: {mesh.n_vertices:,} vertices, {mesh.n_faces:,} triangles, {W.nnz:,} weights "
+        f"(max {int(influence_counts(W).max())} per vertex), {len(poses)} poses [{time.perf_counter() - started:.1f} s]")
+    copy = copy_bandwidth(copy_mib << 20)
+    log(f"copy bandwidth: numpy copyto {copy['numpy_copyto']:.1f} GB/s, numba parallel {copy['numba_parallel']:.1f} "
+        f"GB/s (read + write)")
+    rows, devices = [], {"numpy": f"{cpu_model()}, numpy {np.__version__}", "cpu": "numba, all cores"}
+
+    def add(backend, weights, layout, normals, device_ms, frame_ms, moved):
+        row = {"backend": backend, "weights": weights, "layout": layout, "normals": bool(normals),
+               "device_ms": device_ms, "frame_ms": frame_ms, "gbps": moved / (frame_ms * 1e-3) / 1e9}
+        rows.append(row)
+        log(f"{backend:7s} {str(weights):5s} {layout:7s} {'pos+nrm' if normals else 'pos':7s} "
+            f"device {device_ms:8.2f} ms  frame {frame_ms:8.2f} ms  {row['gbps']:6.2f} GB/s")
+
+    ref = NumpyDeformer().bind(mesh, W, NumpyDeformer.Params(normals="none"))
+    device_ms, frame_ms = time_frames(lambda T, n: ref.deform(T), ref, poses, False)
+    add("numpy", "full", "sparse", False, device_ms, frame_ms, ref.bytes_per_frame(False))
+    numpy_full_ms = frame_ms
+
+    # recomputed (area-weighted) normals of the full deformation: the reference of the normal metrics
+    full_positions = ref.deform(poses[0])
+    op = operator_for(mesh.F, mesh.n_vertices)
+    out = np.empty((mesh.n_vertices, 3))
+    op(full_positions, out=out)
+    times = []
+    for T in poses:
+        P = ref.deform(T)
+        t = time.perf_counter()
+        op(P, out=out)
+        times.append(time.perf_counter() - t)
+    recomputed_ms = 1e3 * statistics.median(times)
+    log(f"recomputed normals (face->vertex operator): {recomputed_ms:.2f} ms = {recomputed_ms / numpy_full_ms:.2f}x "
+        f"numpy full positions")
+
+    backends = {"cpu": CPUDeformer()}
+    try:
+        from rigslim.opencl import OpenCLUnavailable, get_runtime
+        from rigslim.plugins.deformers.opencl_deformer import OpenCLDeformer
+
+        rt = get_runtime("cpu")
+        devices["opencl"] = rt.name
+        backends["opencl"] = OpenCLDeformer()
+    except (ImportError, OpenCLUnavailable, Exception) as e:  # noqa: BLE001 - any missing driver skips the rows
+        log(f"opencl (CPU device) skipped: {e}")
+    try:
+        from rigslim.egl import shared_context
+        from rigslim.plugins.deformers.opengl_deformer import OpenGLDeformer
+
+        ctx = shared_context()
+        if ctx.is_software:
+            devices["opengl"] = f"{ctx.renderer}, {ctx.version}"
+            backends["opengl"] = OpenGLDeformer()
+        else:
+            log(f"opengl skipped: {ctx.renderer} is not a CPU renderer")
+    except Exception as e:  # noqa: BLE001
+        log(f"opengl skipped: {e}")
+
+    for k in ks:
+        reduced = k_largest_weights(W, k_largest(W, k))
+        for backend, deformer in backends.items():
+            for layout in ("fixed", "compact"):
+                raw = {"layout": layout, **{"opencl": {"device": "cpu"}, "cpu": {"engine": "numba"}}.get(backend, {})}
+                bound = deformer.bind(mesh, reduced, deformer.parse_params(raw), handles=asset.handles)
+
+                def frame(T, normals, bound=bound):
+                    bound.launch(T, normals, read=True)
+
+                for normals in (False, True):
+                    device_ms, frame_ms = time_frames(frame, bound, poses, normals)
+                    add(backend, int(k), layout, normals, device_ms, frame_ms, bound.bytes_per_frame(normals))
+                bound.close()
+
+    def best(backend, k, normals):
+        cands = [r for r in rows if r["backend"] == backend and r["weights"] == k and r["normals"] == normals]
+        return min(cands, key=lambda r: r["frame_ms"]) if cands else None
+
+    targets = {}
+    for k in ks:
+        r = best("cpu", k, True)
+        if r is not None:
+            targets[f"cpu k={k} normals"] = {"layout": r["layout"], "frame_ms": r["frame_ms"],
+                                             "x_numpy_full": numpy_full_ms / r["frame_ms"],
+                                             "fraction_of_copy": r["gbps"] / copy["copy_gbps"]}
+    return {
+        "benchmark": "deform_throughput --quick",
+        "date_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()),
+        "machine": {"cpu": cpu_model(), "nproc": os.cpu_count(), "platform": platform.platform()},
+        "devices": devices,
+        "mesh": {"levels": levels, "vertices": mesh.n_vertices, "triangles": mesh.n_faces,
+                 "handles": asset.handles.n, "weights_nnz": int(W.nnz)},
+        "frames": [int(f) for f in chosen],
+        "copy_gbps": copy["copy_gbps"],
+        "copy": copy,
+        "rows": rows,
+        "recomputed_normals": {"ms": recomputed_ms, "x_numpy_full_positions": recomputed_ms / numpy_full_ms},
+        "targets": targets,
+        "load_average": [load_start, os.getloadavg()[0]],
+        "seconds": time.perf_counter() - started,
+    }
+
+
+def quick_markdown(doc: dict) -> str:
+    m, mach, c = doc["mesh"], doc["machine"], doc["copy"]
+    lines = [
+        "# Deformation throughput on the CPU (`--quick`)",
+        "",
+        f"Measured {doc['date_utc']} UTC by `benchmarks/deform_throughput.py --quick` on {mach['cpu']} "
+        f"({mach['nproc']} logical CPUs, shared with other jobs), {mach['platform']}; "
+        f"{doc['seconds']:.0f} s in all.",
+        "",
+        f"Mesh: the elephant subdivided {m['levels']}x, {m['vertices']:,} vertices, {m['triangles']:,} triangles, "
+        f"{m['handles']} bones, {m['weights_nnz']:,} weights; k-largest reductions. {len(doc['frames'])} test poses, "
+        f"median frame after a warm-up frame. Normals: blended-matrix, in the same pass.",
+        "",
+        "Devices: " + "; ".join(f"{b}: {d}" for b, d in doc["devices"].items()) + ".",
+        "",
+        f"Copy bandwidth in the same run (read + write of {c['bytes'] / 2**20:.0f} MiB): numpy copyto "
+        f"{c['numpy_copyto']:.1f} GB/s, numba parallel copy {c['numba_parallel']:.1f} GB/s; "
+        f"**copy_gbps = {doc['copy_gbps']:.1f} GB/s**.",
+        "",
+        "`frame ms`: wall time of one frame into preallocated outputs (numpy: `deform(T)`, float64, allocating); "
+        "`device ms`: the kernel alone; GB/s = bytes a frame must move (inputs read once, outputs written once) / "
+        "frame time.",
+        "",
+        "| backend | weights | layout | normals | device ms | frame ms | GB/s | % of copy | x numpy full |",
+        "|---|---|---|---|---:|---:|---:|---:|---:|",
+    ]
+    base = next(r["frame_ms"] for r in doc["rows"] if r["backend"] == "numpy" and r["weights"] == "full")
+    for r in doc["rows"]:
+        lines.append(f"| {r['backend']} | {r['weights']} | {r['layout']} | {'yes' if r['normals'] else 'no'} | "
+                     f"{r['device_ms']:.2f} | {r['frame_ms']:.2f} | {r['gbps']:.2f} | "
+                     f"{100 * r['gbps'] / doc['copy_gbps']:.1f} | {base / r['frame_ms']:.1f} |")
+    rn = doc["recomputed_normals"]
+    lines += ["", f"Recomputed area-weighted normals of the full deformation (face->vertex operator): "
+              f"{rn['ms']:.2f} ms, {rn['x_numpy_full_positions']:.2f}x the numpy full positions frame.", "",
+              "## Targets", ""]
+    for name, t in doc["targets"].items():
+        lines.append(f"- {name} ({t['layout']}): {t['frame_ms']:.2f} ms, **{t['x_numpy_full']:.1f}x** numpy full "
+                     f"(target 10x: {'met' if t['x_numpy_full'] >= 10 else 'not met'}), "
+                     f"**{100 * t['fraction_of_copy']:.0f}%** of copy bandwidth "
+                     f"(target 50%: {'met' if t['fraction_of_copy'] >= 0.5 else 'not met'}).")
+    lines.append(f"- recomputed normals <= 2x numpy positions: {rn['x_numpy_full_positions']:.2f}x, "
+                 f"{'met' if rn['x_numpy_full_positions'] <= 2 else 'not met'}.")
+    load = doc["load_average"]
+    lines += [f"- 1-minute load average at start / end: {load[0]:.2f} / {load[1]:.2f} on {mach['nproc']} CPUs.", ""]
+    return "\n".join(lines)
+
+
 def write(doc: dict, out: Path) -> None:
     write_results(out, doc, markdown(doc))
 
@@ -256,7 +488,21 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default=None, help="OpenCL device spec: auto, gpu, cpu, or part of a name")
     ap.add_argument("--markdown-only", action="store_true",
                     help="rewrite OUT.md from an existing OUT.json without timing anything")
+    ap.add_argument("--quick", action="store_true",
+                    help="every CPU back end at k = 8 and 4 against numpy full weights, with the copy bandwidth "
+                         "(under 3 minutes on 2 cores); prints the table, writes --json FILE and FILE's .md")
+    ap.add_argument("--json", type=Path, default=None, help="--quick: where to write the JSON (and .md beside it)")
+    ap.add_argument("--copy-mib", type=int, default=512, help="--quick: buffer size of the copy-bandwidth probe")
     args = ap.parse_args(argv)
+    if args.quick:
+        ks = [int(x) for x in args.k.split(",") if x.strip() != "full"] if args.k != "full,8,4" else [8, 4]
+        doc = run_quick(args.levels, args.frames, ks, copy_mib=args.copy_mib)
+        text = quick_markdown(doc)
+        if args.json is not None:
+            write_results(args.json.with_suffix(""), doc, text)
+        print()
+        print(text)
+        return 0
     if args.markdown_only:
         doc = json.loads(Path(args.out).with_suffix(".json").read_text())
         write(doc, args.out)

@@ -14,7 +14,9 @@ reduced and on the full deformation; per frame, then averaged over frames.
 A reference row fits plain NNLS without sum-to-one (the issue's orientation
 figure), which is not a valid reduction (rows do not sum to one).
 
-Run: ``PYTHONPATH=. .venv/bin/python benchmarks/reduction_quality.py``
+Run: ``PYTHONPATH=. .venv/bin/python benchmarks/reduction_quality.py``; with ``best-fit`` as
+first argument it runs :mod:`benchmarks.reduction_best_fit` instead (best-fit influence sets
+with every solver, Dem Bones in the same run; docs/results/reduction_quality_best_fit.{json,md}).
 Writes docs/results/reduction_quality.{json,md} and reduction_quality_fig10.png,
 reduction_quality_fig12.png.
 """
@@ -184,4 +186,13 @@ def plots(results):
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    if len(sys.argv) > 1 and sys.argv[1] == "best-fit":
+        # best-fit influence sets against k-largest sets and Dem Bones: benchmarks/reduction_best_fit.py
+        from benchmarks.reduction_best_fit import main as best_fit_main
+
+        sys.argv.pop(1)
+        best_fit_main()
+    else:
+        main()

@@ -207,10 +207,17 @@ def _absolute(value, base: Path):
 
 
 def _parse_value(text: str):
+    """A manifest cell as YAML (``4``, ``true``, ``[0.1, 0.02]``); ``1e-6`` is a number too (YAML 1.1 says string)."""
     try:
-        return yaml.safe_load(text)
+        value = yaml.safe_load(text)
     except yaml.YAMLError:
         return text
+    if isinstance(value, str):
+        try:
+            return float(value)
+        except ValueError:
+            pass
+    return value
 
 
 def _step_key(raw: dict) -> str | None:

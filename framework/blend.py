@@ -83,8 +83,13 @@ def per_vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     """Area-weighted unit vertex normals (as ``igl.per_vertex_normals``, AREA weighting, to rounding).
 
     Applies the face->vertex operator of F, built once per face array
-    (:mod:`rigslim.numerics.area_weighted_normals`).
+    (:mod:`rigslim.numerics.area_weighted_normals`); libigl where numba is missing.
     """
-    from rigslim.numerics.area_weighted_normals import area_weighted_normals
+    try:
+        from rigslim.numerics.area_weighted_normals import area_weighted_normals
+    except ImportError:            # a minimal install without numba (the GPU machine)
+        import igl
 
+        return igl.per_vertex_normals(np.ascontiguousarray(V, dtype=np.float64), F,
+                                      igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_AREA)
     return area_weighted_normals(V, F)

@@ -251,7 +251,7 @@ def load_render_data(document: dict, json_path=None) -> RenderData:
     Inputs come from the run's pipeline file when it is found (relative to
     the working folder or the JSON's folder), so that reader options apply,
     else from the absolute paths under ``inputs``. The test split is the
-    document's ``frames``. Reduced weights come from ``.npz`` files written by
+    document's ``frames``. Reduced weights come from ``.npz`` (or ``.glb``/``.gltf``) files written by
     ``write:`` steps between an evaluation's ``solve`` and the next one.
 
     Raises
@@ -314,13 +314,16 @@ def load_render_data(document: dict, json_path=None) -> RenderData:
         for s in steps[solve_at + 1:]:
             if s.get("stage") in ("select", "solve"):
                 break
-            if s.get("stage") == "write" and str(s.get("path", "")).endswith(".npz"):
+            if s.get("stage") == "write" and str(s.get("path", "")).lower().endswith((".npz", ".glb", ".gltf")):
                 path = Path(s["path"])
                 if not path.is_absolute() and pipeline is not None:
                     path = pipeline.parent / path
                 if path.is_file():
-                    R = read_reduced_npz(path)
-                    problem = _mismatch(asset, R, ev, steps[solve_at])
+                    gltf = path.suffix.lower() != ".npz"     # the written glTF's own weights (rigslim.report_gltf)
+                    if gltf:
+                        from rigslim.report_gltf import reduced_from_gltf
+                    R = reduced_from_gltf(path, asset) if gltf else read_reduced_npz(path)
+                    problem = _mismatch(asset, R, ev, steps[solve_at], tolerance=0.05 if gltf else 1e-3)
                     if problem is None:
                         reduced[at] = R
                         break
@@ -328,11 +331,11 @@ def load_render_data(document: dict, json_path=None) -> RenderData:
                                  "not rendered (write each run's weights to its own file)")
         if at not in reduced:
             notes.append(f"{document.get('name', 'run')} / {ev.get('name')}: no reduced weights found "
-                         "(add a 'write: out/NAME.npz' step after the solve to render them)")
+                         "(add a 'write: out/NAME.npz' or .glb step after the solve to render them)")
     return RenderData(asset, reduced, notes, normals)
 
 
-def _mismatch(asset, R, evaluation: dict, solve_step: dict) -> str | None:
+def _mismatch(asset, R, evaluation: dict, solve_step: dict, tolerance: float = 1e-3) -> str | None:
     """Why the reduced weights ``R`` are not the ones an evaluation measured, or None.
 
     Checks the shape, k, and recomputes the position error of the first test
@@ -354,7 +357,7 @@ def _mismatch(asset, R, evaluation: dict, solve_step: dict) -> str | None:
         d = linear_blend(asset.mesh.V, R, T) - linear_blend(asset.mesh.V, asset.weights, T)
         err = 100.0 * float(np.sqrt(np.mean(np.sum(d * d, axis=1)))) / asset.mesh.bbox_diagonal
         want = float(per["per_frame"][0])
-        if abs(err - want) > 1e-3 * max(abs(want), 1e-6) + 1e-9:
+        if abs(err - want) > tolerance * max(abs(want), 1e-6) + 1e-9:   # glTF: quantised weights, 5 %
             return f"gives {err:.6g}% on frame {f}, the run measured {want:.6g}% (overwritten by another run?)"
     return None
 
@@ -741,6 +744,9 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
                             f"src=\"{_data_uri(p1)}\"><figcaption>{html.escape(label)} ({faces} faces, "
                             f"own weights)</figcaption></figure></div>")
             parts.append(f"<div class=\"frame\"><h3>{html.escape(rf.run)}, frame {rf.frame}</h3>{''.join(figs)}</div>")
+    from rigslim.report_gltf import lod_section
+
+    parts.append(lod_section(documents))
     if notes:
         parts.append("<h2>Notes</h2><ul class=\"notes\">" + "".join(f"<li>{html.escape(n)}</li>" for n in notes)
                      + "</ul>")

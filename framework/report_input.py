@@ -88,7 +88,7 @@ class StepEntry(_Model):
     stage: str | None = None
     plugin: str | None = None
     k: int | None = None
-    seconds: Number = None
+    seconds: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
 
 
 class Frames(_Model):

@@ -99,7 +99,12 @@ def _problem(e: yaml.YAMLError) -> tuple[str, str]:
 
 def load_yaml_text(text: str, source) -> object:
     """Parse one YAML document with the guards of the module docstring."""
-    loader = StrictLoader(text)
+    try:
+        loader = StrictLoader(text)  # the reader refuses control characters here already
+    except yaml.YAMLError as e:
+        where, problem = _problem(e)
+        raise PipelineError(f"malformed YAML ({problem})", source=source, field=where,
+                            fix="remove control characters; give a YAML text file") from None
     try:
         try:
             node = loader.get_single_node()

@@ -332,3 +332,21 @@ def test_buffer_file_shorter_than_byte_length(project, capfd):
     doc["buffers"][3]["byteLength"] = 10 ** 9
     line = _bad(project, capfd, doc)
     assert "buffers[3]" in line and "byteLength" in line
+
+
+def test_non_affine_inverse_bind_matrix(project, capfd):
+    doc = _doc()
+    ibm = np.tile(np.eye(4, dtype=np.float32).T.ravel(), 2)
+    ibm[15] = 0.0  # column-major: the last row of joint 0's matrix is (0, 0, 0, 0)
+    _set_floats(doc, 4, ibm)
+    line = _bad(project, capfd, doc)
+    assert "skins[0].inverseBindMatrices[0]" in line and "affine" in line
+
+
+def test_accessor_of_the_wrong_type(project, capfd):
+    doc = _doc()
+    doc["skins"][0]["inverseBindMatrices"] = 3  # a VEC4 accessor (the weights)
+    assert "skins[0].inverseBindMatrices" in _bad(project, capfd, doc)
+    doc = _doc()
+    doc["meshes"][0]["primitives"][0]["attributes"]["POSITION"] = 4  # a MAT4 accessor
+    assert "attributes.POSITION" in _bad(project, capfd, doc)

@@ -104,7 +104,7 @@ def test_deep_block_nesting(project, capfd):
 def test_binary_file_as_pipeline(project, capfd):
     p = project / "pipeline.yaml"
     p.write_bytes((DATA / "cheburashka-anim.dmat").read_bytes()[:4096])
-    assert "UTF-8" in _bad(project, capfd, p, "pipeline.yaml") or True
+    assert "not UTF-8 text" in _bad(project, capfd, p, "pipeline.yaml", "path")
 
 
 def test_png_as_pipeline(project, capfd):
@@ -132,7 +132,7 @@ def test_duplicate_parameter_key(project, capfd):
 
 
 def test_merge_keys_still_work(project, capfd):
-    text = ("defaults: &d {k: 2}\n" if False else "") + CHEB.format(
+    text = CHEB.format(
         mesh="cheburashka.off", skeleton="cheburashka.tgf", animation="cheburashka-anim.dmat",
         steps="  - generate: bone-heat\n  - select: k-largest\n    <<: {k: 2}\n  - solve: k-largest")
     code, lines = run_cli(["run", _pipeline(project, text), "-q"], capfd)
@@ -149,10 +149,9 @@ def test_bool_is_not_an_int(project, capfd):
 
 
 def test_bool_still_fine_for_bool_parameters(project, capfd):
-    steps = "  - generate: bone-heat\n  - select: k-largest\n    k: 2\n  - solve: k-largest\n    nonnegative: true\n"
+    steps = "  - generate: bone-heat\n    visibility: false\n  - select: k-largest\n    k: 2\n  - solve: k-largest\n"
     code, lines = run_cli(["run", _pipeline(project, steps=steps), "-q"], capfd)
-    assert code in (0, 2), lines
-    assert not any("yes/no" in line for line in lines), lines
+    assert code == 0, lines
 
 
 def test_metric_parameters_not_a_mapping(project, capfd):
@@ -300,3 +299,20 @@ def test_warnings_are_dropped_when_an_error_follows(project, capfd, monkeypatch)
     monkeypatch.setattr(rigslim.pipeline, "load_pipeline", noisy)
     steps = "  - generate: bone-heat\n  - select: k-largest\n    k: true\n"
     _bad(project, capfd, _pipeline(project, steps=steps), "pipeline.yaml", "steps[2].k")
+
+
+@pytest.mark.parametrize("name, text", [
+    ("one-corner.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1"),  # libigl 2.6 corrupts its heap on this
+    ("two-corners.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\nf 1 2 3\n"),  # libigl would drop it silently
+    ("one-corner.off", "OFF\n3 2 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n1 0\n"),
+])
+def test_faces_with_fewer_than_three_corners(project, capfd, name, text):
+    (project / name).write_text(text)
+    line = _bad(project, capfd, _pipeline(project, mesh=name), name, "line", subprocess=True)
+    assert "corner" in line
+
+
+def test_libigl_stdout_diagnosis_goes_into_the_line(project, capfd):
+    (project / "short.off").write_text("OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n")  # a face missing
+    code, lines = run_cli_subprocess(["run", _pipeline(project, mesh="short.off"), "-q"], cwd=project)
+    assert_one_line(code, lines, "short.off", "bad line")

@@ -297,3 +297,16 @@ def test_lod_on_freshly_converted_assimp_characters(name, tmp_path, valid):
     check_lod_structure(glb, out, 2)
     assert main(["reduce", str(glb), "-o", str(tmp_path / "k2.glb"), "-k", "2", "--solve", "k-largest"]) == 0
     valid(tmp_path / "k2.glb")
+
+
+def test_lod_is_a_pipeline_rigslim_run_can_run(tmp_path):
+    """--save-pipeline writes the YAML the command ran; `rigslim run` on it writes the same levels."""
+    src = GLTF / "tube_two_materials.glb"
+    assert main(["lod", str(src), "-o", str(tmp_path / "a.glb"), "--ratios", "0.5,0.25",
+                 "--save-pipeline", str(tmp_path / "lod.yaml")]) == 0
+    text = (tmp_path / "lod.yaml").read_text().replace(str(tmp_path / "a.glb"), str(tmp_path / "b.glb"))
+    (tmp_path / "lod.yaml").write_text(text)
+    assert main(["run", str(tmp_path / "lod.yaml"), "-q"]) == 0
+    a, b = load_gltf(tmp_path / "a.glb").json, load_gltf(tmp_path / "b.glb").json
+    assert [m["name"] for m in a["meshes"]] == [m["name"] for m in b["meshes"]]
+    assert a["accessors"] == b["accessors"]

@@ -20,7 +20,7 @@ def tube():
     return read_gltf_skin(TUBE, weld=True, fps=10)
 
 
-def _decimate(skin, backend="numba", lock=True, targets=(0.5, 0.25)):
+def _decimate(skin, backend="numba", lock=True, targets=(0.5, 0.25), **extra):
     from rigslim.asset import Asset
     from rigslim.host import get_host
     from rigslim.plugin import StepContext
@@ -32,7 +32,7 @@ def _decimate(skin, backend="numba", lock=True, targets=(0.5, 0.25)):
     plugin = get_host().get("articulated-decimation", "quartic")
     ctx = StepContext()
     plugin.apply(asset, plugin.parse_params({"targets": list(targets), "max_bones": 4, "backend": backend,
-                                                "lock_seams": lock}), ctx)
+                                             "lock_seams": lock} | extra), ctx)
     return asset.hierarchy, asset.levels, ctx.report
 
 
@@ -48,7 +48,7 @@ def test_seams_are_the_uv_seam_and_the_material_boundaries(tube):
 
 
 def test_locked_vertices_never_move(tube):
-    hier, levels, report = _decimate(tube)
+    hier, levels, report = _decimate(tube, seams_collapse_along=False)
     locked = np.flatnonzero(seam_vertices(tube))
     assert report["locked_seam_vertices"] == len(locked)
     touched = np.isin(hier.collapses, locked)
@@ -58,7 +58,31 @@ def test_locked_vertices_never_move(tube):
         assert np.array_equal(rep[locked], locked)
 
 
-def test_backends_agree_with_locked_vertices(elephant, monkeypatch):
+def test_seams_collapse_only_along_themselves(tube):
+    """Seam vertices merge only with seam vertices across seam edges; seam corners never move; more faces go."""
+    from rigslim.io.gltf_lod import seam_structure
+
+    locked, along, charts = seam_structure(tube)
+    assert along.sum() > 0 and (along <= locked).all()
+    hier, levels, report = _decimate(tube)
+    kept, _, _ = _decimate(tube, seams_collapse_along=False)
+    assert report["seam_vertices_collapsing_along"] == int(along.sum())
+    m = hier.n_original
+    on_seam = np.zeros(len(hier.V), bool)
+    on_seam[:m] = along
+    for i, (a, b) in enumerate(hier.collapses):
+        if locked[a] if a < m else on_seam[a]:
+            assert on_seam[a] and on_seam[b], "a seam vertex merged with a vertex off its seam"
+            on_seam[m + i] = True
+        else:
+            assert not (on_seam[b] or (b < m and locked[b]))
+    corners = np.flatnonzero(locked & ~along)
+    assert not np.isin(hier.collapses, corners).any()
+    assert hier.faces_after(hier.n_collapses) <= kept.faces_after(kept.n_collapses)
+
+
+@pytest.mark.parametrize("seamed", [False, True], ids=["locked", "seams-along"])
+def test_backends_agree_with_locked_vertices(elephant, monkeypatch, seamed):
     """The numpy reference and the compiled loop make the same collapses when vertices are locked.
 
     On a real piece of the elephant (as tests/test_decimation_compiled.py; the glTF samples are mirror
@@ -81,7 +105,19 @@ def test_backends_agree_with_locked_vertices(elephant, monkeypatch):
     piece = Asset(mesh=Mesh(V[used], remap[Fk]), weights=sp.csr_matrix(W[used]), poses=elephant.poses,
                   split=elephant.split)
     locked = np.random.default_rng(3).random(piece.mesh.n_vertices) < 0.2
-    monkeypatch.setattr(articulated, "seam_lock", lambda asset: locked)
+    seams = None
+    if seamed:          # two charts split by a plane through the piece: a seam curve across it
+        from rigslim.io.gltf_lod import seams_along
+
+        Vp, Fp = piece.mesh.V, piece.mesh.F
+        cen = Vp[Fp].mean(axis=1)
+        charts = (cen[:, 0] > np.median(cen[:, 0])).astype(np.int64)
+        counts = np.zeros((len(Vp), 2), int)
+        np.add.at(counts, (Fp.ravel(), np.repeat(charts, 3)), 1)
+        locked = (counts > 0).all(axis=1)
+        seams = (seams_along(Fp, charts, locked), charts)
+        assert seams[0].sum() > 10
+    monkeypatch.setattr(articulated, "seam_lock", lambda asset, along=True: (locked, seams))
     from rigslim.host import get_host
     from rigslim.plugin import StepContext
 
@@ -95,7 +131,10 @@ def test_backends_agree_with_locked_vertices(elephant, monkeypatch):
         hs.append(piece.hierarchy)
     assert hs[0].n_collapses > 200
     np.testing.assert_array_equal(hs[0].collapses, hs[1].collapses)
-    assert not np.isin(hs[0].collapses, np.flatnonzero(locked)).any()
+    if not seamed:
+        assert not np.isin(hs[0].collapses, np.flatnonzero(locked)).any()
+    else:
+        assert np.isin(hs[0].collapses, np.flatnonzero(seams[0])).any()      # some seam collapses happened
 
 
 def test_attributes_interpolate_along_collapses(tube):
@@ -178,3 +217,46 @@ def test_transfers_against_the_tube_parametrisation(tube, transfer, tol_v, tol_u
             worst = max(worst, np.abs(uv[:, 1] - (1 - P[:, 1] / 2)).max() / tol_v,
                         np.minimum(du, 1 - du).max() / tol_u)
     assert worst < 1.0
+
+
+def test_attribute_quadrics_measure_displacement_along_the_uv_field(tube):
+    """Zero at every vertex's own position; grows with the UV change when the vertex slides along the tube."""
+    from rigslim.io.gltf_lod import attribute_quadrics
+
+    Q = attribute_quadrics(tube, {"TEXCOORD": 1.0})
+    V = tube.mesh.V
+    h = np.c_[V, np.ones(len(V))]
+    assert np.abs(np.einsum("vi,vij,vj->v", h, Q, h)).max() < 1e-12
+    assert not attribute_quadrics(tube, {"COLOR": 1.0}).any()          # no colours: no term
+    # an interior vertex moved along y by dy changes v = 1 - y/2 by dy/2: cost = sum area (dy/2)^2 over its faces
+    locked = seam_vertices(tube)
+    i = int(np.flatnonzero(~locked & (np.abs(V[:, 1] - 0.5) < 1e-9))[0])
+    dy = 1e-3
+    p = np.r_[V[i] + [0, dy, 0], 1.0]
+    faces = np.flatnonzero((tube.mesh.F == i).any(axis=1))
+    P = V[tube.mesh.F[faces]]
+    area = 0.5 * np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1).sum()
+    assert p @ Q[i] @ p == pytest.approx(area * (dy / 2) ** 2, rel=1e-3)
+
+
+def test_attribute_term_is_one_more_pose(tube):
+    """With weights, the decimator appends the term (report ``attribute_term``) and every level stays valid."""
+    from rigslim.asset import Asset
+    from rigslim.host import get_host
+    from rigslim.plugin import StepContext
+    from rigslim.poses import FrameSplit
+
+    n = len(tube.poses)
+    asset = Asset(mesh=tube.mesh, handles=tube.handles, weights=tube.weights, poses=tube.poses,
+                  split=FrameSplit.from_specs(f"0:{n}:2", f"1:{n}:2", n))
+    asset.extras["gltf"] = tube
+    plugin = get_host().get("articulated-decimation", "quartic")
+    ctx = StepContext()
+    plugin.apply(asset, plugin.parse_params({"targets": [0.5], "attribute_weights": {"TEXCOORD": 1.0}}), ctx)
+    assert ctx.report["attribute_term"] is True
+    level = asset.levels[0]
+    assert level.n_faces <= 0.5 * tube.mesh.n_faces + 2
+    assert np.allclose(level.weights.values.sum(axis=1), 1)
+    ctx = StepContext()
+    plugin.apply(asset, plugin.parse_params({"targets": [0.5]}), ctx)
+    assert ctx.report["attribute_term"] is False

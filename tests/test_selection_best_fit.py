@@ -61,6 +61,16 @@ def test_kernel_matches_numpy_reference(rng, by, swaps):
     np.testing.assert_allclose(e1, e2, rtol=1e-8, atol=1e-12)
 
 
+@pytest.mark.parametrize("by", ["weight", "error"])
+def test_translation_only_handles_match_the_reference(rng, by):
+    V, T, A = random_problem(rng, m=60, n=8, p=3)
+    T[..., :3] = 0.0    # cage handles: T_j = [0 | c_j], the basis is the same for every vertex
+    f1, s1, e1 = sparse_fit(V, T, A, 3, by)
+    f2, s2, e2 = sparse_fit_reference(V, T, A, 3, by)
+    np.testing.assert_allclose(e1, e2, rtol=1e-6, atol=1e-10)
+    assert (s1.reshape(-1) == s2.reshape(-1)).mean() > 0.95
+
+
 def test_weight_fit_is_the_exact_optimum(rng):
     V, T, A = random_problem(rng, m=50, n=6, p=5)
     fit, _, errors = sparse_fit(V, T, A, 3, "weight")

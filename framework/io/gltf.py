@@ -543,6 +543,7 @@ def sampler_keys(doc: GltfDocument, animation: int, index: int, path: str) -> tu
     """
     sampler = doc.json["animations"][animation]["samplers"][index]
     where = f"animations[{animation}].samplers[{index}]"
+    _expect_type(doc, sampler["input"], ("SCALAR",), f"{where}.input")
     times = np.asarray(read_accessor(doc, sampler["input"]), np.float64)
     if times.ndim != 1:
         raise InputError("key times are not SCALAR", source=doc.path, field=f"{where}.input", fix="re-export the file")
@@ -732,6 +733,14 @@ def skinning_sets(attributes: dict) -> list[int]:
     return [n for n in sets if f"WEIGHTS_{n}" in attributes]
 
 
+def _expect_type(doc: GltfDocument, index: int, types: tuple[str, ...], where: str) -> None:
+    """Refuse an accessor whose ``type`` is not one the property requires (glTF 2.0 section 3.7)."""
+    kind = doc.json["accessors"][index].get("type")
+    if kind not in types:
+        raise InputError(f"accessors[{index}] is {kind}, not {' or '.join(types)}", source=doc.path, field=where,
+                         fix="re-export the file")
+
+
 def _choose_skin(doc: GltfDocument, skin, mesh) -> tuple[int, list[int]]:
     js = doc.json
     skins = js.get("skins", [])
@@ -857,6 +866,7 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, we
     joints = [int(j) for j in sk["joints"]]
     n = len(joints)
     if "inverseBindMatrices" in sk:
+        _expect_type(doc, sk["inverseBindMatrices"], ("MAT4",), f"skins[{skin_index}].inverseBindMatrices")
         ibm = read_accessor(doc, sk["inverseBindMatrices"]).reshape(-1, 4, 4).transpose(0, 2, 1).astype(float)
         if len(ibm) < n:
             raise InputError(f"{len(ibm)} inverse bind matrices for {n} joints", source=doc.path,
@@ -870,6 +880,12 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, we
             det = np.linalg.det(ibm[:, :3, :3])
             scale = np.abs(ibm[:, :3, :3]).max(axis=(1, 2))
         singular = ~(np.abs(det) > 1e-12 * np.maximum(scale, 1e-300) ** 3)
+        affine = np.abs(ibm[:, 3, :] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) <= 1e-6 * np.maximum(scale, 1.0)
+        if not affine.all():
+            j = int(np.argmin(affine))
+            raise InputError(f"the inverse bind matrix of joint {j} (node {joints[j]}) is not affine (last row "
+                             f"{np.round(ibm[j, 3], 6).tolist()}, not [0, 0, 0, 1])", source=doc.path,
+                             field=f"{where}[{j}]", fix="re-export the skin")
         if singular.any():
             j = int(np.argmax(singular))
             raise InputError(f"the inverse bind matrix of joint {j} (node {joints[j]}) is singular", source=doc.path,
@@ -889,6 +905,12 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, we
             if prim.get("extensions", {}).get("KHR_draco_mesh_compression") is not None:
                 raise InputError("Draco-compressed primitives are not supported", source=doc.path, field=where,
                                  fix="re-export without Draco compression")
+            _expect_type(doc, attrs["POSITION"], ("VEC3",), f"{where}.attributes.POSITION")
+            for s_ in sets:
+                _expect_type(doc, attrs[f"JOINTS_{s_}"], ("VEC4",), f"{where}.attributes.JOINTS_{s_}")
+                _expect_type(doc, attrs[f"WEIGHTS_{s_}"], ("VEC4",), f"{where}.attributes.WEIGHTS_{s_}")
+            if "indices" in prim:
+                _expect_type(doc, prim["indices"], ("SCALAR",), f"{where}.indices")
             V = np.asarray(read_accessor(doc, attrs["POSITION"]), float)
             m = len(V)
             for name in ["POSITION"] + [f"{a}_{s}" for s in sets for a in ("JOINTS", "WEIGHTS")]:

@@ -283,7 +283,7 @@ def _level_primitive(blob: _Blob, level, n_joints: int, kind: str, n_sets: int |
     attrs = {"POSITION": blob.new_accessor(V, 5126, "VEC3", minmax=True)}
     if len(F):
         N = per_vertex_normals(mesh.V, mesh.F).astype(np.float32)
-        N[~np.isfinite(N).all(axis=1)] = [0, 0, 1]
+        N[~np.isfinite(N).all(axis=1) | (np.abs(N).sum(axis=1) < 0.5)] = [0, 0, 1]   # no face: zero or NaN
         attrs["NORMAL"] = blob.new_accessor(N, 5126, "VEC3")
     # keep only as many slots as the level's busiest vertex uses (levels may come as dense rows)
     values = np.asarray(level.weights.values, dtype=np.float64)
@@ -801,7 +801,7 @@ def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.
     blob = _Blob(js)
     V = np.asarray(mesh.V, np.float32)
     N = per_vertex_normals(mesh.V, mesh.F).astype(np.float32)
-    N[~np.isfinite(N).all(axis=1)] = [0, 0, 1]
+    N[~np.isfinite(N).all(axis=1) | (np.abs(N).sum(axis=1) < 0.5)] = [0, 0, 1]   # no face: zero or NaN
     attrs = {"POSITION": blob.new_accessor(V, 5126, "VEC3", minmax=True),
              "NORMAL": blob.new_accessor(N, 5126, "VEC3")}
     _put_sets(blob, attrs, I, W, n, quantize, None)

@@ -37,6 +37,7 @@ def read_mesh(path) -> Mesh:
 
     from rigslim.native import native_stderr
 
+    _check_polygons(path, suffix)
     with native_stderr() as said:
         try:
             V, F = igl.read_triangle_mesh(str(path))
@@ -52,6 +53,52 @@ def read_mesh(path) -> Mesh:
         raise InputError("no vertices or no triangles", source=path, field="contents",
                          fix="check that it is a valid, non-empty triangle mesh")
     return Mesh(V, F, source=str(path))
+
+
+def _check_polygons(path: Path, suffix: str) -> None:
+    """Refuse OBJ/OFF faces with fewer than 3 corners before libigl sees them.
+
+    libigl 2.6's OBJ and OFF readers corrupt the heap (the process aborts)
+    on a face of one corner, and silently drop faces of two; this scan
+    names the line instead.
+    """
+    if suffix not in (".obj", ".off"):
+        return
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise InputError(f"cannot read file ({e.strerror})", source=path, field="path", fix="check the path") from None
+
+    def refuse(number: int, corners: int):
+        raise InputError(f"the face on line {number} has {corners} corner{'s' if corners != 1 else ''}; a face needs "
+                         "at least 3", source=path, field=f"line {number}", fix="repair or re-export the mesh")
+
+    lines = data.splitlines()
+    if suffix == ".obj":
+        for number, line in enumerate(lines, 1):
+            tok = line.split(b"#", 1)[0].split()
+            if tok and tok[0] == b"f" and len(tok) < 4:
+                refuse(number, len(tok) - 1)
+        return
+    # OFF: header ("OFF", counts), vertex lines, then faces "n i1 .. in"
+    rows = [(n, t) for n, t in ((n, line.split(b"#", 1)[0].split()) for n, line in enumerate(lines, 1)) if t]
+    if not rows:
+        return
+    if rows[0][1][0].upper().endswith(b"OFF"):
+        rows[0] = (rows[0][0], rows[0][1][1:])
+        if not rows[0][1]:
+            rows = rows[1:]
+    try:
+        n_vertices, n_faces = int(rows[0][1][0]), int(rows[0][1][1])
+    except (IndexError, ValueError):
+        return  # libigl reports a malformed header itself
+    for number, tok in rows[1 + max(n_vertices, 0):1 + max(n_vertices, 0) + max(n_faces, 0)]:
+        try:
+            corners = int(tok[0])
+        except ValueError:
+            continue
+        if corners < 3:
+            refuse(number, corners)
 
 
 def read_medit_surface(path):

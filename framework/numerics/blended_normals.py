@@ -13,6 +13,20 @@ import numpy as np
 from rigslim.blend import blended_matrices
 
 
+def _cofactor_apply_det(R: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(cof(R) n, det R)`` from the rows' cross products, on contiguous components (no LU, no np.cross)."""
+    a0, a1, a2 = R[:, 0, 0], R[:, 0, 1], R[:, 0, 2]
+    b0, b1, b2 = R[:, 1, 0], R[:, 1, 1], R[:, 1, 2]
+    c0, c1, c2 = R[:, 2, 0], R[:, 2, 1], R[:, 2, 2]
+    nx, ny, nz = n[:, 0], n[:, 1], n[:, 2]
+    u0, u1, u2 = b1 * c2 - b2 * c1, b2 * c0 - b0 * c2, b0 * c1 - b1 * c0      # r1 x r2
+    out = np.empty((len(R), 3))
+    out[:, 0] = u0 * nx + u1 * ny + u2 * nz
+    out[:, 1] = (c1 * a2 - c2 * a1) * nx + (c2 * a0 - c0 * a2) * ny + (c0 * a1 - c1 * a0) * nz   # (r2 x r0) . n
+    out[:, 2] = (a1 * b2 - a2 * b1) * nx + (a2 * b0 - a0 * b2) * ny + (a0 * b1 - a1 * b0) * nz   # (r0 x r1) . n
+    return out, a0 * u0 + a1 * u1 + a2 * u2
+
+
 def cofactor_apply(R: np.ndarray, n: np.ndarray) -> np.ndarray:
     """``cof(R) n = det(R) R^{-T} n`` for stacks of 3x3 matrices, without a division.
 
@@ -27,10 +41,7 @@ def cofactor_apply(R: np.ndarray, n: np.ndarray) -> np.ndarray:
     -------
     (m, 3) array
     """
-    r0, r1, r2 = R[:, 0], R[:, 1], R[:, 2]
-    return np.stack([np.einsum("ij,ij->i", np.cross(r1, r2), n),
-                     np.einsum("ij,ij->i", np.cross(r2, r0), n),
-                     np.einsum("ij,ij->i", np.cross(r0, r1), n)], axis=1)
+    return _cofactor_apply_det(R, n)[0]
 
 
 def normalize_rows(N: np.ndarray) -> np.ndarray:
@@ -72,5 +83,5 @@ def blended_matrix_normals(N0: np.ndarray, weights, T: np.ndarray) -> np.ndarray
 
 def normals_from_linear_parts(R: np.ndarray, N0: np.ndarray) -> np.ndarray:
     """``sign(det R) normalize(cof(R) n)`` per vertex, for (m, 3, 3) blended linear parts R."""
-    N = cofactor_apply(R, N0)
-    return normalize_rows(N * np.sign(np.linalg.det(R))[:, None])
+    N, det = _cofactor_apply_det(R, N0)
+    return normalize_rows(N * np.sign(det)[:, None])

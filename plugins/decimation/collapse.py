@@ -128,7 +128,7 @@ class _EdgeTable:
 
 def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_boundary: bool = True,
              min_normal_cos: float = 0.0, progress=None, method: str = "", params: dict | None = None,
-             batch: int = 2048, backend: str = "numpy", locked=None) -> ProgressiveHierarchy:
+             batch: int = 2048, backend: str = "numpy", locked=None, seams=None) -> ProgressiveHierarchy:
     """Greedy edge collapses down to ``min_faces``, recorded as a progressive hierarchy.
 
     Parameters
@@ -162,6 +162,12 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         Vertices no collapse may move (like boundary vertices, whatever
         ``keep_boundary`` says): e.g. a glTF file's UV seams and material
         boundaries (:func:`rigslim.io.gltf_lod.seam_vertices`).
+    seams : (along, charts), optional
+        ``along`` (m,) bool: locked vertices that may collapse with each
+        other along a seam edge, an edge whose two faces have different
+        ``charts`` (f,) labels (:func:`rigslim.io.gltf_lod.seam_structure`).
+        The merged vertex stays locked for every other edge, so seams are
+        simplified only along themselves.
 
     Returns
     -------
@@ -171,7 +177,7 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     if backend == "numba":
         return _simplify_compiled(V, F, W, T, X, model, min_faces=min_faces, keep_boundary=keep_boundary,
                                   min_normal_cos=min_normal_cos, progress=progress, method=method, params=params,
-                                  locked=locked)
+                                  locked=locked, seams=seams)
     if backend != "numpy":
         raise ValueError(f"unknown backend {backend!r}")
     st = SimplifyState(V, F, W, T, X)
@@ -191,7 +197,19 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         boundary[uniq[counts == 1].ravel()] = True
     if locked is not None:
         boundary[:m] |= np.asarray(locked, bool)
-    edges = uniq[~(boundary[uniq[:, 0]] | boundary[uniq[:, 1]])]
+    along, charts = _seam_arrays(seams, m, len(Fm))
+
+    def seam_edge(x: int, y: int) -> bool:
+        fs = vf[x] & vf[y]
+        if len(fs) != 2:
+            return False
+        f1, f2 = fs
+        return bool(charts[f1] != charts[f2])
+
+    free_edge = ~(boundary[uniq[:, 0]] | boundary[uniq[:, 1]])
+    both = np.flatnonzero(~free_edge & along[uniq[:, 0]] & along[uniq[:, 1]])
+    free_edge[both] = [seam_edge(int(uniq[i, 0]), int(uniq[i, 1])) for i in both]
+    edges = uniq[free_edge]
 
     table = _EdgeTable(W.shape[1], max(16, 2 * len(edges)))
     ids = np.array([table.add(int(a), int(b)) for a, b in edges], dtype=np.int64)
@@ -253,6 +271,8 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         c = m + len(collapses)
         st.V[c], st.W[c], st.pos[c] = v, w, pc
         model.merge(st, a, b, c)
+        if along[a] and along[b]:              # a collapse along a seam: the new vertex is a seam vertex
+            boundary[c] = along[c] = True
         for f in fab:
             f_alive[f] = False
             for x in Fm[f].tolist():
@@ -275,7 +295,7 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
                     old.append(float(table.cost[eo]))
                     dirty.discard(eo)
                     table.kill(eo)
-            if boundary[x]:
+            if (boundary[x] or boundary[c]) and not (along[x] and along[c] and seam_edge(x, c)):
                 continue
             en = table.add(x, c)
             table.cost[en] = max(old + [cost_ab])
@@ -320,6 +340,17 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     return _hierarchy(st.V, st.W, F, collapses, errors, nfaces, method, params)
 
 
+def _seam_arrays(seams, m: int, n_faces: int) -> tuple[np.ndarray, np.ndarray]:
+    """(2m,) bool "may collapse along a seam" and (f,) int64 face charts (all False / all 0 without seams)."""
+    along = np.zeros(2 * m, dtype=bool)
+    charts = np.zeros(n_faces, dtype=np.int64)
+    if seams is not None:
+        a, ch = seams
+        along[:m] = np.asarray(a, bool)
+        charts[:] = np.asarray(ch, np.int64)
+    return along, charts
+
+
 def _hierarchy(Vall, Wall, F, collapses, errors, nfaces, method, params) -> ProgressiveHierarchy:
     """The progressive hierarchy from the vertex tables and the recorded collapses."""
     m = len(Vall) // 2                    # the tables hold 2m rows
@@ -338,7 +369,7 @@ def _hierarchy(Vall, Wall, F, collapses, errors, nfaces, method, params) -> Prog
 
 
 def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_normal_cos, progress, method,
-                       params, locked=None) -> ProgressiveHierarchy:
+                       params, locked=None, seams=None) -> ProgressiveHierarchy:
     """:func:`simplify` with the compiled loop (:func:`rigslim.plugins.decimation.compiled.collapse_chunk`)."""
     from rigslim.plugins.decimation import compiled as cc
 
@@ -364,7 +395,19 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
         boundary[uniq[counts == 1].ravel()] = True
     if locked is not None:
         boundary[:m] |= np.asarray(locked, bool)
-    edges = np.ascontiguousarray(uniq[~(boundary[uniq[:, 0]] | boundary[uniq[:, 1]])], dtype=np.int64)
+    along, charts = _seam_arrays(seams, m, f)
+    free_edge = ~(boundary[uniq[:, 0]] | boundary[uniq[:, 1]])
+    both = np.flatnonzero(~free_edge & along[uniq[:, 0]] & along[uniq[:, 1]])
+    if len(both):
+        vfs = [set() for _ in range(m)]
+        for i, (x, y, z) in enumerate(Fm.tolist()):
+            vfs[x].add(i)
+            vfs[y].add(i)
+            vfs[z].add(i)
+        for i in both:
+            fs = vfs[int(uniq[i, 0])] & vfs[int(uniq[i, 1])]
+            free_edge[i] = len(fs) == 2 and charts[min(fs)] != charts[max(fs)]
+    edges = np.ascontiguousarray(uniq[free_edge], dtype=np.int64)
     n_edges = len(edges)
     cap = n_edges + 16
     n = W.shape[1]
@@ -395,8 +438,8 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     n_chunks = -(-total // chunk)
     for _ in progress(range(n_chunks), total=n_chunks, description=f"{method} collapses"):
         if cc.collapse_chunk(chunk, min_faces, float(min_normal_cos), tiny, kind, ip, fp, st.V, st.W, Qv, st.T,
-                             st.pos, Fm, vf_start, vf_cnt, pool, boundary, mark, ea, eb, ecost, ev, ew, estamp,
-                             estate, free, in_dirty, dirty, hk, hv, hc, hs, he, cnt, col, errs, nf):
+                             st.pos, Fm, vf_start, vf_cnt, pool, boundary, along, charts, mark, ea, eb, ecost, ev, ew,
+                             estamp, estate, free, in_dirty, dirty, hk, hv, hc, hs, he, cnt, col, errs, nf):
             break
     k = int(cnt[cc.C_COLLAPSES])
     stats = {"pops": int(cnt[cc.C_POPS]), "attempts": int(cnt[cc.C_TRIES]),

@@ -750,8 +750,26 @@ def _neighbours(x, F, vf_start, vf_cnt, pool, mark, tag, out):
 
 
 @njit(cache=True)
+def _seam_edge(x, y, F, vf_start, vf_cnt, pool, charts):
+    """Whether edge (x, y) has exactly two faces and they lie in different charts."""
+    f1 = -1
+    f2 = -1
+    n = 0
+    s0 = vf_start[y]
+    for i in range(vf_cnt[y]):
+        f = pool[s0 + i]
+        if F[f, 0] == x or F[f, 1] == x or F[f, 2] == x:
+            if n == 0:
+                f1 = f
+            else:
+                f2 = f
+            n += 1
+    return n == 2 and charts[f1] != charts[f2]
+
+
+@njit(cache=True)
 def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, method, ip, fp,
-                   V, W, Qv, T, pos, F, vf_start, vf_cnt, pool, boundary, mark,
+                   V, W, Qv, T, pos, F, vf_start, vf_cnt, pool, boundary, along, charts, mark,
                    ea, eb, ecost, ev, ew, estamp, estate, free, in_dirty, dirty, hk, hv, hc, hs, he,
                    cnt, col, errs, nfaces):
     """Run up to ``max_steps`` greedy collapses; returns True when the simplification has finished.
@@ -890,6 +908,9 @@ def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, method, ip, fp,
             W[c] = ew[e]
             pos[c] = pc
             Qv[c] = Qv[a] + Qv[b]
+            if along[a] and along[b]:             # a collapse along a seam: the new vertex is a seam vertex
+                boundary[c] = True
+                along[c] = True
             for i in range(2):
                 f = fab[i]
                 for t in range(3):
@@ -938,7 +959,8 @@ def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, method, ip, fp,
                     if eo >= 0:
                         lb = max(lb, ecost[eo])
                         _edge_kill(eo, N, ea, eb, estate, free, cnt, hk, hv, in_dirty)
-                if boundary[x]:
+                if (boundary[x] or boundary[c]) and not (along[x] and along[c]
+                                                         and _seam_edge(x, c, F, vf_start, vf_cnt, pool, charts)):
                     continue
                 en = _edge_add(x, c, N, ea, eb, estamp, free, cnt, hk, hv)
                 ecost[en] = lb

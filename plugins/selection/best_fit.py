@@ -14,9 +14,14 @@ and keeps
 
 Slots the fit leaves empty (it used fewer than k influences) are filled with
 the vertex's largest remaining input weights, so the solver still has k
-degrees of freedom. ``coherence`` (beta >= 0) ranks each influence by
-``w_v + beta * mean_{u in N(v)} w_u`` (fitted weights of the one-ring), so that
-neighbouring vertices tend to choose the same sets.
+degrees of freedom.
+
+Coherence between neighbours (seams between different sets are where normals
+break) was measured and is *not* a plugin option: ranking by
+``w_v + beta * mean_{u in N(v)} w_u`` (fitted weights of the one-ring,
+:func:`one_ring_vote`, ``coherence=beta`` of :func:`best_fit`) did not lower
+the elephant's normal error (docs/results/reduction_quality_best_fit.md); by
+error, the eliminated sets are kept whatever the vote.
 
 The step's report holds the fit's example-pose error (RMS over vertices, % of
 the bounding-box diagonal), how many vertices' fits needed more than k
@@ -74,9 +79,9 @@ def best_fit(asset, k: int, by: str = "weight", coherence: float = 0.0, swaps: i
     A.sort_indices()
     T = asset.example_poses().T
     fit, member, errors = sparse_fit(asset.mesh.V, T, A, k, by, swaps)
-    score = fit + 2.0 * member  # the fit's set first, by fitted weight
-    if coherence > 0:
-        score = one_ring_vote(A, score, asset.mesh.adjacency, coherence)
+    score = one_ring_vote(A, fit, asset.mesh.adjacency, coherence) if coherence > 0 else fit.copy()
+    if by == "error":
+        score += 2.0 * member  # the eliminated set first, by (voted) fitted weight
     sets = rank_entries(A, score, k)
     rows = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
     support = np.bincount(rows, weights=(fit > 0), minlength=A.shape[0]).astype(np.int64)
@@ -102,13 +107,11 @@ class BestFitSelector(InfluenceSelector):
                                                "drop influences greedily by least example-pose error")
         swaps: int = Field(0, ge=0, description="by: error: passes of single exchanges (member for "
                            "non-member) that lower the example-pose error further")
-        coherence: float = Field(0.0, ge=0, description="beta: rank by own fitted weight + beta x the "
-                                 "one-ring's mean fitted weight (0: off)")
 
     def select(self, asset, params, ctx):
         asset.require("mesh", "handles", "weights", "poses", "split", step="select: best-fit")
         check_k(params.k, asset.weights.shape[1])
-        sets, report = best_fit(asset, params.k, params.by, params.coherence, params.swaps)
+        sets, report = best_fit(asset, params.k, params.by, swaps=params.swaps)
         if ctx is not None and hasattr(ctx, "report"):
             ctx.report.update(report)
         return sets

@@ -26,8 +26,10 @@ Two selections use it (``by``):
   influences it is already the least-error set.
 
 Implementation: numba, parallel over vertices (``prange``); per vertex the
-basis is built from the pose transforms, the free-set systems are
-``(|F| + 1)``-square KKT solves. :func:`sparse_fit_reference` is the plain
+Gram matrix ``G = B_v B_v^T`` of the basis is formed once (for cages, whose
+handle transforms are translations ``[0 | c_j]``, it is the same for every
+vertex and is gathered from one handle Gram matrix), and the free-set systems
+are ``(|F| + 1)``-square KKT solves on it. :func:`sparse_fit_reference` is the plain
 Python/numpy reference of the same iteration (tests check both agree).
 """
 
@@ -229,10 +231,10 @@ def _lawson_hanson(G, c, yy, allowed, x, F, nf, tol, ridge, max_outer, K, z, set
 
 
 @njit(cache=True)
-def _fit_vertex(B, avals, k, by_error, swaps):  # pragma: no cover - numba
-    """One vertex: fitted weights over its influences (n,), the selected set (n,) and the error."""
-    n = B.shape[0]
-    G = B @ B.T
+def _fit_vertex(G, avals, k, by_error, swaps):  # pragma: no cover - numba
+    """One vertex, from the Gram matrix ``G = B B^T`` of its influences' basis: fitted weights (n,),
+    the selected set (n,) and the error."""
+    n = G.shape[0]
     c = G @ avals
     yy = 0.0
     scale = 1e-300
@@ -396,15 +398,25 @@ def _fit_vertex(B, avals, k, by_error, swaps):  # pragma: no cover - numba
 
 
 @njit(parallel=True, cache=True)
-def _fit_all(V, T, indptr, indices, data, k, by_error, swaps, fit, member, errors):  # pragma: no cover - numba
+def _fit_all(V, T, indptr, indices, data, k, by_error, swaps, Gh, shared, fit, member, errors):  # pragma: no cover
     m = V.shape[0]
     for v in prange(m):
         lo = indptr[v]
         hi = indptr[v + 1]
         if hi == lo:
             continue
-        B = _vertex_basis(V[v], T, indices[lo:hi])
-        x, inset, e = _fit_vertex(B, data[lo:hi], k, by_error, swaps)
+        cols = indices[lo:hi]
+        if shared:
+            # Translation-only handles (cages): the basis does not depend on the vertex.
+            n = hi - lo
+            G = np.empty((n, n))
+            for a in range(n):
+                for b in range(n):
+                    G[a, b] = Gh[cols[a], cols[b]]
+        else:
+            B = _vertex_basis(V[v], T, cols)
+            G = B @ B.T
+        x, inset, e = _fit_vertex(G, data[lo:hi], k, by_error, swaps)
         for a in range(hi - lo):
             fit[lo + a] = x[a]
             member[lo + a] = inset[a]
@@ -440,8 +452,10 @@ def sparse_fit(V, T, A, k: int, by: str = "weight", swaps: int = 0):
     fit = np.zeros(A.nnz)
     member = np.zeros(A.nnz, dtype=bool)
     errors = np.zeros(V.shape[0])
+    shared = not np.any(T[..., :3])
+    Gh = np.einsum("pnc,plc->nl", T[..., 3], T[..., 3]) if shared else np.zeros((1, 1))
     _fit_all(V, T, A.indptr.astype(np.int64), A.indices.astype(np.int64), np.ascontiguousarray(A.data),
-             int(k), by == "error", int(swaps), fit, member, errors)
+             int(k), by == "error", int(swaps), Gh, shared, fit, member, errors)
     return fit, member, errors
 
 

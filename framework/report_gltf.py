@@ -1,0 +1,115 @@
+"""What ``rigslim report`` reads from glTF outputs: the reduced weights of a run, and its MSFT_lod levels.
+
+- :func:`reduced_from_gltf`: a run whose ``write:`` step wrote a ``.glb``/``.gltf``
+  is rendered from that file (no extra ``.npz`` step): the written file is read
+  with the reader options of the run's input (welded the same way, so rows are
+  the run's mesh vertices) and its ``JOINTS_n``/``WEIGHTS_n`` become the reduced weights.
+- :func:`lod_section`: an HTML table of the ``MSFT_lod`` levels of every glTF a
+  run wrote: per original node, each level's node, mesh, primitives (material),
+  triangles and vertices.
+"""
+
+from __future__ import annotations
+
+import html
+from pathlib import Path
+
+GLTF_SUFFIXES = (".glb", ".gltf")
+
+
+def reduced_from_gltf(path, asset):
+    """ReducedWeights of a glTF a run wrote, on the rows of the run's (welded) mesh.
+
+    Parameters
+    ----------
+    path : path-like
+        The written file.
+    asset : Asset
+        The run's inputs as re-read (``asset.extras["gltf"]`` is the input's GltfSkin).
+
+    Returns
+    -------
+    ReducedWeights or None
+        None when the input was not glTF (an export from OBJ/TGF/DMAT keeps the mesh order:
+        then the file's weights are read unwelded).
+    """
+    from rigslim.io.gltf import read_gltf_skin
+    from rigslim.io.gltf_write import fixed_width_weights
+
+    source = asset.extras.get("gltf")
+    weld = source is not None and source.vertex_map is not None
+    mesh = None
+    if source is not None and len({s.mesh for s in source.slices}) == 1:
+        mesh = source.slices[0].mesh
+    skin = read_gltf_skin(path, weld=weld, mesh=mesh, skin=source.skin if source is not None else None)
+    return fixed_width_weights(skin.weights)
+
+
+def lod_rows(path) -> list[dict]:
+    """One row per (original node, level): ``node``, ``level``, ``level_node``, ``mesh``, ``primitives``,
+    ``materials``, ``triangles``, ``vertices``; level 0 is the original mesh."""
+    from rigslim.io.gltf import load_gltf
+    from rigslim.io.gltf_lod import lod_nodes
+
+    js = load_gltf(path).json
+    rows = []
+
+    def mesh_row(node_index, level, level_node):
+        mi = js["nodes"][level_node]["mesh"]
+        mesh = js["meshes"][mi]
+        tris = verts = 0
+        for prim in mesh["primitives"]:
+            if "indices" in prim:
+                tris += js["accessors"][prim["indices"]]["count"] // 3
+            verts += js["accessors"][prim["attributes"]["POSITION"]]["count"]
+        return {"node": js["nodes"][node_index].get("name", str(node_index)), "level": level,
+                "level_node": level_node, "mesh": mesh.get("name", str(mi)), "primitives": len(mesh["primitives"]),
+                "materials": [p.get("material") for p in mesh["primitives"]], "triangles": tris, "vertices": verts}
+
+    for i, ids in lod_nodes(js).items():
+        if "mesh" not in js["nodes"][i]:
+            continue
+        rows.append(mesh_row(i, 0, i))
+        rows += [mesh_row(i, j, n) for j, n in enumerate(ids, 1) if "mesh" in js["nodes"][n]]
+    return rows
+
+
+def written_gltfs(document: dict, base: Path | None = None) -> list[Path]:
+    """glTF files the run's ``write:`` steps wrote (that still exist)."""
+    out = []
+    for s in document.get("steps") or []:
+        p = str(s.get("path", ""))
+        if s.get("stage") == "write" and p.lower().endswith(GLTF_SUFFIXES):
+            path = Path(p)
+            if not path.is_absolute() and base is not None:
+                path = base / path
+            if path.is_file():
+                out.append(path)
+    return out
+
+
+def lod_section(documents) -> str:
+    """The report's "Levels of detail" section (empty when no run wrote a glTF with MSFT_lod)."""
+    from rigslim.errors import RigslimError
+
+    parts = []
+    for doc, source in documents:
+        base = Path(doc["pipeline"]).parent if doc.get("pipeline") else None
+        for path in written_gltfs(doc, base):
+            try:
+                rows = lod_rows(path)
+            except (RigslimError, KeyError, IndexError, OSError):
+                continue
+            if not rows:
+                continue
+            body = "".join(
+                f"<tr><td>{html.escape(str(r['node']))}</td><td>{r['level']}</td><td>{html.escape(str(r['mesh']))}"
+                f"</td><td>{r['primitives']}</td><td>{html.escape(', '.join(map(str, r['materials'])))}</td>"
+                f"<td>{r['triangles']}</td><td>{r['vertices']}</td></tr>" for r in rows)
+            parts.append(f"<h3>{html.escape(str(path))}</h3><table><tr><th>node</th><th>level</th><th>mesh</th>"
+                         f"<th>primitives</th><th>materials</th><th>triangles</th><th>vertices</th></tr>{body}"
+                         "</table>")
+    if not parts:
+        return ""
+    return ("<h2>Levels of detail</h2><div class=\"meta\">MSFT_lod chains of the glTF files the runs wrote: "
+            "each original node and its own level nodes (level 0: the original mesh).</div>" + "".join(parts))
