@@ -51,7 +51,7 @@ def _cmd_run(args) -> int:
 
 def _cmd_report(args) -> int:
     if any(str(p).lower().endswith(".csv") for p in args.metrics):  # a batch's summary.csv: the batch view
-        from rigslim.report_batch import cmd_report_batch
+        from rigslim.report.batch import cmd_report_batch
 
         return cmd_report_batch(args)
     from rich.console import Console

@@ -19,7 +19,7 @@ from rigslim.batch import BatchOptions, BatchResult, write_summary  # noqa: E402
 from rigslim.batch_assets import collect_assets, load_template  # noqa: E402
 from rigslim.batch_task import run_asset  # noqa: E402
 from rigslim.cli import main  # noqa: E402
-from rigslim.report_batch import build_batch_report, read_summary  # noqa: E402
+from rigslim.report.batch import build_batch_report, read_summary  # noqa: E402
 
 GLTF = Path(__file__).resolve().parents[1] / "examples" / "data" / "gltf"
 

@@ -64,7 +64,7 @@ steps:
 
 
 def test_lod_rows_of_a_file_without_lod_is_empty():
-    from rigslim.report_gltf import lod_rows
+    from rigslim.report.gltf import lod_rows
 
     assert lod_rows(GLTF / "huesitos.glb") == []
     with pytest.raises(Exception):

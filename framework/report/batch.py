@@ -89,7 +89,7 @@ def metric_columns(columns: list[str]) -> list[str]:
 
 
 def _histograms(rows: list[dict], metrics: list[str]) -> bytes | None:
-    from rigslim.report_plots import _figure, _png, color
+    from rigslim.report.plots import _figure, _png, color
 
     metrics = [m for m in metrics if any(isinstance(r.get(m), float) for r in rows)][:6]
     if not metrics:
@@ -161,7 +161,7 @@ def render_asset(folder: Path, width: int = 320, height: int = 270, backend: str
     from rigslim.pipeline import load_pipeline, read_inputs
     from rigslim.plugin import StepContext
     from rigslim.render import Camera, png_bytes, render_mesh
-    from rigslim.report import HEAT_CMAP, heat_colors
+    from rigslim.report.renders import HEAT_CMAP, heat_colors
 
     try:
         metrics = json.loads((folder / "metrics.json").read_text())
