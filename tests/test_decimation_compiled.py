@@ -1,4 +1,4 @@
-"""The compiled (numba) decimation backend against the numpy reference (rigslim.plugins.decimation.compiled)."""
+"""The compiled (numba) decimation backend (edge_costs, edge_queue, compiled) against the numpy reference."""
 
 from __future__ import annotations
 
@@ -68,7 +68,7 @@ def test_edge_costs_equal_the_numpy_backend(elephant_state, name):
 
 def test_compiled_weight_step_is_exact_where_the_reference_loses_digits(elephant_state):
     """The compiled weight step (Cholesky of H + rI, Schur complement for 1^T a = 1) against 80-bit arithmetic."""
-    from rigslim.plugins.decimation import compiled as cc
+    from rigslim.plugins.decimation import edge_costs as cc
 
     st, Q, W, T, E = elephant_state
     rng = np.random.default_rng(0)

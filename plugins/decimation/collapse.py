@@ -24,9 +24,8 @@ import logging
 import numpy as np
 
 from rigslim.hierarchy import ProgressiveHierarchy
+from rigslim.plugins.decimation.setup import BLOCKED, CLEAN, DEAD, DIRTY, collapsible_edges, degenerate_area
 from rigslim.weights import ReducedWeights
-
-CLEAN, DIRTY, DEAD, BLOCKED = 0, 1, 2, 3
 
 log = logging.getLogger(__name__)
 
@@ -189,15 +188,8 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         vf[x].add(i)
         vf[y].add(i)
         vf[z].add(i)
-    # boundary: edges with one face
-    E_all = np.sort(np.concatenate([Fm[:, [0, 1]], Fm[:, [1, 2]], Fm[:, [2, 0]]]), axis=1)
-    uniq, counts = np.unique(E_all, axis=0, return_counts=True)
-    boundary = np.zeros(2 * m, dtype=bool)
-    if keep_boundary:
-        boundary[uniq[counts == 1].ravel()] = True
-    if locked is not None:
-        boundary[:m] |= np.asarray(locked, bool)
-    along, charts = _seam_arrays(seams, m, len(Fm))
+    setup = collapsible_edges(Fm, m, keep_boundary=keep_boundary, locked=locked, seams=seams)
+    boundary, along, charts = setup.boundary, setup.along, setup.charts
 
     def seam_edge(x: int, y: int) -> bool:
         fs = vf[x] & vf[y]
@@ -206,10 +198,7 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         f1, f2 = fs
         return bool(charts[f1] != charts[f2])
 
-    free_edge = ~(boundary[uniq[:, 0]] | boundary[uniq[:, 1]])
-    both = np.flatnonzero(~free_edge & along[uniq[:, 0]] & along[uniq[:, 1]])
-    free_edge[both] = [seam_edge(int(uniq[i, 0]), int(uniq[i, 1])) for i in both]
-    edges = uniq[free_edge]
+    edges = setup.edges
 
     table = _EdgeTable(W.shape[1], max(16, 2 * len(edges)))
     ids = np.array([table.add(int(a), int(b)) for a, b in edges], dtype=np.int64)
@@ -229,8 +218,7 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     blocked_at: dict[int, set] = {}
 
     Tflat = np.ascontiguousarray(np.transpose(T, (1, 0, 2, 3)).reshape(T.shape[1], -1))   # (n, P*12)
-    scale = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0))) ** 2
-    tiny = 1e-14 * scale
+    tiny = degenerate_area(V)
     n_faces = len(Fm)
     collapses, errors, nfaces = [], [], []
 
@@ -340,17 +328,6 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     return _hierarchy(st.V, st.W, F, collapses, errors, nfaces, method, params)
 
 
-def _seam_arrays(seams, m: int, n_faces: int) -> tuple[np.ndarray, np.ndarray]:
-    """(2m,) bool "may collapse along a seam" and (f,) int64 face charts (all False / all 0 without seams)."""
-    along = np.zeros(2 * m, dtype=bool)
-    charts = np.zeros(n_faces, dtype=np.int64)
-    if seams is not None:
-        a, ch = seams
-        along[:m] = np.asarray(a, bool)
-        charts[:] = np.asarray(ch, np.int64)
-    return along, charts
-
-
 def _hierarchy(Vall, Wall, F, collapses, errors, nfaces, method, params) -> ProgressiveHierarchy:
     """The progressive hierarchy from the vertex tables and the recorded collapses."""
     m = len(Vall) // 2                    # the tables hold 2m rows
@@ -372,6 +349,8 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
                        params, locked=None, seams=None) -> ProgressiveHierarchy:
     """:func:`simplify` with the compiled loop (:func:`rigslim.plugins.decimation.compiled.collapse_chunk`)."""
     from rigslim.plugins.decimation import compiled as cc
+    from rigslim.plugins.decimation import edge_queue as eq
+    from rigslim.plugins.decimation.edge_costs import edge_costs
 
     kind, Qv, ip, fp = model.compiled_spec()
     st = SimplifyState(V, F, W, T, X)
@@ -387,27 +366,8 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     vf_cnt[:m] = np.bincount(corners, minlength=m)
     vf_start = np.zeros(N, dtype=np.int64)
     vf_start[1:m] = np.cumsum(vf_cnt[:m])[:-1]
-    E_all = np.sort(np.concatenate([Fm[:, [0, 1]], Fm[:, [1, 2]], Fm[:, [2, 0]]]), axis=1)
-    keys, counts = np.unique(E_all[:, 0] * N + E_all[:, 1], return_counts=True)    # = np.unique(E_all, axis=0)
-    uniq = np.stack([keys // N, keys % N], axis=1)
-    boundary = np.zeros(N, dtype=bool)
-    if keep_boundary:
-        boundary[uniq[counts == 1].ravel()] = True
-    if locked is not None:
-        boundary[:m] |= np.asarray(locked, bool)
-    along, charts = _seam_arrays(seams, m, f)
-    free_edge = ~(boundary[uniq[:, 0]] | boundary[uniq[:, 1]])
-    both = np.flatnonzero(~free_edge & along[uniq[:, 0]] & along[uniq[:, 1]])
-    if len(both):
-        vfs = [set() for _ in range(m)]
-        for i, (x, y, z) in enumerate(Fm.tolist()):
-            vfs[x].add(i)
-            vfs[y].add(i)
-            vfs[z].add(i)
-        for i in both:
-            fs = vfs[int(uniq[i, 0])] & vfs[int(uniq[i, 1])]
-            free_edge[i] = len(fs) == 2 and charts[min(fs)] != charts[max(fs)]
-    edges = np.ascontiguousarray(uniq[free_edge], dtype=np.int64)
+    setup = collapsible_edges(Fm, m, keep_boundary=keep_boundary, locked=locked, seams=seams)
+    edges = setup.edges
     n_edges = len(edges)
     cap = n_edges + 16
     n = W.shape[1]
@@ -416,9 +376,9 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     estamp, estate = np.zeros(cap, np.int64), np.full(cap, DEAD, np.int8)
     hsize = 1 << int(np.ceil(np.log2(4 * cap)))
     hk, hv = np.full(hsize, -1, np.int64), np.zeros(hsize, np.int64)
-    cc.init_table(edges, N, ea, eb, estamp, hk, hv)
+    eq.init_table(edges, N, ea, eb, estamp, hk, hv)
     if n_edges:
-        v, w, E = cc.edge_costs(kind, edges[:, 0].copy(), edges[:, 1].copy(), st.V, st.W, Qv, st.T, ip, fp)
+        v, w, E = edge_costs(kind, edges[:, 0].copy(), edges[:, 1].copy(), st.V, st.W, Qv, st.T, ip, fp)
         ecost[:n_edges], ev[:n_edges], ew[:n_edges] = E, v, w
     estate[:n_edges] = CLEAN
     estamp[:n_edges] += 1
@@ -427,22 +387,25 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     hc, hs, he = np.zeros(3 * cap), np.zeros(3 * cap, np.int64), np.zeros(3 * cap, np.int64)
     hc[:n_edges], hs[:n_edges], he[:n_edges] = ecost[srt], estamp[srt], srt
     free, in_dirty, dirty = np.zeros(cap, np.int64), np.zeros(cap, bool), np.zeros(2 * cap, np.int64)
-    cnt = np.zeros(11, np.int64)
-    cnt[cc.C_FACES], cnt[cc.C_HEAP], cnt[cc.C_SIZE], cnt[cc.C_POOL] = f, n_edges, n_edges, 3 * f
-    col, errs, nf = np.zeros((m, 2), np.int64), np.zeros(m), np.zeros(m, np.int64)
-    mark = np.zeros(N, np.int64)
-    scale = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0))) ** 2
-    tiny = 1e-14 * scale
+    cnt = np.zeros(eq.N_COUNTERS, np.int64)
+    cnt[eq.C_FACES], cnt[eq.C_HEAP], cnt[eq.C_SIZE], cnt[eq.C_POOL] = f, n_edges, n_edges, 3 * f
+    mesh = cc.LoopMesh(Fm, vf_start, vf_cnt, pool, setup.boundary, setup.along, setup.charts, np.zeros(N, np.int64))
+    verts = cc.LoopVertices(st.V, st.W, Qv, st.pos)
+    table = cc.LoopEdges(ea, eb, ecost, ev, ew, estamp, estate, free, in_dirty, dirty, hk, hv)
+    queue = cc.LoopQueue(hc, hs, he)
+    record = cc.LoopRecord(cnt, np.zeros((m, 2), np.int64), np.zeros(m), np.zeros(m, np.int64))
+    cost_model = cc.CostModel(kind, ip, fp, st.T)
+    scratch = cc.new_scratch(len(T))
+    tiny = degenerate_area(V)
     total = max(0, (f - min_faces + 1) // 2)
     chunk = max(256, -(-total // 100))
     n_chunks = -(-total // chunk)
     for _ in progress(range(n_chunks), total=n_chunks, description=f"{method} collapses"):
-        if cc.collapse_chunk(chunk, min_faces, float(min_normal_cos), tiny, kind, ip, fp, st.V, st.W, Qv, st.T,
-                             st.pos, Fm, vf_start, vf_cnt, pool, boundary, along, charts, mark, ea, eb, ecost, ev, ew,
-                             estamp, estate, free, in_dirty, dirty, hk, hv, hc, hs, he, cnt, col, errs, nf):
+        if cc.collapse_chunk(chunk, min_faces, float(min_normal_cos), tiny, cost_model, mesh, verts, table, queue,
+                             record, scratch):
             break
-    k = int(cnt[cc.C_COLLAPSES])
-    stats = {"pops": int(cnt[cc.C_POPS]), "attempts": int(cnt[cc.C_TRIES]),
-             "evaluations": n_edges + int(cnt[cc.C_EVALS])}
+    k = int(cnt[eq.C_COLLAPSES])
+    stats = {"pops": int(cnt[eq.C_POPS]), "attempts": int(cnt[eq.C_TRIES]),
+             "evaluations": n_edges + int(cnt[eq.C_EVALS])}
     log.debug("%s: %d collapses, %s", method, k, stats)
-    return _hierarchy(st.V, st.W, F, col[:k], errs[:k], nf[:k], method, params)
+    return _hierarchy(st.V, st.W, F, record.col[:k], record.errs[:k], record.nfaces[:k], method, params)

@@ -1,727 +1,86 @@
-"""Compiled (numba) kernels of the articulated simplifier: per-edge costs and the greedy collapse loop.
+"""The compiled (numba) greedy collapse loop of the articulated simplifier, in named phases.
 
-The numpy path (:mod:`rigslim.plugins.decimation.quadrics`, :mod:`rigslim.plugins.decimation.models`,
-:func:`rigslim.plugins.decimation.collapse.simplify` with ``backend="numpy"``)
-is the reference; these kernels compute the same things one edge at a time,
-so that nothing is padded, no work is spent on converged edges and the
-collapse loop runs without Python overhead. Tests check that both backends
-give the same costs and the same hierarchy.
+The numpy reference is :func:`rigslim.plugins.decimation.collapse.simplify`
+with ``backend="numpy"``; tests check that both make the same collapses.
+Like meshoptimizer's simplifier, the loop is a sequence of small phases,
+each a function over named groups of arrays:
 
-Per-edge cost (``method``):
+- :func:`evaluate_dirty`: when a dirty edge reaches the top of the queue,
+  every dirty edge gets its true cost (:func:`rigslim.plugins.decimation.edge_costs.edge_cost`)
+  and is queued again;
+- :func:`link_ok`: the faces around the edge and the link condition (exactly
+  two common neighbours, so the result stays manifold);
+- :func:`folds`: the new vertex in the rest pose and every example pose, and
+  the fold-over guard (no surviving face's normal turns by more than
+  ``arccos(min_normal_cos)``);
+- :func:`apply_collapse`: the new vertex, the faces and the vertex-face lists;
+- :func:`requeue`: the new edges with the lower bound
+  ``max(cost(a, x), cost(b, x), cost(a, b))``, marked dirty, and the blocked
+  edges around them released.
 
-- ``QUARTIC`` ([S09]): with ``Q^j = Q_a^j + Q_b^j`` and the edge's bones
-  ``k`` (the union of the endpoints' non-zero weights), alternate
-
-  * the position step: ``G = sum_j L_j^T Q^j L_j`` with
-    ``L_j = [[sum_k a_k M_k^j], [0 0 0 1]]``, ``G = [[A, b], [b^T, c]]``,
-    ``A v = -b`` (QSlim's candidates ``v_a, v_b, (v_a + v_b) / 2`` where A is
-    singular, ``|det A| <= 1e-10 (tr A / 3)^3``);
-  * the weight step: ``y_k^j = [M_k^j v; 1]``, ``H_kl = sum_j y_k^jT Q^j y_l^j``
-    scaled to unit mean diagonal, then
-    ``min_a 1/2 a^T (H + r I) a - r a0^T a`` s.t. ``1^T a = 1`` (and ``a >= 0``
-    when non-negative), i.e. ``E + r/2 |a - a0|^2`` with the Tikhonov weight
-    ``r = 1e-9``. The equality-constrained optimum solves
-    ``a = (H + rI)^-1 (r a0 - lambda 1)`` with ``lambda`` from ``1^T a = 1``
-    (a Cholesky factorisation of ``H + rI``). With ``a >= 0`` the exact
-    optimum of the convex QP is found by a primal-dual active-set method
-    (Hintermueller, Ito & Kunisch 2002), warm-started from the previous
-    alternation's active set and checked by the KKT conditions
-    ``a_F >= 0``, ``mu_A = (H a - r a0 + lambda 1)_A >= 0``; if it does not
-    settle, the primal active-set method (Nocedal & Wright, Alg. 16.3), as in
-    :func:`rigslim.numerics.small_qp.solve_small_qps`, takes over;
-
-  until the error ``E(v, a) = sum_j [v_j; 1]^T Q^j [v_j; 1]``,
-  ``v_j = sum_k a_k M_k^j [v; 1]``, falls by less than ``tol`` (relative);
-  then the bone limit (keep the ``max_bones`` largest, renormalise, alternate
-  again on that set) and optionally the endpoint candidates.
-- ``MOHR_GLEICHER``: the endpoint ``e`` of least ``E(v_e, w_e)``.
-- ``DECORO``: ``Qr_a + Qr_b`` (rest-frame quadrics), QSlim's optimal point,
-  weights blended by distance ``w = (|v - v_b| w_a + |v - v_a| w_b) / (|v - v_a| + |v - v_b|)``.
-
-The collapse loop (:func:`collapse_chunk`) is QSlim's greedy loop with the
-lazy queue of :mod:`rigslim.plugins.decimation.collapse`: a binary heap of
-``(cost, stamp, edge)`` ordered like Python's tuples, an open-addressing
-hash of edge keys, vertex-face lists, the link condition, the fold-over
-guard in every pose, and re-evaluation of all dirty edges when one of them
-reaches the top. It runs a given number of collapses per call so that the
-caller can report progress between chunks.
+The arrays are grouped in named tuples (:class:`LoopMesh`, :class:`LoopVertices`,
+:class:`LoopEdges`, :class:`LoopQueue`, :class:`LoopRecord`, :class:`Scratch`);
+:func:`collapse_chunk` runs a given number of collapses per call so that the
+caller can report progress between chunks. The mesh setup (collapsible edges,
+locked vertices, seams) is shared with the numpy reference
+(:mod:`rigslim.plugins.decimation.setup`); the queue is :mod:`rigslim.plugins.decimation.edge_queue`.
 """
 
 from __future__ import annotations
 
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
 
-#: Floating-point flags of the hot loops: reassociation (vectorised sums) and fused multiply-adds;
-#: no finite-math assumptions, so infinities and NaN keep their meaning.
-FAST = {"reassoc", "contract", "nsz"}
-
-QUARTIC, MOHR_GLEICHER, DECORO = 0, 1, 2
-CLEAN, DIRTY, DEAD, BLOCKED = 0, 1, 2, 3
-# counters of the loop state (an int64 array)
-C_FACES, C_COLLAPSES, C_HEAP, C_FREE, C_SIZE, C_DIRTY, C_POOL, C_TAG, C_POPS, C_TRIES, C_EVALS = range(11)
-
-
-# --------------------------------------------------------------------------------------------------------------
-# per-edge algebra
-
-
-@njit(cache=True, fastmath=FAST)
-def _blend(a, Tb, K, X):
-    """``X_j = sum_k a_k Tb_k^j`` for the first K bones; X (P, 3, 4)."""
-    P = X.shape[0]
-    for j in range(P):
-        for r in range(3):
-            for c in range(4):
-                X[j, r, c] = 0.0
-    for k in range(K):
-        ak = a[k]
-        for j in range(P):
-            for r in range(3):
-                for c in range(4):
-                    X[j, r, c] += ak * Tb[k, j, r, c]
-
-
-@njit(cache=True, fastmath=FAST)
-def _gram(Qe, X, G):
-    """``G = sum_j L_j^T Q^j L_j`` with ``L_j = [[X_j], [0 0 0 1]]`` (symmetric; upper triangle mirrored)."""
-    P = X.shape[0]
-    M = np.empty((4, 4))
-    for r in range(4):
-        for c in range(4):
-            G[r, c] = 0.0
-    for j in range(P):
-        for r in range(4):                   # M = Q_j L_j
-            for c in range(3):
-                M[r, c] = Qe[j, r, 0] * X[j, 0, c] + Qe[j, r, 1] * X[j, 1, c] + Qe[j, r, 2] * X[j, 2, c]
-            M[r, 3] = Qe[j, r, 0] * X[j, 0, 3] + Qe[j, r, 1] * X[j, 1, 3] + Qe[j, r, 2] * X[j, 2, 3] + Qe[j, r, 3]
-        for r in range(3):                   # G += L_j^T M
-            for c in range(r, 4):
-                G[r, c] += X[j, 0, r] * M[0, c] + X[j, 1, r] * M[1, c] + X[j, 2, r] * M[2, c]
-        G[3, 3] += X[j, 0, 3] * M[0, 3] + X[j, 1, 3] * M[1, 3] + X[j, 2, 3] * M[2, 3] + M[3, 3]
-    for r in range(4):
-        for c in range(r):
-            G[r, c] = G[c, r]
-
-
-@njit(cache=True)
-def _qform(G, p0, p1, p2):
-    """``[p; 1]^T G [p; 1]``."""
-    t0 = G[0, 0] * p0 + G[0, 1] * p1 + G[0, 2] * p2 + G[0, 3]
-    t1 = G[1, 0] * p0 + G[1, 1] * p1 + G[1, 2] * p2 + G[1, 3]
-    t2 = G[2, 0] * p0 + G[2, 1] * p1 + G[2, 2] * p2 + G[2, 3]
-    t3 = G[3, 0] * p0 + G[3, 1] * p1 + G[3, 2] * p2 + G[3, 3]
-    return p0 * t0 + p1 * t1 + p2 * t2 + t3
-
-
-@njit(cache=True)
-def _solve3(G, v):
-    """``A v = -b`` for ``G = [[A, b], ...]`` by Gaussian elimination with partial pivoting."""
-    A = np.empty((3, 4))
-    for r in range(3):
-        for c in range(3):
-            A[r, c] = G[r, c]
-        A[r, 3] = -G[r, 3]
-    for c in range(3):
-        p = c
-        for r in range(c + 1, 3):
-            if abs(A[r, c]) > abs(A[p, c]):
-                p = r
-        if p != c:
-            for t in range(4):
-                A[c, t], A[p, t] = A[p, t], A[c, t]
-        for r in range(c + 1, 3):
-            f = A[r, c] / A[c, c]
-            for t in range(c, 4):
-                A[r, t] -= f * A[c, t]
-    for r in range(2, -1, -1):
-        s = A[r, 3]
-        for t in range(r + 1, 3):
-            s -= A[r, t] * v[t]
-        v[r] = s / A[r, r]
-
-
-@njit(cache=True)
-def _position_step(G, fb, v):
-    """Optimal point of the 4x4 quadric G (``A v = -b``), else the best of the candidates fb (3, 3)."""
-    det = (G[0, 0] * (G[1, 1] * G[2, 2] - G[1, 2] * G[2, 1]) - G[0, 1] * (G[1, 0] * G[2, 2] - G[1, 2] * G[2, 0])
-           + G[0, 2] * (G[1, 0] * G[2, 1] - G[1, 1] * G[2, 0]))
-    scale = max((G[0, 0] + G[1, 1] + G[2, 2]) / 3.0, 1e-300)
-    if abs(det) > 1e-10 * scale ** 3:
-        _solve3(G, v)
-        return False
-    best, bi = np.inf, 0
-    for i in range(fb.shape[0]):
-        e = _qform(G, fb[i, 0], fb[i, 1], fb[i, 2])
-        if e < best:
-            best, bi = e, i
-    for t in range(3):
-        v[t] = fb[bi, t]
-    return True
-
-
-@njit(cache=True)
-def _quartic_error(Qe, X, v):
-    """``sum_j [p_j; 1]^T Q^j [p_j; 1]`` with ``p_j = X_j [v; 1]``."""
-    E = 0.0
-    for j in range(X.shape[0]):
-        p0 = X[j, 0, 0] * v[0] + X[j, 0, 1] * v[1] + X[j, 0, 2] * v[2] + X[j, 0, 3]
-        p1 = X[j, 1, 0] * v[0] + X[j, 1, 1] * v[1] + X[j, 1, 2] * v[2] + X[j, 1, 3]
-        p2 = X[j, 2, 0] * v[0] + X[j, 2, 1] * v[1] + X[j, 2, 2] * v[2] + X[j, 2, 3]
-        E += _qform(Qe[j], p0, p1, p2)
-    return E
-
-
-@njit(cache=True, fastmath=FAST)
-def _weight_hessian(Qe, Tb, K, v, H, Pk, Uk):
-    """``H_kl = sum_j y_k^jT Q^j y_l^j``, ``y_k^j = [M_k^j v; 1]``, scaled to unit mean diagonal.
-
-    With ``Q^j = [[A_j, b_j], [b_j^T, c_j]]`` and ``p_k^j = M_k^j [v; 1]``:
-    ``H_kl = sum_j p_k^j . u_l^j + s_l``, ``u_l^j = A_j p_l^j + b_j``,
-    ``s_l = sum_j (b_j . p_l^j + c_j)``. Pk, Uk: (>= K, 3P) workspaces.
-    """
-    P = Qe.shape[0]
-    S = np.empty(K)
-    for k in range(K):
-        sk = 0.0
-        for j in range(P):
-            p0 = Tb[k, j, 0, 0] * v[0] + Tb[k, j, 0, 1] * v[1] + Tb[k, j, 0, 2] * v[2] + Tb[k, j, 0, 3]
-            p1 = Tb[k, j, 1, 0] * v[0] + Tb[k, j, 1, 1] * v[1] + Tb[k, j, 1, 2] * v[2] + Tb[k, j, 1, 3]
-            p2 = Tb[k, j, 2, 0] * v[0] + Tb[k, j, 2, 1] * v[1] + Tb[k, j, 2, 2] * v[2] + Tb[k, j, 2, 3]
-            Pk[k, 3 * j], Pk[k, 3 * j + 1], Pk[k, 3 * j + 2] = p0, p1, p2
-            Uk[k, 3 * j] = Qe[j, 0, 0] * p0 + Qe[j, 0, 1] * p1 + Qe[j, 0, 2] * p2 + Qe[j, 0, 3]
-            Uk[k, 3 * j + 1] = Qe[j, 1, 0] * p0 + Qe[j, 1, 1] * p1 + Qe[j, 1, 2] * p2 + Qe[j, 1, 3]
-            Uk[k, 3 * j + 2] = Qe[j, 2, 0] * p0 + Qe[j, 2, 1] * p1 + Qe[j, 2, 2] * p2 + Qe[j, 2, 3]
-            sk += Qe[j, 3, 0] * p0 + Qe[j, 3, 1] * p1 + Qe[j, 3, 2] * p2 + Qe[j, 3, 3]
-        S[k] = sk
-    n3 = 3 * P
-    tr = 0.0
-    for k in range(K):
-        for l in range(k, K):
-            s = S[l]
-            for t in range(n3):
-                s += Pk[k, t] * Uk[l, t]
-            H[k, l] = s
-            H[l, k] = s
-        tr += H[k, k]
-    s = tr / max(K, 1)
-    if s > 0:
-        for k in range(K):
-            for l in range(K):
-                H[k, l] /= s
-
-
-@njit(cache=True)
-def _solve_free(H, ridge, g, K, free, x, L, w, idx):
-    """Minimise ``1/2 x^T (H + ridge I) x + g^T x`` s.t. ``sum x_F = 1``, ``x_A = 0`` (F: ``free``).
-
-    Cholesky of ``(H + ridge I)_FF``; ``x_F = y - lambda z`` with ``(H + rI) y = -g``,
-    ``(H + rI) z = 1`` and ``lambda = (1^T y - 1) / 1^T z``. Returns lambda.
-    ``L`` (K, K), ``w`` (2, K) and ``idx`` (K,) are workspaces.
-    """
-    y = w[0]
-    z = w[1]
-    n = 0
-    for k in range(K):
-        if free[k]:
-            idx[n] = k
-            n += 1
-    for i in range(n):
-        for j in range(i + 1):
-            s = H[idx[i], idx[j]] + (ridge if i == j else 0.0)
-            for t in range(j):
-                s -= L[i, t] * L[j, t]
-            if i == j:
-                L[i, i] = np.sqrt(s) if s > 0 else 1e-300
-            else:
-                L[i, j] = s / L[j, j]
-    for i in range(n):                       # forward
-        sy, sz = -g[idx[i]], 1.0
-        for t in range(i):
-            sy -= L[i, t] * y[t]
-            sz -= L[i, t] * z[t]
-        y[i], z[i] = sy / L[i, i], sz / L[i, i]
-    for i in range(n - 1, -1, -1):           # backward
-        sy, sz = y[i], z[i]
-        for t in range(i + 1, n):
-            sy -= L[t, i] * y[t]
-            sz -= L[t, i] * z[t]
-        y[i], z[i] = sy / L[i, i], sz / L[i, i]
-    sy, sz = 0.0, 0.0
-    for i in range(n):
-        sy += y[i]
-        sz += z[i]
-    lam = (sy - 1.0) / sz
-    for k in range(K):
-        x[k] = 0.0
-    for i in range(n):
-        x[idx[i]] = y[i] - lam * z[i]
-    return lam
-
-
-@njit(cache=True)
-def _gradient(H, ridge, g, K, x, lam, k):
-    """``((H + ridge I) x + g)_k + lambda``: the bound multiplier of variable k."""
-    s = g[k] + ridge * x[k] + lam
-    for t in range(K):
-        s += H[k, t] * x[t]
-    return s
-
-
-@njit(cache=True)
-def _weight_step(H, K, a0, nonneg, ridge, free, warm, x, L, w, idx):
-    """The weight step on the scaled Hessian H (see the module docstring); ``free`` carries the active set.
-
-    Returns True when the non-negativity constraints were active (so ``free`` is a useful warm start).
-    """
-    g = w[2]
-    for k in range(K):
-        g[k] = -ridge * a0[k]
-    if not warm:
-        for k in range(K):
-            free[k] = True
-    lam = _solve_free(H, ridge, g, K, free, x, L, w, idx)
-    if not nonneg:
-        return False
-    if not warm:
-        neg = False
-        for k in range(K):
-            if x[k] < 0.0:
-                neg = True
-        if not neg:
-            return False
-        for k in range(K):
-            free[k] = x[k] >= 0.0
-        lam = _solve_free(H, ridge, g, K, free, x, L, w, idx)
-    # primal-dual active set
-    for it in range(2 * K + 5):
-        rmax = 0.0
-        for k in range(K):
-            rmax = max(rmax, abs(_gradient(H, ridge, g, K, x, 0.0, k)))
-        mtol = 1e-12 * (1.0 + rmax)
-        change = False
-        any_bound = False
-        for k in range(K):
-            if free[k]:
-                if x[k] < -1e-14:
-                    free[k] = False
-                    change = True
-            elif _gradient(H, ridge, g, K, x, lam, k) < -mtol:
-                free[k] = True
-                change = True
-        if not change:
-            for k in range(K):
-                if x[k] < 0.0:
-                    x[k] = 0.0
-                if not free[k]:
-                    any_bound = True
-            return any_bound
-        lam = _solve_free(H, ridge, g, K, free, x, L, w, idx)
-    # did not settle: primal active set from the feasible start of rigslim.numerics.small_qp's path
-    s = 0.0
-    for k in range(K):
-        x[k] = max(a0[k], 0.0)
-        s += x[k]
-    for k in range(K):
-        x[k] = x[k] / s if s > 1e-12 else 1.0 / K
-        free[k] = x[k] > 0.0
-    xs = np.empty(K)
-    for it in range(3 * K + 10):
-        lam = _solve_free(H, ridge, g, K, free, xs, L, w, idx)
-        pmax, xmax = 0.0, 0.0
-        for k in range(K):
-            pmax = max(pmax, abs(xs[k] - x[k]))
-            xmax = max(xmax, abs(x[k]))
-        t, j = 1.0, -1
-        if pmax > 1e-12 * (1.0 + xmax):
-            for k in range(K):
-                p = xs[k] - x[k]
-                if free[k] and p < 0:
-                    r = -x[k] / p
-                    if r < t:
-                        t, j = r, k
-            for k in range(K):
-                x[k] = max(x[k] + t * (xs[k] - x[k]), 0.0)
-            if j >= 0:
-                x[j] = 0.0
-                free[j] = False
-                continue
-        else:
-            for k in range(K):
-                x[k] = max(xs[k], 0.0)
-        rmax = 0.0
-        for k in range(K):
-            rmax = max(rmax, abs(_gradient(H, ridge, g, K, x, 0.0, k)))
-        jm, mu_min = -1, np.inf
-        for k in range(K):
-            if not free[k]:
-                mu = _gradient(H, ridge, g, K, x, lam, k)
-                if mu < mu_min:
-                    mu_min, jm = mu, k
-        if jm < 0 or mu_min >= -1e-12 * (1.0 + rmax):
-            break
-        free[jm] = True
-    return True
-
-
-@njit(cache=True)
-def _alternate(Qe, Tb, K, a_start, fb, iterations, tol, nonneg, ridge, v_best, a_best):
-    """Alternate position and weight steps from ``a_start`` on K bones; returns the best error."""
-    P = Qe.shape[0]
-    X = np.empty((P, 3, 4))
-    G = np.empty((4, 4))
-    H = np.empty((K, K))
-    L = np.empty((K, K))
-    v = np.empty(3)
-    a = np.empty(K)
-    free = np.ones(K, np.bool_)
-    w = np.empty((3, K))
-    idx = np.empty(K, np.int64)
-    _blend(a_start, Tb, K, X)
-    _gram(Qe, X, G)
-    _position_step(G, fb, v)
-    best = _quartic_error(Qe, X, v)
-    v_best[:] = v
-    a_best[:K] = a_start[:K]
-    warm = False
-    Pk = np.empty((K, 3 * P))
-    Uk = np.empty((K, 3 * P))
-    for _ in range(iterations):
-        _weight_hessian(Qe, Tb, K, v, H, Pk, Uk)
-        warm = _weight_step(H, K, a_start, nonneg, ridge, free, warm, a, L, w, idx)
-        _blend(a, Tb, K, X)
-        _gram(Qe, X, G)
-        _position_step(G, fb, v)
-        E = _quartic_error(Qe, X, v)
-        old = best
-        if E < old:
-            best = E
-            v_best[:] = v
-            a_best[:K] = a[:K]
-        gain = (old - E) / max(abs(old), 1e-300)
-        if not gain > tol:
-            break
-    return best
-
-
-@njit(cache=True)
-def _top(a, K, mask, n, keep):
-    """``keep``: the n largest of ``a`` where ``mask`` (ties: lower index first, as a stable argsort)."""
-    for k in range(K):
-        keep[k] = False
-    for _ in range(n):
-        j, best = -1, -np.inf
-        for k in range(K):
-            if mask[k] and not keep[k] and (j < 0 or a[k] > best):
-                j, best = k, a[k]
-        if j < 0:
-            break
-        keep[j] = True
-
-
-@njit(cache=True)
-def _bone_limit(a, K, mask, n, out, keep):
-    """Keep the n largest weights and renormalise (``rigslim.plugins.decimation.quadrics.bone_limit`` for one row)."""
-    _top(a, K, mask, n, keep)
-    s = 0.0
-    for k in range(K):
-        out[k] = a[k] if keep[k] else 0.0
-        s += out[k]
-    if abs(s) < 1e-9:
-        s = 0.0
-        for k in range(K):
-            out[k] = abs(out[k])
-            s += out[k]
-    for k in range(K):
-        out[k] /= s
-
-
-@njit(cache=True)
-def _endpoint_error(Qe, T, w, p):
-    """Quartic error of keeping a vertex (position p, dense weights w) under the edge quadrics."""
-    P, n = T.shape[0], T.shape[1]
-    E = 0.0
-    X = np.empty((3, 4))
-    for j in range(P):
-        for r in range(3):
-            for c in range(4):
-                s = 0.0
-                for k in range(n):
-                    if w[k] != 0.0:
-                        s += w[k] * T[j, k, r, c]
-                X[r, c] = s
-        q = np.empty(3)
-        for r in range(3):
-            q[r] = X[r, 0] * p[0] + X[r, 1] * p[1] + X[r, 2] * p[2] + X[r, 3]
-        E += _qform(Qe[j], q[0], q[1], q[2])
-    return E
-
-
-@njit(cache=True)
-def edge_cost(method, ia, ib, V, W, Qv, T, ip, fp, v_out, w_out):
-    """Cost of collapsing vertices ia, ib (``method``: QUARTIC, MOHR_GLEICHER or DECORO).
-
-    Writes the new vertex's position to ``v_out`` (3,) and dense weights to ``w_out`` (n,);
-    returns the cost (clamped at 0). ``ip = [iterations, max_bones or -1, nonnegative, endpoints]``,
-    ``fp = [tol, ridge]``.
-    """
-    P, n = T.shape[0], T.shape[1]
-    Qe = Qv[ia] + Qv[ib]
-    fb = np.empty((3, 3))
-    for t in range(3):
-        fb[0, t], fb[1, t] = V[ia, t], V[ib, t]
-        fb[2, t] = 0.5 * (V[ia, t] + V[ib, t])
-    max_bones = ip[1]
-    if method == MOHR_GLEICHER:
-        ea = _endpoint_error(Qe, T, W[ia], V[ia])
-        eb = _endpoint_error(Qe, T, W[ib], V[ib])
-        e = ib if eb < ea else ia
-        v_out[:] = V[e]
-        w_out[:] = W[e]
-        return max(min(ea, eb), 0.0)
-    if method == DECORO:
-        v = np.empty(3)
-        _position_step(Qe[0], fb, v)
-        da = np.sqrt((v[0] - fb[0, 0]) ** 2 + (v[1] - fb[0, 1]) ** 2 + (v[2] - fb[0, 2]) ** 2)
-        db = np.sqrt((v[0] - fb[1, 0]) ** 2 + (v[1] - fb[1, 1]) ** 2 + (v[2] - fb[1, 2]) ** 2)
-        s = da + db
-        ta = db / s if s > 0 else 0.5
-        w = np.empty(n)
-        for k in range(n):
-            w[k] = ta * W[ia, k] + (1.0 - ta) * W[ib, k]
-        if max_bones >= 0 and n > max_bones:
-            mask = w != 0.0
-            keep = np.empty(n, np.bool_)
-            _bone_limit(w.copy(), n, mask, max_bones, w, keep)
-        v_out[:] = v
-        w_out[:] = w
-        return max(_qform(Qe[0], v[0], v[1], v[2]), 0.0)
-    # QUARTIC
-    iterations, nonneg, endpoints = ip[0], ip[2] != 0, ip[3] != 0
-    tol, ridge = fp[0], fp[1]
-    bones = np.empty(n, np.int64)
-    K = 0
-    for k in range(n):
-        if W[ia, k] != 0.0 or W[ib, k] != 0.0:
-            bones[K] = k
-            K += 1
-    Tb = np.empty((K, P, 3, 4))
-    a0 = np.empty(K)
-    for i in range(K):
-        k = bones[i]
-        a0[i] = 0.5 * (W[ia, k] + W[ib, k])
-        for j in range(P):
-            Tb[i, j] = T[j, k]
-    v = np.empty(3)
-    a = np.empty(K)
-    E = 0.0
-    for _ in range(2):                       # one call site: the kernel is compiled (inlined) once
-        E = _alternate(Qe, Tb, K, a0, fb, iterations, tol, nonneg, ridge, v, a)
-        if max_bones < 0:
-            break
-        nz = 0
-        for i in range(K):
-            if a[i] != 0.0:
-                nz += 1
-        if nz <= max_bones:
-            break
-        # bone limit: keep the max_bones largest, renormalise, alternate again on that set
-        mask = np.ones(K, np.bool_)
-        keep = np.empty(K, np.bool_)
-        lim = np.empty(K)
-        _bone_limit(a, K, mask, max_bones, lim, keep)
-        K2 = 0
-        for i in range(K):
-            if keep[i]:
-                bones[K2] = bones[i]
-                Tb[K2] = Tb[i]
-                a0[K2] = lim[i]
-                K2 += 1
-        K = K2
-    for k in range(n):
-        w_out[k] = 0.0
-    for i in range(K):
-        w_out[bones[i]] = a[i]
-    v_out[:] = v
-    E = max(E, 0.0)
-    if endpoints:
-        for e in (ia, ib):
-            Ee = max(_endpoint_error(Qe, T, W[e], V[e]), 0.0)
-            if Ee < E:
-                E = Ee
-                v_out[:] = V[e]
-                w_out[:] = W[e]
-    return E
-
-
-@njit(cache=True, nogil=True)
-def _edge_costs_into(method, ea, eb, V, W, Qv, T, ip, fp, v, w, E):
-    """:func:`edge_cost` of the edges ``(ea[i], eb[i])`` into v (B, 3), w (B, n), E (B,); releases the GIL."""
-    for i in range(len(ea)):
-        E[i] = edge_cost(method, ea[i], eb[i], V, W, Qv, T, ip, fp, v[i], w[i])
-
-
-def edge_costs(method, ea, eb, V, W, Qv, T, ip, fp, threads: int | None = None):
-    """:func:`edge_cost` of many edges: returns v (B, 3), w (B, n), E (B,).
-
-    Large batches are split over ``threads`` Python threads (default: the
-    CPU count), which run the compiled loop without the GIL.
-    """
-    import os
-    from concurrent.futures import ThreadPoolExecutor
-
-    ea = np.ascontiguousarray(ea, dtype=np.int64)
-    eb = np.ascontiguousarray(eb, dtype=np.int64)
-    B, n = len(ea), W.shape[1]
-    v, w, E = np.empty((B, 3)), np.empty((B, n)), np.empty(B)
-    threads = threads or os.cpu_count() or 1
-    if threads == 1 or B < 4096:
-        _edge_costs_into(method, ea, eb, V, W, Qv, T, ip, fp, v, w, E)
-        return v, w, E
-    parts = np.array_split(np.arange(B), 8 * threads)      # small parts balance uneven costs
-    with ThreadPoolExecutor(threads) as pool:
-        list(pool.map(lambda p: _edge_costs_into(method, ea[p[0]:p[-1] + 1], eb[p[0]:p[-1] + 1], V, W, Qv, T, ip,
-                                                 fp, v[p[0]:p[-1] + 1], w[p[0]:p[-1] + 1], E[p[0]:p[-1] + 1]),
-                      [p for p in parts if len(p)]))
-    return v, w, E
-
-
-# --------------------------------------------------------------------------------------------------------------
-# the collapse loop: hash of edge keys, heap, edge table
-
-
-@njit(cache=True)
-def _hslot(key, hmask):
-    h = np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)
-    return np.int64((h >> np.uint64(20)) & np.uint64(hmask))
-
-
-@njit(cache=True)
-def _hfind(hk, hv, key):
-    hmask = len(hk) - 1
-    i = _hslot(key, hmask)
-    while hk[i] != -1:
-        if hk[i] == key:
-            return i
-        i = (i + 1) & hmask
-    return -1
-
-
-@njit(cache=True)
-def _hinsert(hk, hv, key, val):
-    hmask = len(hk) - 1
-    i = _hslot(key, hmask)
-    while hk[i] != -1:
-        i = (i + 1) & hmask
-    hk[i], hv[i] = key, val
-
-
-@njit(cache=True)
-def _hdelete(hk, hv, i):
-    """Delete slot i of the linear-probing table (backward shift, Knuth's algorithm R)."""
-    hmask = len(hk) - 1
-    hk[i] = -1
-    j = i
-    while True:
-        j = (j + 1) & hmask
-        if hk[j] == -1:
-            return
-        k = _hslot(hk[j], hmask)
-        if (i <= j and i < k <= j) or (i > j and (i < k or k <= j)):
-            continue
-        hk[i], hv[i] = hk[j], hv[j]
-        hk[j] = -1
-        i = j
-
-
-@njit(cache=True)
-def _less(c1, s1, e1, c2, s2, e2):
-    return c1 < c2 or (c1 == c2 and (s1 < s2 or (s1 == s2 and e1 < e2)))
-
-
-@njit(cache=True)
-def _sift_down(hc, hs, he, size, i):
-    while True:
-        l, r, m = 2 * i + 1, 2 * i + 2, i
-        if l < size and _less(hc[l], hs[l], he[l], hc[m], hs[m], he[m]):
-            m = l
-        if r < size and _less(hc[r], hs[r], he[r], hc[m], hs[m], he[m]):
-            m = r
-        if m == i:
-            return
-        hc[i], hc[m] = hc[m], hc[i]
-        hs[i], hs[m] = hs[m], hs[i]
-        he[i], he[m] = he[m], he[i]
-        i = m
-
-
-@njit(cache=True)
-def _push(hc, hs, he, cnt, cost, stamp, e, estamp, estate):
-    size = cnt[C_HEAP]
-    if size == len(hc):                          # drop stale entries (they would be skipped anyway)
-        k = 0
-        for i in range(size):
-            if hs[i] == estamp[he[i]] and estate[he[i]] != DEAD and estate[he[i]] != BLOCKED:
-                hc[k], hs[k], he[k] = hc[i], hs[i], he[i]
-                k += 1
-        size = k
-        for i in range(size // 2 - 1, -1, -1):
-            _sift_down(hc, hs, he, size, i)
-    i = size
-    hc[i], hs[i], he[i] = cost, stamp, e
-    while i > 0:
-        p = (i - 1) // 2
-        if _less(hc[i], hs[i], he[i], hc[p], hs[p], he[p]):
-            hc[i], hc[p] = hc[p], hc[i]
-            hs[i], hs[p] = hs[p], hs[i]
-            he[i], he[p] = he[p], he[i]
-            i = p
-        else:
-            break
-    cnt[C_HEAP] = size + 1
-
-
-@njit(cache=True)
-def _pop(hc, hs, he, cnt):
-    size = cnt[C_HEAP] - 1
-    c, s, e = hc[0], hs[0], he[0]
-    hc[0], hs[0], he[0] = hc[size], hs[size], he[size]
-    cnt[C_HEAP] = size
-    _sift_down(hc, hs, he, size, 0)
-    return c, s, e
-
-
-@njit(cache=True)
-def _edge_add(x, y, N, ea, eb, estamp, free, cnt, hk, hv):
-    if cnt[C_FREE] > 0:
-        cnt[C_FREE] -= 1
-        e = free[cnt[C_FREE]]
-    else:
-        e = cnt[C_SIZE]
-        cnt[C_SIZE] += 1
-    if x > y:
-        x, y = y, x
-    ea[e], eb[e] = x, y
-    estamp[e] += 1
-    _hinsert(hk, hv, x * N + y, e)
-    return e
-
-
-@njit(cache=True)
-def _edge_kill(e, N, ea, eb, estate, free, cnt, hk, hv, in_dirty):
-    estate[e] = DEAD
-    in_dirty[e] = False
-    _hdelete(hk, hv, _hfind(hk, hv, ea[e] * N + eb[e]))
-    free[cnt[C_FREE]] = e
-    cnt[C_FREE] += 1
-
-
-@njit(cache=True)
-def _edge_of(x, y, N, hk, hv):
-    if x > y:
-        x, y = y, x
-    i = _hfind(hk, hv, x * N + y)
-    return -1 if i < 0 else hv[i]
+from rigslim.plugins.decimation.edge_costs import edge_cost
+from rigslim.plugins.decimation.edge_queue import (
+    C_COLLAPSES,
+    C_DIRTY,
+    C_EVALS,
+    C_FACES,
+    C_HEAP,
+    C_POOL,
+    C_POPS,
+    C_TAG,
+    C_TRIES,
+    edge_add,
+    edge_kill,
+    edge_of,
+    pop,
+    push,
+)
+from rigslim.plugins.decimation.setup import BLOCKED, CLEAN, DEAD, DIRTY
+
+__all__ = ["CostModel", "LoopEdges", "LoopMesh", "LoopQueue", "LoopRecord", "LoopVertices", "Scratch",
+           "apply_collapse", "collapse_chunk", "evaluate_dirty", "folds", "link_ok", "new_scratch", "requeue"]
+
+#: The mesh as the loop edits it: faces (vertices renamed as they merge), vertex-face lists (``pool`` slices
+#: ``vf_start[x]:vf_start[x] + vf_cnt[x]``), fixed and seam vertices, face charts, and a marker array.
+LoopMesh = namedtuple("LoopMesh", ["F", "vf_start", "vf_cnt", "pool", "boundary", "along", "charts", "mark"])
+#: Per-vertex tables (2m rows: the originals, then one per collapse): rest position, weights, quadrics,
+#: positions in the rest pose and every example pose.
+LoopVertices = namedtuple("LoopVertices", ["V", "W", "Qv", "pos"])
+#: Edge slots (ends, cost, the new vertex and weights, stamp, state), the free list, the dirty list and the
+#: key hash.
+LoopEdges = namedtuple("LoopEdges", ["ea", "eb", "ecost", "ev", "ew", "estamp", "estate", "free", "in_dirty", "dirty",
+                                     "hk", "hv"])
+#: The heap of ``(cost, stamp, edge)`` entries.
+LoopQueue = namedtuple("LoopQueue", ["hc", "hs", "he"])
+#: Counters (:mod:`rigslim.plugins.decimation.edge_queue`) and the recorded collapses, errors and face counts.
+LoopRecord = namedtuple("LoopRecord", ["cnt", "col", "errs", "nfaces"])
+#: The edge cost model (:func:`rigslim.plugins.decimation.edge_costs.edge_cost`) and the example poses.
+CostModel = namedtuple("CostModel", ["method", "ip", "fp", "T"])
+#: Work arrays of one collapse attempt: neighbours of a and b, the union, the surviving and the removed
+#: faces, the new vertex in every pose, and 3x4 / 3x3 temporaries.
+Scratch = namedtuple("Scratch", ["Na", "Nb", "nbr", "uni", "rem", "fab", "pc", "Xw", "q", "o"])
+
+
+def new_scratch(n_poses: int) -> Scratch:
+    """Work arrays for a loop over ``n_poses`` example poses."""
+    return Scratch(np.empty(4096, np.int64), np.empty(4096, np.int64), np.empty(4096, np.int64),
+                   np.empty(8192, np.int64), np.empty(8192, np.int64), np.empty(2, np.int64),
+                   np.empty((n_poses + 1, 3)), np.empty((3, 4)), np.empty((3, 3)), np.empty((3, 3)))
 
 
 @njit(cache=True)
@@ -768,243 +127,281 @@ def _seam_edge(x, y, F, vf_start, vf_cnt, pool, charts):
 
 
 @njit(cache=True)
-def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, method, ip, fp,
-                   V, W, Qv, T, pos, F, vf_start, vf_cnt, pool, boundary, along, charts, mark,
-                   ea, eb, ecost, ev, ew, estamp, estate, free, in_dirty, dirty, hk, hv, hc, hs, he,
-                   cnt, col, errs, nfaces):
+def evaluate_dirty(cm, vx, ed, qu, cnt):
+    """Give every dirty edge its true cost and queue it again (one entry per edge)."""
+    dirty, in_dirty = ed.dirty, ed.in_dirty
+    nd = cnt[C_DIRTY]
+    cnt[C_DIRTY] = 0
+    nt = 0
+    for i in range(nd):
+        d = dirty[i]
+        if in_dirty[d]:
+            in_dirty[d] = False
+            dirty[nt] = d
+            nt += 1
+    cnt[C_EVALS] += nt
+    for i in range(nt):
+        d = dirty[i]
+        ed.ecost[d] = edge_cost(cm.method, ed.ea[d], ed.eb[d], vx.V, vx.W, vx.Qv, cm.T, cm.ip, cm.fp, ed.ev[d],
+                                ed.ew[d])
+        ed.estate[d] = CLEAN
+        ed.estamp[d] += 1
+        push(qu.hc, qu.hs, qu.he, cnt, ed.ecost[d], ed.estamp[d], d, ed.estamp, ed.estate)
+
+
+@njit(cache=True)
+def link_ok(a, b, mesh, cnt, s):
+    """Faces around edge (a, b) and the link condition.
+
+    Fills ``s.fab`` (the two faces of the edge), ``s.rem`` (the faces that survive, around a or b) and
+    ``s.uni`` (the union of the neighbours of a and b, without them). Returns ``(ok, nrem, nu)``: ok when
+    the edge has two faces, a and b have exactly two common neighbours, the union has three or more
+    vertices and at least four faces would be left.
+    """
+    F, vf_start, vf_cnt, pool, mark = mesh.F, mesh.vf_start, mesh.vf_cnt, mesh.pool, mesh.mark
+    fab, rem, uni, Na, Nb = s.fab, s.rem, s.uni, s.Na, s.Nb
+    nfab, nrem, nu = 0, 0, 0
+    for i in range(vf_start[a], vf_start[a] + vf_cnt[a]):
+        f = pool[i]
+        if F[f, 0] == b or F[f, 1] == b or F[f, 2] == b:
+            if nfab < 2:
+                fab[nfab] = f
+            nfab += 1
+        else:
+            rem[nrem] = f
+            nrem += 1
+    if nfab != 2:
+        return False, nrem, nu
+    for i in range(vf_start[b], vf_start[b] + vf_cnt[b]):
+        f = pool[i]
+        if not (F[f, 0] == a or F[f, 1] == a or F[f, 2] == a):
+            rem[nrem] = f
+            nrem += 1
+    cnt[C_TAG] += 1
+    ta = cnt[C_TAG]
+    na = _neighbours(a, F, vf_start, vf_cnt, pool, mark, ta, Na)
+    cnt[C_TAG] += 1
+    tb = cnt[C_TAG]
+    nb = _neighbours(b, F, vf_start, vf_cnt, pool, mark, tb, Nb)
+    # mark now says tb for Nb's vertices; Na's vertices not in Nb keep ta
+    common = 0
+    for i in range(nb):
+        y = Nb[i]
+        if y != a and y != b:
+            uni[nu] = y
+            nu += 1
+    for i in range(na):
+        y = Na[i]
+        if y == a or y == b:
+            continue
+        if mark[y] == tb:
+            common += 1
+        else:
+            uni[nu] = y
+            nu += 1
+    return common == 2 and nu >= 3 and cnt[C_FACES] - 2 >= 4, nrem, nu
+
+
+@njit(cache=True)
+def folds(a, b, v, w, nrem, mesh, vx, cm, s, tiny, min_normal_cos):
+    """Whether moving a and b to the new vertex folds a surviving face, in the rest pose or any example pose.
+
+    Fills ``s.pc`` with the new vertex's positions (rest, then each pose: ``sum_k w_k T_k^j [v; 1]``). A face
+    folds when its normal turns by more than ``arccos(min_normal_cos)``, or degenerates (``|n| <= tiny``).
+    """
+    F, pos, T, pc, Xw, q, o, rem = mesh.F, vx.pos, cm.T, s.pc, s.Xw, s.q, s.o, s.rem
+    P, n = T.shape[0], T.shape[1]
+    P1 = pos.shape[1]
+    for t in range(3):
+        pc[0, t] = v[t]
+    for j in range(P):
+        for r in range(3):
+            for c in range(4):
+                acc = 0.0
+                for k in range(n):
+                    acc += w[k] * T[j, k, r, c]
+                Xw[r, c] = acc
+        for r in range(3):
+            pc[j + 1, r] = Xw[r, 0] * v[0] + Xw[r, 1] * v[1] + Xw[r, 2] * v[2] + Xw[r, 3]
+    for i in range(nrem):
+        f = rem[i]
+        for j in range(P1):
+            for c in range(3):
+                x = F[f, c]
+                for t in range(3):
+                    o[c, t] = pos[x, j, t]
+                    q[c, t] = pc[j, t] if (x == a or x == b) else pos[x, j, t]
+            u0, u1, u2 = o[1, 0] - o[0, 0], o[1, 1] - o[0, 1], o[1, 2] - o[0, 2]
+            w0, w1, w2 = o[2, 0] - o[0, 0], o[2, 1] - o[0, 1], o[2, 2] - o[0, 2]
+            no0, no1, no2 = u1 * w2 - u2 * w1, u2 * w0 - u0 * w2, u0 * w1 - u1 * w0
+            u0, u1, u2 = q[1, 0] - q[0, 0], q[1, 1] - q[0, 1], q[1, 2] - q[0, 2]
+            w0, w1, w2 = q[2, 0] - q[0, 0], q[2, 1] - q[0, 1], q[2, 2] - q[0, 2]
+            nn0, nn1, nn2 = u1 * w2 - u2 * w1, u2 * w0 - u0 * w2, u0 * w1 - u1 * w0
+            lo = np.sqrt(no0 * no0 + no1 * no1 + no2 * no2)
+            ln = np.sqrt(nn0 * nn0 + nn1 * nn1 + nn2 * nn2)
+            dot = no0 * nn0 + no1 * nn1 + no2 * nn2
+            if lo > tiny and (ln <= tiny or dot < min_normal_cos * lo * ln):
+                return True
+    return False
+
+
+@njit(cache=True)
+def apply_collapse(e, a, b, nrem, mesh, vx, ed, cnt, s):
+    """Collapse edge e = (a, b) into a new vertex c; returns ``(c, cost of e)``.
+
+    The new vertex takes the edge's position, weights and poses (``s.pc``) and the sum of the quadrics;
+    the edge's two faces go, the surviving faces (``s.rem``) point at c, and c's face list is appended
+    to the pool (compacted when full). A collapse along a seam makes c a seam vertex.
+    """
+    F, vf_start, vf_cnt, pool = mesh.F, mesh.vf_start, mesh.vf_cnt, mesh.pool
+    boundary, along, fab, rem = mesh.boundary, mesh.along, s.fab, s.rem
+    N = len(vx.V)
+    m = N // 2
+    c = m + cnt[C_COLLAPSES]
+    vx.V[c] = ed.ev[e]
+    vx.W[c] = ed.ew[e]
+    vx.pos[c] = s.pc
+    vx.Qv[c] = vx.Qv[a] + vx.Qv[b]
+    if along[a] and along[b]:             # a collapse along a seam: the new vertex is a seam vertex
+        boundary[c] = True
+        along[c] = True
+    for i in range(2):
+        f = fab[i]
+        for t in range(3):
+            x = F[f, t]
+            if x != a and x != b:
+                _remove_face(x, f, vf_start, vf_cnt, pool)
+    for i in range(nrem):
+        f = rem[i]
+        for t in range(3):
+            if F[f, t] == a or F[f, t] == b:
+                F[f, t] = c
+    vf_cnt[a] = 0
+    vf_cnt[b] = 0
+    if cnt[C_POOL] + nrem > len(pool):    # compact the vertex-face lists
+        tmp = pool.copy()
+        k = 0
+        for x in range(N):
+            if vf_cnt[x] > 0:
+                s0 = vf_start[x]
+                for i in range(vf_cnt[x]):
+                    pool[k + i] = tmp[s0 + i]
+                vf_start[x] = k
+                k += vf_cnt[x]
+        cnt[C_POOL] = k
+    vf_start[c] = cnt[C_POOL]
+    vf_cnt[c] = nrem
+    for i in range(nrem):
+        pool[cnt[C_POOL] + i] = rem[i]
+    cnt[C_POOL] += nrem
+    cnt[C_FACES] -= 2
+    cost_ab = ed.ecost[e]
+    edge_kill(e, N, ed.ea, ed.eb, ed.estate, ed.free, cnt, ed.hk, ed.hv, ed.in_dirty)
+    return c, cost_ab
+
+
+@njit(cache=True)
+def requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s):
+    """Replace the edges (a, x) and (b, x) by (c, x) for every neighbour x, in increasing order of x.
+
+    Each new edge is queued with the lower bound ``max(cost(a, x), cost(b, x), cost(a, b))`` and marked
+    dirty (unless c or x is fixed and the edge is no seam edge); edges at x that a guard blocked earlier
+    are queued again.
+    """
+    F, vf_start, vf_cnt, pool, mark = mesh.F, mesh.vf_start, mesh.vf_cnt, mesh.pool, mesh.mark
+    boundary, along, charts = mesh.boundary, mesh.along, mesh.charts
+    ea, eb, ecost, estamp, estate, free, hk, hv = ed.ea, ed.eb, ed.ecost, ed.estamp, ed.estate, ed.free, ed.hk, ed.hv
+    in_dirty, dirty, uni, nbr = ed.in_dirty, ed.dirty, s.uni, s.nbr
+    N = len(mark)
+    # union in increasing order (the Python loop does the same)
+    for i in range(1, nu):
+        y = uni[i]
+        k = i - 1
+        while k >= 0 and uni[k] > y:
+            uni[k + 1] = uni[k]
+            k -= 1
+        uni[k + 1] = y
+    for i in range(nu):
+        x = uni[i]
+        lb = cost_ab
+        for y in (a, b):
+            eo = edge_of(x, y, N, hk, hv)
+            if eo >= 0:
+                lb = max(lb, ecost[eo])
+                edge_kill(eo, N, ea, eb, estate, free, cnt, hk, hv, in_dirty)
+        if (boundary[x] or boundary[c]) and not (along[x] and along[c]
+                                                 and _seam_edge(x, c, F, vf_start, vf_cnt, pool, charts)):
+            continue
+        en = edge_add(x, c, N, ea, eb, estamp, free, cnt, hk, hv)
+        ecost[en] = lb
+        estate[en] = DIRTY
+        if not in_dirty[en]:
+            in_dirty[en] = True
+            if cnt[C_DIRTY] == len(dirty):       # compact: keep each dirty edge once
+                k = 0
+                for t in range(cnt[C_DIRTY]):
+                    d = dirty[t]
+                    if in_dirty[d] and d != en:
+                        dirty[k] = d
+                        in_dirty[d] = False
+                        k += 1
+                for t in range(k):
+                    in_dirty[dirty[t]] = True
+                cnt[C_DIRTY] = k
+            dirty[cnt[C_DIRTY]] = en
+            cnt[C_DIRTY] += 1
+        push(qu.hc, qu.hs, qu.he, cnt, lb, estamp[en], en, estamp, estate)
+        # edges at x blocked earlier may collapse now
+        cnt[C_TAG] += 1
+        k = _neighbours(x, F, vf_start, vf_cnt, pool, mark, cnt[C_TAG], nbr)
+        for t in range(k):
+            eb_ = edge_of(x, nbr[t], N, hk, hv)
+            if eb_ >= 0 and estate[eb_] == BLOCKED:
+                estate[eb_] = CLEAN
+                push(qu.hc, qu.hs, qu.he, cnt, ecost[eb_], estamp[eb_], eb_, estamp, estate)
+
+
+@njit(cache=True)
+def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, cm, mesh, vx, ed, qu, rec, s):
     """Run up to ``max_steps`` greedy collapses; returns True when the simplification has finished.
 
-    All arrays are the loop's state and are updated in place (see
-    :func:`rigslim.plugins.decimation.collapse.simplify`); ``cnt`` holds the
-    counters (faces, collapses, heap size, free slots, edge slots, dirty
-    count, pool use, marker tag, heap pops, collapse attempts, edge
-    evaluations).
+    Every array is the loop's state and is updated in place (see
+    :func:`rigslim.plugins.decimation.collapse.simplify`): pop the cheapest edge, skip stale entries,
+    re-evaluate the dirty edges when one is on top, else try the collapse (:func:`link_ok`,
+    :func:`folds`), block the edge if a guard refuses it, or :func:`apply_collapse`, :func:`requeue`
+    and record it.
     """
-    N = len(V)
-    m = N // 2
-    P1 = pos.shape[1]
-    P, n = T.shape[0], T.shape[1]
-    Na = np.empty(4096, np.int64)
-    Nb = np.empty(4096, np.int64)
-    nbr = np.empty(4096, np.int64)
-    uni = np.empty(8192, np.int64)
-    rem = np.empty(8192, np.int64)
-    fab = np.empty(2, np.int64)
-    pc = np.empty((P1, 3))
-    Xw = np.empty((3, 4))
-    q = np.empty((3, 3))
-    o = np.empty((3, 3))
+    cnt = rec.cnt
     for _ in range(max_steps):
         if cnt[C_FACES] <= min_faces:
             return True
         done = False
         while cnt[C_HEAP] > 0:
-            cost, stamp, e = _pop(hc, hs, he, cnt)
+            cost, stamp, e = pop(qu.hc, qu.hs, qu.he, cnt)
             cnt[C_POPS] += 1
-            if stamp != estamp[e] or estate[e] == DEAD or estate[e] == BLOCKED:
+            state = ed.estate[e]
+            if stamp != ed.estamp[e] or state == DEAD or state == BLOCKED:
                 continue
-            if estate[e] == DIRTY:               # evaluate every dirty edge, queue their true costs
-                nd = cnt[C_DIRTY]
-                cnt[C_DIRTY] = 0
-                nt = 0
-                for i in range(nd):
-                    d = dirty[i]
-                    if in_dirty[d]:
-                        in_dirty[d] = False
-                        dirty[nt] = d
-                        nt += 1
-                cnt[C_EVALS] += nt
-                for i in range(nt):
-                    d = dirty[i]
-                    ecost[d] = edge_cost(method, ea[d], eb[d], V, W, Qv, T, ip, fp, ev[d], ew[d])
-                    estate[d] = CLEAN
-                    estamp[d] += 1
-                    _push(hc, hs, he, cnt, ecost[d], estamp[d], d, estamp, estate)
+            if state == DIRTY:               # evaluate every dirty edge, queue their true costs
+                evaluate_dirty(cm, vx, ed, qu, cnt)
                 continue
-            # ---- try to collapse e
             cnt[C_TRIES] += 1
-            a, b = ea[e], eb[e]
-            nfab, nrem = 0, 0
-            for i in range(vf_start[a], vf_start[a] + vf_cnt[a]):
-                f = pool[i]
-                if F[f, 0] == b or F[f, 1] == b or F[f, 2] == b:
-                    if nfab < 2:
-                        fab[nfab] = f
-                    nfab += 1
-                else:
-                    rem[nrem] = f
-                    nrem += 1
-            ok = nfab == 2
-            if ok:
-                for i in range(vf_start[b], vf_start[b] + vf_cnt[b]):
-                    f = pool[i]
-                    if not (F[f, 0] == a or F[f, 1] == a or F[f, 2] == a):
-                        rem[nrem] = f
-                        nrem += 1
-                cnt[C_TAG] += 1
-                ta = cnt[C_TAG]
-                na = _neighbours(a, F, vf_start, vf_cnt, pool, mark, ta, Na)
-                cnt[C_TAG] += 1
-                tb = cnt[C_TAG]
-                nb = _neighbours(b, F, vf_start, vf_cnt, pool, mark, tb, Nb)
-                # mark now says tb for Nb's vertices; Na's vertices not in Nb keep ta
-                common, nu = 0, 0
-                for i in range(nb):
-                    y = Nb[i]
-                    if y != a and y != b:
-                        uni[nu] = y
-                        nu += 1
-                for i in range(na):
-                    y = Na[i]
-                    if y == a or y == b:
-                        continue
-                    if mark[y] == tb:
-                        common += 1
-                    else:
-                        uni[nu] = y
-                        nu += 1
-                ok = common == 2 and nu >= 3 and cnt[C_FACES] - 2 >= 4
-            if ok:                               # fold-over guard in the rest pose and every example pose
-                v, w = ev[e], ew[e]
-                for t in range(3):
-                    pc[0, t] = v[t]
-                for j in range(P):
-                    for r in range(3):
-                        for c in range(4):
-                            s = 0.0
-                            for k in range(n):
-                                s += w[k] * T[j, k, r, c]
-                            Xw[r, c] = s
-                    for r in range(3):
-                        pc[j + 1, r] = Xw[r, 0] * v[0] + Xw[r, 1] * v[1] + Xw[r, 2] * v[2] + Xw[r, 3]
-                for i in range(nrem):
-                    f = rem[i]
-                    for j in range(P1):
-                        for c in range(3):
-                            x = F[f, c]
-                            for t in range(3):
-                                o[c, t] = pos[x, j, t]
-                                q[c, t] = pc[j, t] if (x == a or x == b) else pos[x, j, t]
-                        u0, u1, u2 = o[1, 0] - o[0, 0], o[1, 1] - o[0, 1], o[1, 2] - o[0, 2]
-                        w0, w1, w2 = o[2, 0] - o[0, 0], o[2, 1] - o[0, 1], o[2, 2] - o[0, 2]
-                        no0, no1, no2 = u1 * w2 - u2 * w1, u2 * w0 - u0 * w2, u0 * w1 - u1 * w0
-                        u0, u1, u2 = q[1, 0] - q[0, 0], q[1, 1] - q[0, 1], q[1, 2] - q[0, 2]
-                        w0, w1, w2 = q[2, 0] - q[0, 0], q[2, 1] - q[0, 1], q[2, 2] - q[0, 2]
-                        nn0, nn1, nn2 = u1 * w2 - u2 * w1, u2 * w0 - u0 * w2, u0 * w1 - u1 * w0
-                        lo = np.sqrt(no0 * no0 + no1 * no1 + no2 * no2)
-                        ln = np.sqrt(nn0 * nn0 + nn1 * nn1 + nn2 * nn2)
-                        dot = no0 * nn0 + no1 * nn1 + no2 * nn2
-                        if lo > tiny and (ln <= tiny or dot < min_normal_cos * lo * ln):
-                            ok = False
-                            break
-                    if not ok:
-                        break
+            a, b = ed.ea[e], ed.eb[e]
+            ok, nrem, nu = link_ok(a, b, mesh, cnt, s)
+            if ok:                           # fold-over guard in the rest pose and every example pose
+                ok = not folds(a, b, ed.ev[e], ed.ew[e], nrem, mesh, vx, cm, s, tiny, min_normal_cos)
             if not ok:
-                estate[e] = BLOCKED
+                ed.estate[e] = BLOCKED
                 continue
-            # ---- apply
-            c = m + cnt[C_COLLAPSES]
-            V[c] = ev[e]
-            W[c] = ew[e]
-            pos[c] = pc
-            Qv[c] = Qv[a] + Qv[b]
-            if along[a] and along[b]:             # a collapse along a seam: the new vertex is a seam vertex
-                boundary[c] = True
-                along[c] = True
-            for i in range(2):
-                f = fab[i]
-                for t in range(3):
-                    x = F[f, t]
-                    if x != a and x != b:
-                        _remove_face(x, f, vf_start, vf_cnt, pool)
-            for i in range(nrem):
-                f = rem[i]
-                for t in range(3):
-                    if F[f, t] == a or F[f, t] == b:
-                        F[f, t] = c
-            vf_cnt[a] = 0
-            vf_cnt[b] = 0
-            if cnt[C_POOL] + nrem > len(pool):    # compact the vertex-face lists
-                tmp = pool.copy()
-                k = 0
-                for x in range(N):
-                    if vf_cnt[x] > 0:
-                        s0 = vf_start[x]
-                        for i in range(vf_cnt[x]):
-                            pool[k + i] = tmp[s0 + i]
-                        vf_start[x] = k
-                        k += vf_cnt[x]
-                cnt[C_POOL] = k
-            vf_start[c] = cnt[C_POOL]
-            vf_cnt[c] = nrem
-            for i in range(nrem):
-                pool[cnt[C_POOL] + i] = rem[i]
-            cnt[C_POOL] += nrem
-            cnt[C_FACES] -= 2
-            cost_ab = ecost[e]
-            _edge_kill(e, N, ea, eb, estate, free, cnt, hk, hv, in_dirty)
-            # union in increasing order (the Python loop does the same)
-            for i in range(1, nu):
-                y = uni[i]
-                k = i - 1
-                while k >= 0 and uni[k] > y:
-                    uni[k + 1] = uni[k]
-                    k -= 1
-                uni[k + 1] = y
-            for i in range(nu):
-                x = uni[i]
-                lb = cost_ab
-                for y in (a, b):
-                    eo = _edge_of(x, y, N, hk, hv)
-                    if eo >= 0:
-                        lb = max(lb, ecost[eo])
-                        _edge_kill(eo, N, ea, eb, estate, free, cnt, hk, hv, in_dirty)
-                if (boundary[x] or boundary[c]) and not (along[x] and along[c]
-                                                         and _seam_edge(x, c, F, vf_start, vf_cnt, pool, charts)):
-                    continue
-                en = _edge_add(x, c, N, ea, eb, estamp, free, cnt, hk, hv)
-                ecost[en] = lb
-                estate[en] = DIRTY
-                if not in_dirty[en]:
-                    in_dirty[en] = True
-                    if cnt[C_DIRTY] == len(dirty):       # compact: keep each dirty edge once
-                        k = 0
-                        for t in range(cnt[C_DIRTY]):
-                            d = dirty[t]
-                            if in_dirty[d] and d != en:
-                                dirty[k] = d
-                                in_dirty[d] = False
-                                k += 1
-                        for t in range(k):
-                            in_dirty[dirty[t]] = True
-                        cnt[C_DIRTY] = k
-                    dirty[cnt[C_DIRTY]] = en
-                    cnt[C_DIRTY] += 1
-                _push(hc, hs, he, cnt, lb, estamp[en], en, estamp, estate)
-                # edges at x blocked earlier may collapse now
-                cnt[C_TAG] += 1
-                k = _neighbours(x, F, vf_start, vf_cnt, pool, mark, cnt[C_TAG], nbr)
-                for t in range(k):
-                    eb_ = _edge_of(x, nbr[t], N, hk, hv)
-                    if eb_ >= 0 and estate[eb_] == BLOCKED:
-                        estate[eb_] = CLEAN
-                        _push(hc, hs, he, cnt, ecost[eb_], estamp[eb_], eb_, estamp, estate)
+            c, cost_ab = apply_collapse(e, a, b, nrem, mesh, vx, ed, cnt, s)
+            requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s)
             i = cnt[C_COLLAPSES]
-            col[i, 0], col[i, 1] = a, b
-            errs[i] = cost_ab
-            nfaces[i] = cnt[C_FACES]
+            rec.col[i, 0], rec.col[i, 1] = a, b
+            rec.errs[i] = cost_ab
+            rec.nfaces[i] = cnt[C_FACES]
             cnt[C_COLLAPSES] += 1
             done = True
             break
         if not done:
             return True
     return cnt[C_FACES] <= min_faces
-
-
-@njit(cache=True)
-def init_table(edges, N, ea, eb, estamp, hk, hv):
-    """Edge slots 0..E-1 for the sorted unique edges, registered in the key hash (stamp 1, as after one add)."""
-    for e in range(len(edges)):
-        ea[e], eb[e] = edges[e, 0], edges[e, 1]
-        estamp[e] = 1
-        _hinsert(hk, hv, edges[e, 0] * N + edges[e, 1], e)

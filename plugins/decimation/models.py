@@ -10,8 +10,14 @@ from __future__ import annotations
 import numpy as np
 
 from rigslim.plugins.decimation.collapse import EdgeCostModel, SimplifyState, blended_transforms
-from rigslim.plugins.decimation.quadrics import WEIGHT_RIDGE, alternate, bone_limit, position_step, quadric_error, quartic_error
-
+from rigslim.plugins.decimation.quadrics import (
+    WEIGHT_RIDGE,
+    alternate,
+    bone_limit,
+    position_step,
+    quadric_error,
+    quartic_error,
+)
 
 BACKENDS = ("numpy", "numba")
 
@@ -24,7 +30,7 @@ def _check_backend(backend: str) -> str:
 
 def compiled_costs(model, st: SimplifyState, ea, eb):
     """``v (B, 3), w (B, n), E (B,)`` of a model's edges through the compiled per-edge kernel."""
-    from rigslim.plugins.decimation.compiled import edge_costs
+    from rigslim.plugins.decimation.edge_costs import edge_costs
 
     kind, Qv, ip, fp = model.compiled_spec()
     return edge_costs(kind, np.asarray(ea, np.int64), np.asarray(eb, np.int64), st.V, st.W, Qv, st.T, ip, fp)
@@ -55,7 +61,7 @@ class QuarticModel(EdgeCostModel):
         whichever of the three candidates has the least quartic error.
     """
 
-    kind = 0   # rigslim.plugins.decimation.compiled.QUARTIC
+    kind = 0   # rigslim.plugins.decimation.setup.QUARTIC
 
     def __init__(self, Q, *, iterations=10, tol=1e-6, max_bones=None, endpoints=False, nonnegative=False,
                  backend="numpy"):
@@ -68,7 +74,7 @@ class QuarticModel(EdgeCostModel):
         self.backend = _check_backend(backend)
 
     def compiled_spec(self):
-        """``(method, Qv, ip, fp)`` for :func:`rigslim.plugins.decimation.compiled.edge_cost`."""
+        """``(method, Qv, ip, fp)`` for :func:`rigslim.plugins.decimation.edge_costs.edge_cost`."""
         ip = np.array([self.iterations, -1 if self.max_bones is None else self.max_bones, int(self.nonnegative),
                        int(self.endpoints)], dtype=np.int64)
         return self.kind, self.Q, ip, np.array([self.tol, WEIGHT_RIDGE])
@@ -120,7 +126,7 @@ class MohrGleicherModel(QuarticModel):
     the merged vertex.
     """
 
-    kind = 1   # rigslim.plugins.decimation.compiled.MOHR_GLEICHER
+    kind = 1   # rigslim.plugins.decimation.setup.MOHR_GLEICHER
 
     def costs(self, st, ea, eb):
         if self.backend == "numba":
@@ -149,7 +155,7 @@ class DeCoroModel(EdgeCostModel):
     blended by distance, ``w = (|v - v_b| w_a + |v - v_a| w_b) / (|v - v_a| + |v - v_b|)``.
     """
 
-    kind = 2   # rigslim.plugins.decimation.compiled.DECORO
+    kind = 2   # rigslim.plugins.decimation.setup.DECORO
 
     def __init__(self, Q, W, T, *, max_bones=None, backend="numpy"):
         m = len(Q)

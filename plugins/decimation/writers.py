@@ -12,7 +12,6 @@ Both are chosen by name (``writer: hierarchy`` / ``writer: levels``), since
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from rigslim import quadrics as qd
+from rigslim.plugins.decimation import quadrics as qd
 
 
 def _random_batch(rng, B=7, K=5, P=4):
