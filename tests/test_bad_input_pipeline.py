@@ -322,3 +322,10 @@ def test_nul_byte_in_a_face_line(project, capfd):
     (project / "nul.obj").write_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2\x00 4 3\n")  # libigl reads 'f 2'
     line = _bad(project, capfd, _pipeline(project, mesh="nul.obj"), "nul.obj", "line 6", subprocess=True)
     assert "NUL" in line
+
+
+@pytest.mark.parametrize("text, field", [("1: x\nsteps:\n  - select: k-largest\n", "top level"),
+                                         ("!!binary AAAA: true\nsteps:\n  - select: k-largest\n", "top level"),
+                                         ("steps:\n  - 1: 2\n    select: k-largest\n", "steps.0.1")])
+def test_keys_that_are_not_names(project, capfd, text, field):
+    _bad(project, capfd, _pipeline(project, text), "pipeline.yaml", field)
