@@ -69,6 +69,10 @@ steps:
   - write: "{name}-k3.glb"
 """
 
+#: The same pipeline with the k-largest solve: single-threaded numpy, where the Poisson solve's numba
+#: kernels and BLAS use every core of the serial loop too.
+TEMPLATE_K_LARGEST = TEMPLATE.replace("  - solve: poisson\n    solver: auto\n", "  - solve: k-largest\n")
+
 #: family -> number of variants in the 100-asset library
 MIX = {"elephant": 30, "cheb": 30, "RiggedFigure": 20, "huesitos": 20}
 
@@ -160,6 +164,29 @@ def serial_loop(jobs, template: dict, template_path: Path, out: Path) -> tuple[f
     return time.perf_counter() - t0, rows
 
 
+def compare(template: dict, template_path: Path, jobs, library, cluster, rounds: int, work: Path):
+    """Serial loop and Dask batch over the library in ``rounds`` interleaved rounds; (serial_s, dask_s, rows, rows)."""
+    n = len(jobs)
+    serial_rows, dask_rows = [None] * n, [None] * n
+    serial_s = dask_s = 0.0
+    for r in range(rounds):
+        idx = list(range(r, n, rounds))
+        for which in ("serial", "dask") if r % 2 == 0 else ("dask", "serial"):
+            if which == "serial":
+                dt, rows = serial_loop([jobs[i] for i in idx], template, template_path, work / "serial")
+                serial_s += dt
+                for i, row in zip(idx, rows):
+                    serial_rows[i] = row
+            else:
+                dt, res = dask_batch(template_path, [library[i] for i in idx], work / "dask",
+                                     scheduler=cluster.scheduler_address)
+                dask_s += dt
+                for i, row in zip(idx, res.rows):
+                    dask_rows[i] = row
+        print(f"{template_path.stem} round {r + 1}/{rounds}: serial {serial_s:.1f} s, Dask {dask_s:.1f} s so far")
+    return serial_s, dask_s, serial_rows, dask_rows
+
+
 def _warm_workers(cluster, job, template: dict, template_path: Path, out: Path) -> None:
     """Run one asset on every worker of ``cluster`` (not timed with the batch)."""
     from distributed import Client
@@ -233,9 +260,7 @@ def main(argv=None) -> int:
     # Speed-up. The machine is shared, so the serial loop and the batch run in interleaved rounds (a
     # quarter of the library each, every family in each, the order alternating) and see the same load.
     serial_loop(jobs[:1], template, template_path, work / "warm")  # this process's imports and numba caches
-    n, rounds = len(jobs), args.rounds
-    serial_rows, dask_rows = [None] * n, [None] * n
-    serial_s = dask_s = 0.0
+    rounds = args.rounds
     start = time.perf_counter()
     with local_cluster(workers=2, threads_per_worker=1, dashboard=False) as (cluster, _):
         started = time.perf_counter() - start
@@ -245,25 +270,19 @@ def main(argv=None) -> int:
         _warm_workers(cluster, jobs[0], template, template_path, work / "warm-dask")
         warm_up = time.perf_counter() - t
         print(f"cluster start {started:.1f} s, worker warm-up {warm_up:.1f} s")
-        for r in range(rounds):
-            idx = list(range(r, n, rounds))
-            for which in ("serial", "dask") if r % 2 == 0 else ("dask", "serial"):
-                if which == "serial":
-                    dt, rows = serial_loop([jobs[i] for i in idx], template, template_path, work / "serial")
-                    serial_s += dt
-                    for i, row in zip(idx, rows):
-                        serial_rows[i] = row
-                else:
-                    dt, res = dask_batch(template_path, [library[i] for i in idx], work / "dask",
-                                         scheduler=cluster.scheduler_address)
-                    dask_s += dt
-                    for i, row in zip(idx, res.rows):
-                        dask_rows[i] = row
-            print(f"round {r + 1}/{rounds}: serial {serial_s:.1f} s, Dask {dask_s:.1f} s so far")
+        serial_s, dask_s, serial_rows, dask_rows = compare(template, template_path, jobs, library, cluster, rounds,
+                                                           work / "poisson")
+        k_template_path = work / "template-k-largest.yaml"
+        k_template_path.write_text(TEMPLATE_K_LARGEST)
+        k_template = load_template(k_template_path)
+        serial_loop(jobs[:1], k_template, k_template_path, work / "warm-k")
+        k_serial_s, k_dask_s, _, _ = compare(k_template, k_template_path, jobs, library, cluster, rounds,
+                                             work / "k-largest")
     dask_total = dask_s + started + warm_up
     print(f"serial loop: {serial_s:.1f} s; rigslim batch on 2 workers: {dask_s:.1f} s (speed-up "
           f"{serial_s / dask_s:.2f}x), with cluster start and warm-up {dask_total:.1f} s "
-          f"({serial_s / dask_total:.2f}x)")
+          f"({serial_s / dask_total:.2f}x); k-largest template: {k_serial_s:.1f} s / {k_dask_s:.1f} s "
+          f"({k_serial_s / k_dask_s:.2f}x)")
     bad = [r for r in serial_rows + dask_rows if r["status"] != "ok"]
     if bad:
         raise SystemExit(f"{len(bad)} assets failed: {bad[0]['error']}")
@@ -304,6 +323,7 @@ def main(argv=None) -> int:
            "rounds": rounds, "metrics_max_rel_diff": rel_diff, "serial_s": serial_s,
            "dask_s": dask_s, "worker_warm_up_s": warm_up, "dask_with_start_s": dask_total,
            "speedup": serial_s / dask_s, "speedup_with_start": serial_s / dask_total,
+           "k_largest": {"serial_s": k_serial_s, "dask_s": k_dask_s, "speedup": k_serial_s / k_dask_s},
            "cluster_start_s": started, "scheduler_tasks_per_s": rate, "families": fam_rows,
            "per_asset_mean_s": per_asset_dask,
            "tiny": {"assets": len(tiny), "serial_s": tiny_serial_s, "dask_s": tiny_dask_s,
@@ -321,7 +341,10 @@ def main(argv=None) -> int:
           f"| `rigslim batch` on a 2-worker LocalCluster (one warm-up asset per worker first) | {dask_s:.1f} s "
           f"| {serial_s / dask_s:.2f}x |",
           f"| the same with the cluster's start ({started:.1f} s) and the workers' warm-up ({warm_up:.1f} s) "
-          f"| {dask_total:.1f} s | {serial_s / dask_total:.2f}x |", "",
+          f"| {dask_total:.1f} s | {serial_s / dask_total:.2f}x |",
+          f"| k-largest template (single-threaded solve), serial loop | {k_serial_s:.1f} s | 1.00x |",
+          f"| k-largest template, `rigslim batch` on the same 2 workers | {k_dask_s:.1f} s "
+          f"| {k_serial_s / k_dask_s:.2f}x |", "",
           f"Both ran in {rounds} interleaved rounds (each a {100 // rounds} % slice of the library with every "
           "family in it, the order alternating), so that both see the same load from other sessions. The "
           f"metrics of every asset agree to {rel_diff:.1e} (relative): the serial loop's BLAS and numba use every "
