@@ -20,8 +20,9 @@ Measured in one run (the machine is shared; run it under the lock):
 1. **speed-up**: the 100 assets by a serial loop in this process (the same
    per-asset function ``rigslim batch`` submits, BLAS free to use every core,
    one warm-up asset first) against ``rigslim batch`` on a 2-worker
-   LocalCluster (its start-up and the workers' cold start included), in
-   interleaved rounds so that both see the same load;
+   LocalCluster (one warm-up asset per worker first; the cluster's start and
+   the warm-up are reported apart and in a second ratio), in interleaved
+   rounds so that both see the same load;
 2. **overhead**: tiny assets (``huesitos`` variants, 62 vertices) in a serial
    loop and as one Dask task each on a warm 1-worker, 1-thread cluster; the
    per-asset difference is the cost of the Dask layer (submission,
@@ -67,6 +68,10 @@ steps:
   - evaluate: [position-rms, normal-deviation, max-influences]
   - write: "{name}-k3.glb"
 """
+
+#: The same pipeline with the k-largest solve: single-threaded numpy, where the Poisson solve's numba
+#: kernels and BLAS use every core of the serial loop too.
+TEMPLATE_K_LARGEST = TEMPLATE.replace("  - solve: poisson\n    solver: auto\n", "  - solve: k-largest\n")
 
 #: family -> number of variants in the 100-asset library
 MIX = {"elephant": 30, "cheb": 30, "RiggedFigure": 20, "huesitos": 20}
@@ -148,15 +153,54 @@ def make_library(folder: Path, mix: dict[str, int], seed: int = 15) -> list[Path
     return paths
 
 
-def serial_loop(jobs, template: dict, template_path: Path, out: Path) -> tuple[float, list[dict]]:
-    """Run every asset in this process, one after the other; returns (seconds, rows)."""
+def serial_loop(jobs, template: dict, template_path: Path, out: Path, threads: int | None = None):
+    """Run every asset in this process, one after the other; returns (seconds, rows).
+
+    ``threads``: BLAS/numba threads (default: every core, as a plain loop of ``rigslim run`` gets).
+    """
     from rigslim.batch import available_cores
     from rigslim.batch_task import run_asset
 
     t0 = time.perf_counter()
     rows = [run_asset(j.as_dict(), template, str(template_path), str(out), force=True,
-                      threads=available_cores()) for j in jobs]
+                      threads=threads or available_cores()) for j in jobs]
     return time.perf_counter() - t0, rows
+
+
+def compare(template: dict, template_path: Path, jobs, library, cluster, rounds: int, work: Path):
+    """Serial loop and Dask batch over the library in ``rounds`` interleaved rounds; (serial_s, dask_s, rows, rows)."""
+    n = len(jobs)
+    serial_rows, dask_rows = [None] * n, [None] * n
+    serial_s = dask_s = 0.0
+    for r in range(rounds):
+        idx = list(range(r, n, rounds))
+        for which in ("serial", "dask") if r % 2 == 0 else ("dask", "serial"):
+            if which == "serial":
+                dt, rows = serial_loop([jobs[i] for i in idx], template, template_path, work / "serial")
+                serial_s += dt
+                for i, row in zip(idx, rows):
+                    serial_rows[i] = row
+            else:
+                dt, res = dask_batch(template_path, [library[i] for i in idx], work / "dask",
+                                     scheduler=cluster.scheduler_address)
+                dask_s += dt
+                for i, row in zip(idx, res.rows):
+                    dask_rows[i] = row
+        print(f"{template_path.stem} round {r + 1}/{rounds}: serial {serial_s:.1f} s, Dask {dask_s:.1f} s so far")
+    return serial_s, dask_s, serial_rows, dask_rows
+
+
+def _warm_workers(cluster, job, template: dict, template_path: Path, out: Path) -> None:
+    """Run one asset on every worker of ``cluster`` (not timed with the batch)."""
+    from distributed import Client
+
+    from rigslim.batch_task import run_asset
+
+    with Client(cluster) as client:
+        workers = list(client.scheduler_info()["workers"])
+        futures = [client.submit(run_asset, job.as_dict(), template, str(template_path), str(out / str(i)),
+                                 force=True, threads=1, workers=[w], pure=False) for i, w in enumerate(workers)]
+        client.gather(futures)
 
 
 def dask_batch(template_path: Path, assets, out: Path, **kw) -> tuple[float, object]:
@@ -219,30 +263,29 @@ def main(argv=None) -> int:
     # Speed-up. The machine is shared, so the serial loop and the batch run in interleaved rounds (a
     # quarter of the library each, every family in each, the order alternating) and see the same load.
     serial_loop(jobs[:1], template, template_path, work / "warm")  # this process's imports and numba caches
-    n, rounds = len(jobs), args.rounds
-    serial_rows, dask_rows = [None] * n, [None] * n
-    serial_s = dask_s = 0.0
+    rounds = args.rounds
     start = time.perf_counter()
     with local_cluster(workers=2, threads_per_worker=1, dashboard=False) as (cluster, _):
         started = time.perf_counter() - start
-        for r in range(rounds):
-            idx = list(range(r, n, rounds))
-            for which in ("serial", "dask") if r % 2 == 0 else ("dask", "serial"):
-                if which == "serial":
-                    dt, rows = serial_loop([jobs[i] for i in idx], template, template_path, work / "serial")
-                    serial_s += dt
-                    for i, row in zip(idx, rows):
-                        serial_rows[i] = row
-                else:
-                    dt, res = dask_batch(template_path, [library[i] for i in idx], work / "dask",
-                                         scheduler=cluster.scheduler_address)
-                    dask_s += dt
-                    for i, row in zip(idx, res.rows):
-                        dask_rows[i] = row
-            print(f"round {r + 1}/{rounds}: serial {serial_s:.1f} s, Dask {dask_s:.1f} s so far")
-    dask_total = dask_s + started
-    print(f"serial loop: {serial_s:.1f} s; rigslim batch on 2 workers: {dask_s:.1f} s + {started:.1f} s cluster "
-          f"start (speed-up {serial_s / dask_total:.2f}x)")
+        # the workers' warm-up, like this process's: imports, plugin loading, numba's kernels (compiled when
+        # their on-disk cache is stale) -- one asset on each worker, timed apart
+        t = time.perf_counter()
+        _warm_workers(cluster, jobs[0], template, template_path, work / "warm-dask")
+        warm_up = time.perf_counter() - t
+        print(f"cluster start {started:.1f} s, worker warm-up {warm_up:.1f} s")
+        serial_s, dask_s, serial_rows, dask_rows = compare(template, template_path, jobs, library, cluster, rounds,
+                                                           work / "poisson")
+        k_template_path = work / "template-k-largest.yaml"
+        k_template_path.write_text(TEMPLATE_K_LARGEST)
+        k_template = load_template(k_template_path)
+        serial_loop(jobs[:1], k_template, k_template_path, work / "warm-k")
+        k_serial_s, k_dask_s, _, _ = compare(k_template, k_template_path, jobs, library, cluster, rounds,
+                                             work / "k-largest")
+    dask_total = dask_s + started + warm_up
+    print(f"serial loop: {serial_s:.1f} s; rigslim batch on 2 workers: {dask_s:.1f} s (speed-up "
+          f"{serial_s / dask_s:.2f}x), with cluster start and warm-up {dask_total:.1f} s "
+          f"({serial_s / dask_total:.2f}x); k-largest template: {k_serial_s:.1f} s / {k_dask_s:.1f} s "
+          f"({k_serial_s / k_dask_s:.2f}x)")
     bad = [r for r in serial_rows + dask_rows if r["status"] != "ok"]
     if bad:
         raise SystemExit(f"{len(bad)} assets failed: {bad[0]['error']}")
@@ -254,8 +297,9 @@ def main(argv=None) -> int:
     assert rel_diff < 1e-3, f"serial and Dask metrics differ by {rel_diff:.3g} (relative)"
 
     # Dask overhead on tiny assets: the same work in a serial loop and through a warm 1 x 1 cluster
-    serial_loop(tiny_jobs[:3], template, template_path, work / "tiny-warm")
-    tiny_serial_s, tiny_rows = serial_loop(tiny_jobs, template, template_path, work / "tiny-serial")
+    # (one BLAS/numba thread in both, as on the worker: the difference is then the Dask layer alone)
+    serial_loop(tiny_jobs[:3], template, template_path, work / "tiny-warm", threads=1)
+    tiny_serial_s, tiny_rows = serial_loop(tiny_jobs, template, template_path, work / "tiny-serial", threads=1)
     with local_cluster(workers=1, threads_per_worker=1, dashboard=False) as (cluster, _):
         dask_batch(template_path, tiny[:3], work / "tiny-dask-warm", scheduler=cluster.scheduler_address)
         tiny_dask_s, tiny_result = dask_batch(template_path, tiny, work / "tiny-dask",
@@ -281,8 +325,11 @@ def main(argv=None) -> int:
     per_asset_dask = statistics.mean(r["seconds"] for r in dask_rows)
     doc = {"machine": machine(), "load_before": os.getloadavg(), "assets": len(library), "mix": mix,
            "rounds": rounds, "metrics_max_rel_diff": rel_diff, "serial_s": serial_s,
-           "dask_s": dask_s, "dask_with_start_s": dask_total, "speedup": serial_s / dask_total,
-           "cluster_start_s": started, "scheduler_tasks_per_s": rate, "families": fam_rows, "per_asset_mean_s": per_asset_dask,
+           "dask_s": dask_s, "worker_warm_up_s": warm_up, "dask_with_start_s": dask_total,
+           "speedup": serial_s / dask_s, "speedup_with_start": serial_s / dask_total,
+           "k_largest": {"serial_s": k_serial_s, "dask_s": k_dask_s, "speedup": k_serial_s / k_dask_s},
+           "cluster_start_s": started, "scheduler_tasks_per_s": rate, "families": fam_rows,
+           "per_asset_mean_s": per_asset_dask,
            "tiny": {"assets": len(tiny), "serial_s": tiny_serial_s, "dask_s": tiny_dask_s,
                     "overhead_ms_per_asset": overhead_ms,
                     "task_mean_s": statistics.mean(r["seconds"] for r in tiny_result.rows)},
@@ -294,9 +341,14 @@ def main(argv=None) -> int:
           "(the machine is shared with other sessions).", "",
           f"Command: `{doc['command']}`", "",
           "| run | wall time | speed-up |", "|---|---:|---:|",
-          f"| serial loop (one process, BLAS on all cores) | {serial_s:.1f} s | 1.00x |",
-          f"| `rigslim batch` on a 2-worker LocalCluster, start-up ({started:.1f} s) included | {dask_total:.1f} s "
-          f"| {serial_s / dask_total:.2f}x |", "",
+          f"| serial loop (one process, BLAS on all cores; one warm-up asset first) | {serial_s:.1f} s | 1.00x |",
+          f"| `rigslim batch` on a 2-worker LocalCluster (one warm-up asset per worker first) | {dask_s:.1f} s "
+          f"| {serial_s / dask_s:.2f}x |",
+          f"| the same with the cluster's start ({started:.1f} s) and the workers' warm-up ({warm_up:.1f} s) "
+          f"| {dask_total:.1f} s | {serial_s / dask_total:.2f}x |",
+          f"| k-largest template (single-threaded solve), serial loop | {k_serial_s:.1f} s | 1.00x |",
+          f"| k-largest template, `rigslim batch` on the same 2 workers | {k_dask_s:.1f} s "
+          f"| {k_serial_s / k_dask_s:.2f}x |", "",
           f"Both ran in {rounds} interleaved rounds (each a {100 // rounds} % slice of the library with every "
           "family in it, the order alternating), so that both see the same load from other sessions. The "
           f"metrics of every asset agree to {rel_diff:.1e} (relative): the serial loop's BLAS and numba use every "
@@ -308,7 +360,7 @@ def main(argv=None) -> int:
         md.append(f"| {k} | {v['assets']} | {v['vertices']:,} | {v['serial_mean_s']:.3f} | {v['dask_mean_s']:.3f} "
                   f"| {v['worker_peak_mb']:.0f} |")
     md += ["", f"Dask overhead, {len(tiny)} tiny assets (huesitos variants, 62 vertices), warm 1-worker 1-thread "
-           "cluster against a serial loop of the same function:", "",
+           "cluster against a serial loop of the same function with one BLAS/numba thread:", "",
            "| serial loop | through Dask | overhead per asset |", "|---:|---:|---:|",
            f"| {tiny_serial_s:.2f} s | {tiny_dask_s:.2f} s | {overhead_ms:.1f} ms |", "",
            f"Scheduler alone: {args.noop_tasks:,} no-op tasks on a warm 2-worker LocalCluster complete at "

@@ -326,7 +326,8 @@ def run_quick(levels: int = 3, frames: int = 8, ks=(8, 4), copy_mib: int = 512, 
     chosen = test[::step][:frames]
     poses = asset.poses.T[chosen]
     log(f"elephant subdivided {levels}x: {mesh.n_vertices:,} vertices, {mesh.n_faces:,} triangles, {W.nnz:,} weights "
-        f"(max {int(influence_counts(W).max())} per vertex), {len(poses)} poses [{time.perf_counter() - started:.1f} s]")
+        f"(max {int(influence_counts(W).max())} per vertex), {len(poses)} poses "
+        f"[{time.perf_counter() - started:.1f} s]")
     copy = copy_bandwidth(copy_mib << 20)
     log(f"copy bandwidth: numpy copyto {copy['numpy_copyto']:.1f} GB/s, numba parallel {copy['numba_parallel']:.1f} "
         f"GB/s (read + write)")

@@ -5,7 +5,7 @@ EGL drivers first); on a machine without a GPU the same run measures PoCL
 and llvmpipe, so the script is tested end to end on the CPU.
 
 For each size (the elephant midpoint-subdivided ``levels`` times: 3 gives
-386,050 vertices / 772k triangles, 4 gives 1,543,682 vertices / 3.09M
+386,050 vertices / 772k triangles, 4 gives 1,544,194 vertices / 3.09M
 triangles, 5 gives 6.2M vertices) with its weights reduced to k = 8 and
 k = 4 by k-largest:
 
@@ -35,7 +35,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics

@@ -7,7 +7,7 @@
 #     OUT=/tmp/device-check DEVICE_CHECK_LEVELS="0 1" bash benchmarks/device_check.sh
 #
 # Environment: OUT (results folder, default out/device-check), DEVICE_CHECK_LEVELS (elephant subdivision
-# levels, default "3 4": 386,050 and 1,543,682 vertices; "3 5" adds the 6.2M-vertex mesh instead),
+# levels, default "3 4": 386,050 and 1,544,194 vertices; "3 5" adds the 6.2M-vertex mesh instead),
 # DEVICE_CHECK_FRAMES (poses per row, default 8), DEVICE_CHECK_DEVICE (OpenCL device spec, default auto:
 # the GPU when there is one), PYTHON (default .venv/bin/python when present, else python3).
 # Writes $OUT/device_check.json, $OUT/device_check.md, $OUT/device_check.log and $OUT/nvidia-smi.txt.

@@ -195,27 +195,40 @@ def local_cluster(workers: int | None = None, threads_per_worker: int = 1, memor
     workers = workers or cores
     blas = max(1, cores // (workers * threads_per_worker))
     env = thread_env(blas)
+    # Dask's nanny writes pre-spawn-environ into *this* process's environment before it spawns a worker
+    # (BLAS reads its variables when the worker imports numpy, so they must be there before): keep numba's
+    # out of it (numba re-reads NUMBA_NUM_THREADS here and refuses a change once its threads run; the
+    # worker gets it through ``env``, set in the worker before it starts), and put ours back afterwards.
+    pre_spawn = {k: v for k, v in env.items() if not k.startswith("NUMBA_")}
+    saved = {k: os.environ.get(k) for k in [*pre_spawn, "PYTHONHASHSEED"]}
     config = {
         # --retries is applied by the batch (one resubmission per worker death), so the
         # scheduler must report a task whose worker died at once instead of retrying it itself,
         "distributed.scheduler.allowed-failures": 0,
         # and hand each worker only as many tasks as it has threads (none queued on a worker that may die).
         "distributed.scheduler.worker-saturation": 1.0,
-        "distributed.nanny.pre-spawn-environ": env,
+        "distributed.nanny.pre-spawn-environ": pre_spawn,
     }
     address = ":8787" if dashboard and _has_bokeh() else None
-    with dask.config.set(config), warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=threads_per_worker, processes=True,
-                               memory_limit=memory_limit or "auto", dashboard_address=address,
-                               silence_logs=logging.ERROR, env=env)
+    cluster = None
     try:
+        with dask.config.set(config), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=threads_per_worker, processes=True,
+                                   memory_limit=memory_limit or "auto", dashboard_address=address,
+                                   silence_logs=logging.ERROR, env=env)
         yield cluster, {"kind": "local", "workers": workers, "threads_per_worker": threads_per_worker,
                         "blas_threads": blas, "cores": cores, "memory_limit": memory_limit or "auto"}
     finally:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            cluster.close()
+        if cluster is not None:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                cluster.close()
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 def _has_bokeh() -> bool:

@@ -118,8 +118,12 @@ def load_pipeline(path, overrides: list[str] = (), host: PluginHost | None = Non
     if not isinstance(raw, dict):
         raise PipelineError("the document is not a mapping", source=path, field="top level",
                             fix="start with 'inputs:', 'poses:' and 'steps:'")
+    odd = next((k for k in raw if not isinstance(k, str)), None)
+    if odd is not None or any(not isinstance(k, str) for k in raw):
+        raise PipelineError(f"top-level key {brief(odd)} is not a name", source=path, field="top level",
+                            fix="the top-level keys are " + ", ".join(PipelineDoc.model_fields))
     try:
-        doc = PipelineDoc(**raw)
+        doc = PipelineDoc.model_validate(raw)
     except ValidationError as err:
         loc, msg = _format_validation(err)
         top = loc.split(".")[0]

@@ -350,3 +350,15 @@ def test_accessor_of_the_wrong_type(project, capfd):
     doc = _doc()
     doc["meshes"][0]["primitives"][0]["attributes"]["POSITION"] = 4  # a MAT4 accessor
     assert "attributes.POSITION" in _bad(project, capfd, doc)
+
+
+@pytest.mark.parametrize("where", [("skins", 0, "inverseBindMatrices"), ("meshes", 0, "primitives", 0, "indices"),
+                                   ("accessors", 1, "bufferView")])
+def test_null_property(project, capfd, where):
+    doc = _doc()
+    target = doc
+    for key in where[:-1]:
+        target = target[key]
+    target[where[-1]] = None
+    line = _bad(project, capfd, doc)
+    assert "is null" in line

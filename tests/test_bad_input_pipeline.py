@@ -316,3 +316,16 @@ def test_libigl_stdout_diagnosis_goes_into_the_line(project, capfd):
     (project / "short.off").write_text("OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n")  # a face missing
     code, lines = run_cli_subprocess(["run", _pipeline(project, mesh="short.off"), "-q"], cwd=project)
     assert_one_line(code, lines, "short.off", "bad line")
+
+
+def test_nul_byte_in_a_face_line(project, capfd):
+    (project / "nul.obj").write_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2\x00 4 3\n")  # libigl reads 'f 2'
+    line = _bad(project, capfd, _pipeline(project, mesh="nul.obj"), "nul.obj", "line 6", subprocess=True)
+    assert "NUL" in line
+
+
+@pytest.mark.parametrize("text, field", [("1: x\nsteps:\n  - select: k-largest\n", "top level"),
+                                         ("!!binary AAAA: true\nsteps:\n  - select: k-largest\n", "top level"),
+                                         ("steps:\n  - 1: 2\n    select: k-largest\n", "steps.0.1")])
+def test_keys_that_are_not_names(project, capfd, text, field):
+    _bad(project, capfd, _pipeline(project, text), "pipeline.yaml", field)

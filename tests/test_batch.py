@@ -396,3 +396,17 @@ def test_simplification_levels_give_hausdorff_columns_per_level(tmp_path):
     table = pyarrow.parquet.read_table(tmp_path / "out" / "summary.parquet")
     assert set(levels) <= set(table.column_names)
     assert _rows(tmp_path / "out")["huesitos"][levels[0]] == repr(row[levels[0]])
+
+
+def test_workers_get_thread_limits_and_this_process_keeps_its_environment(cluster, client):
+    keys = ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "PYTHONHASHSEED")
+    before = {k: os.environ.get(k) for k in keys}
+    cores = len(os.sched_getaffinity(0))
+    per_worker = str(max(1, cores // 2))
+    got = client.run(lambda: {k: os.environ.get(k) for k in keys[:4]})
+    assert len(got) == 2 and all(v == {k: per_worker for k in keys[:4]} for v in got.values())
+    # numba must never see NUMBA_NUM_THREADS change in this process (it refuses once its threads run)
+    assert os.environ.get("NUMBA_NUM_THREADS") == before["NUMBA_NUM_THREADS"]
+    with local_cluster(workers=1, threads_per_worker=1, dashboard=False):
+        assert os.environ.get("NUMBA_NUM_THREADS") == before["NUMBA_NUM_THREADS"]
+    assert {k: os.environ.get(k) for k in keys} == before

@@ -1,5 +1,7 @@
 """Fault tests: SIGKILL, SIGINT and SIGTERM during the solve and during each write of ``rigslim run``.
 
+The pipeline writes reduced weights (.npz), a glTF (.gltf + .bin) and the metrics JSON.
+
 Each test starts from outputs of an earlier run (k = 3), runs the CLI in a
 subprocess through tests/support/fault_driver.py, which pauses the run in the
 solve or in the middle of one output's write (its temporary file cut to half
@@ -14,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -43,19 +46,30 @@ steps:
   - solve: k-largest
   - evaluate: [position-rms]
   - write: out/w.npz
+  - write: out/w.gltf
 """
 
 
+@pytest.fixture(scope="module")
+def old_outputs(tmp_path_factory):
+    """The outputs of an earlier run with k = 3 (made once, copied into each test's folder)."""
+    folder = tmp_path_factory.mktemp("old")
+    (folder / "data").symlink_to(DATA, target_is_directory=True)
+    pipeline = folder / "p.yaml"
+    pipeline.write_text(PIPELINE)
+    proc = driver("none", folder / "unused", pipeline, folder / "out" / "m.json", "--set", "select.k=3")
+    assert proc.wait(timeout=300) == 0, proc.stderr.read()
+    return folder / "out"
+
+
 @pytest.fixture
-def work(tmp_path):
+def work(tmp_path, old_outputs):
     """A pipeline beside the example data, and the outputs of an earlier run with k = 3."""
     (tmp_path / "data").symlink_to(DATA, target_is_directory=True)
     pipeline = tmp_path / "p.yaml"
     pipeline.write_text(PIPELINE)
-    metrics = tmp_path / "out" / "m.json"
-    proc = driver("none", tmp_path / "unused", pipeline, metrics, "--set", "select.k=3")
-    assert proc.wait(timeout=300) == 0, proc.stderr.read()
-    return pipeline, metrics, snapshot(tmp_path / "out")
+    shutil.copytree(old_outputs, tmp_path / "out")
+    return pipeline, tmp_path / "out" / "m.json", snapshot(tmp_path / "out")
 
 
 def driver(mode, marker, pipeline, metrics, *extra):
@@ -79,11 +93,12 @@ def temporaries(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir() if TMP_MARK in p.name)
 
 
-PHASES = ["solve", "write:w.npz", "write:m.json"]
+#: the solve, then each file the run writes: the weights, the glTF's buffer and JSON, the metrics
+PHASES = ["solve", "write:w.npz", "write:w.bin", "write:w.gltf", "write:m.json"]
 
 
-@pytest.mark.parametrize("phase", PHASES)
-@pytest.mark.parametrize("sig,status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+@pytest.mark.parametrize("phase,sig,status", [(p, signal.SIGINT, 130) for p in PHASES] +
+                         [(p, signal.SIGTERM, 143) for p in ("solve", "write:w.npz")])
 def test_interrupt_leaves_old_outputs_and_no_temporary(work, tmp_path, phase, sig, status):
     pipeline, metrics, before = work
     marker = tmp_path / "marker"
@@ -119,7 +134,7 @@ def test_sigkill_leaves_old_outputs_and_next_run_cleans_up(work, tmp_path, phase
     proc = driver("none", tmp_path / "unused", pipeline, metrics)
     _, err = proc.communicate(timeout=300)
     assert proc.returncode == 0, err[-2000:]
-    assert temporaries(out) == [] and sorted(p.name for p in out.iterdir()) == ["m.json", "w.npz"]
+    assert temporaries(out) == [] and sorted(p.name for p in out.iterdir()) == ["m.json", "w.bin", "w.gltf", "w.npz"]
     assert read_reduced_npz(out / "w.npz").k == 4
     doc = json.loads(metrics.read_text())
     assert doc["steps"][1]["k"] == 4 and np.isfinite(doc["evaluations"][0]["metrics"]["position_rms_pct"]["mean"])

@@ -24,12 +24,10 @@ import sys
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
-hypothesis = pytest.importorskip("hypothesis")
-from hypothesis import HealthCheck, given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
-
-from rigslim.errors import MAX_LINE  # noqa: E402
+from rigslim.errors import MAX_LINE
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "examples" / "data"
@@ -290,18 +288,17 @@ def test_yaml_pipelines(worker, data):
 
 
 def _small_dmat(binary: bool) -> bytes:
-    import io
+    """A 24 x 3 DMAT (two stacked bone transforms), binary or ASCII."""
+    import tempfile
 
     import numpy as np
 
     from rigslim.io.dmat import write_dmat
 
-    out = Path(os.environ.get("TMPDIR", "/tmp")) / f"rigslim-fuzz-seed-{os.getpid()}-{int(binary)}.dmat"
-    write_dmat(out, np.arange(24 * 3, dtype=float).reshape(24, 3) / 7.0, binary=binary)
-    data = out.read_bytes()
-    out.unlink()
-    del io
-    return data
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "seed.dmat"
+        write_dmat(out, np.arange(24 * 3, dtype=float).reshape(24, 3) / 7.0, binary=binary)
+        return out.read_bytes()
 
 
 @examples(200)

@@ -21,7 +21,8 @@ from __future__ import annotations
 import math
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
 from rigslim.errors import InputError, brief
 
@@ -37,6 +38,17 @@ Finite = Annotated[float, Field(allow_inf_nan=False)]
 
 class _Model(BaseModel):
     model_config = ConfigDict(strict=True, extra="allow")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_null(cls, data):
+        """JSON ``null`` is no value a glTF property may take (leave the property out instead)."""
+        if isinstance(data, dict):
+            for key, value in data.items():
+                if value is None and key in cls.model_fields:
+                    raise PydanticCustomError("null", "'{key}' is null; leave the property out instead",
+                                              {"key": key})
+        return data
 
 
 class AssetInfo(_Model):
@@ -200,9 +212,11 @@ def check_document(js, path) -> Document:
     except ValidationError as err:
         e = err.errors()[0]
         loc = [p for p in e["loc"] if not (isinstance(p, str) and (p.startswith("function-") or "[" in p))]
+        if e["type"] == "null":
+            loc.append(e["ctx"]["key"])
         msg = e["msg"].removeprefix("Value error, ")
         problem = msg[0].lower() + msg[1:]
-        if e["type"] != "missing":
+        if e["type"] not in ("missing", "null"):
             problem += f" (got {brief(e.get('input'))})"
         _fail(path, json_path(loc), problem)
     _check_references(doc, path)

@@ -56,7 +56,7 @@ def read_mesh(path) -> Mesh:
 
 
 def _check_polygons(path: Path, suffix: str) -> None:
-    """Refuse OBJ/OFF faces with fewer than 3 corners before libigl sees them.
+    """Refuse OBJ/OFF faces with fewer than 3 corners (and NUL bytes) before libigl sees them.
 
     libigl 2.6's OBJ and OFF readers corrupt the heap (the process aborts)
     on a face of one corner, and silently drop faces of two; this scan
@@ -73,6 +73,10 @@ def _check_polygons(path: Path, suffix: str) -> None:
         raise InputError(f"the face on line {number} has {corners} corner{'s' if corners != 1 else ''}; a face needs "
                          "at least 3", source=path, field=f"line {number}", fix="repair or re-export the mesh")
 
+    if b"\x00" in data:  # C string parsing would cut the line there (and meet a one-corner face)
+        number = data[:data.index(b"\x00")].count(b"\n") + 1
+        raise InputError(f"line {number} holds a NUL byte; OBJ and OFF are text", source=path, field=f"line {number}",
+                         fix="repair or re-export the mesh")
     lines = data.splitlines()
     if suffix == ".obj":
         for number, line in enumerate(lines, 1):

@@ -12,18 +12,16 @@ like every bound deformer.
 Sparse input weights are padded to their widest row (fixed layout, no
 weight dropped).
 
-``engine: auto`` (the default) runs the OpenCL kernel (``kernels/blend.cl``)
-on the CPU's OpenCL device (PoCL) when one is installed, since it measured
-fastest of the CPU back ends in the same run (``docs/results/deform-cpu.md``:
-PoCL vectorises the per-vertex gathers across work-items), and this numba
-kernel otherwise (no OpenCL driver needed; numba is a core dependency).
-``engine: numba`` or ``engine: opencl`` force one.
+``engine: numba`` (the default) runs this kernel; ``engine: opencl`` runs
+``kernels/blend.cl`` on the CPU's OpenCL device (PoCL) instead. numba
+measured faster than PoCL in every row of the same run
+(``docs/results/deform-cpu.md``), so it is the ``cpu`` default; it also
+needs no driver (numba is a core dependency).
 """
 
 from __future__ import annotations
 
 import time
-from functools import lru_cache
 from typing import Literal
 
 import numpy as np
@@ -140,18 +138,6 @@ class CPUBound(DeviceBound):
         return int(moved)
 
 
-@lru_cache(maxsize=1)
-def default_engine() -> str:
-    """``opencl`` when a CPU OpenCL device (PoCL) can be opened, ``numba`` otherwise."""
-    try:
-        from rigslim.opencl import get_runtime
-
-        get_runtime("cpu")
-    except Exception:  # noqa: BLE001 - no pyopencl, no ICD, no CPU device: the compiled kernel
-        return "numba"
-    return "opencl"
-
-
 class CPUDeformer(Deformer):
     """Fused linear blend skinning and normals on all CPU cores (numba ``parallel=True``, fastmath, float32).
 
@@ -172,15 +158,14 @@ class CPUDeformer(Deformer):
     class Params(DeformerParams):
         #: Weight layout: auto/fixed (int32 + float32 per influence) or compact (uint16 + float16).
         layout: Literal["auto", "fixed", "compact"] = "auto"
-        #: auto: the OpenCL kernel on the CPU device (PoCL) when installed, else numba; or force one.
-        engine: Literal["auto", "numba", "opencl"] = "auto"
+        #: numba (this module's kernel, measured fastest) or opencl (kernels/blend.cl on the CPU device, PoCL).
+        engine: Literal["numba", "opencl"] = "numba"
 
     def bind(self, mesh, weights, params=None, handles=None, ctx=None):
         """A :class:`CPUBound` (numba) or an OpenCL bound deformer on the CPU device (``engine``)."""
         params = params if params is not None else self.Params()
         weights = check_weights(mesh, weights, source="cpu deformer")
-        engine = default_engine() if params.engine == "auto" else params.engine
-        if engine == "opencl":
+        if params.engine == "opencl":
             from rigslim.plugins.deformers.opencl_deformer import OpenCLDeformer
 
             layout = "fixed" if params.layout == "auto" else params.layout

@@ -113,7 +113,8 @@ def blend_skin(rest, idx, wt, offset, scale, H, out_p, N0, out_n):  # pragma: no
             out_p[v, 1] = a4 * x + a5 * y + a6 * z + a7
             out_p[v, 2] = a8 * x + a9 * y + a10 * z + a11
             if N0 is not None:
-                # rows r0 = (a0, a1, a2), r1 = (a4, a5, a6), r2 = (a8, a9, a10); cof(R) n = (r1 x r2, r2 x r0, r0 x r1) . n
+                # rows r0 = (a0, a1, a2), r1 = (a4, a5, a6), r2 = (a8, a9, a10);
+                # cof(R) n = ((r1 x r2) . n, (r2 x r0) . n, (r0 x r1) . n)
                 c0 = a5 * a10 - a6 * a9
                 c1 = a6 * a8 - a4 * a10
                 c2 = a4 * a9 - a5 * a8

@@ -266,6 +266,10 @@ def _fit_vertex(G, avals, k, by_error, swaps):  # pragma: no cover - numba
     ns = nf
     if ns <= k:
         return x, inset, err  # the least-error fit already uses at most k influences
+    have_inv = False
+    Kinv = np.empty((1, 1))
+    besti = 0
+    bestneg = False
     while ns > k:
         bestj = -1
         for j in range(n):
@@ -275,24 +279,26 @@ def _fit_vertex(G, avals, k, by_error, swaps):  # pragma: no cover - numba
         if bestj >= 0:
             inset[bestj] = False
             ns -= 1
+            have_inv = False
             continue
         # Removing j from the free set P (= the set now) under the sum-to-one row alone raises the
         # error by x_j^2 / (K^-1)_jj (K the KKT matrix on P), a lower bound of the non-negative
         # fit's increase, exact when the downdated x stays >= 0. Candidates are tried by
         # increasing bound until the bound exceeds the best exact increase found.
-        nf = 0
-        for a in range(n):
-            if inset[a]:
-                F[nf] = a
-                nf += 1
-        for i in range(nf):
-            for j in range(nf):
-                K[i, j] = G[F[i], F[j]]
-            K[i, i] += ridge
-            K[i, nf] = 1.0
-            K[nf, i] = 1.0
-        K[nf, nf] = 0.0
-        Kinv = _inverse(K, nf + 1)
+        if not have_inv:
+            nf = 0
+            for a in range(n):
+                if inset[a]:
+                    F[nf] = a
+                    nf += 1
+            for i in range(nf):
+                for j in range(nf):
+                    K[i, j] = G[F[i], F[j]]
+                K[i, i] += ridge
+                K[i, nf] = 1.0
+                K[nf, i] = 1.0
+            K[nf, nf] = 0.0
+            Kinv = _inverse(K, nf + 1)
         bound = np.empty(nf)
         for i in range(nf):
             xi = x[F[i]]
@@ -330,11 +336,39 @@ def _fit_vertex(G, avals, k, by_error, swaps):  # pragma: no cover - numba
             if ec < beste:
                 beste = ec
                 bestj = j
+                besti = i
                 bestx = xc
+                bestneg = neg
         inset[bestj] = False
         ns -= 1
         x = bestx
         err = beste
+        if bestneg:
+            have_inv = False
+        else:
+            # The free set lost exactly F[besti]: downdate K^-1 (Schur complement), drop its row and column.
+            size = nf + 1
+            piv = Kinv[besti, besti]
+            for r in range(size):
+                if r != besti:
+                    f = Kinv[r, besti] / piv
+                    for q in range(size):
+                        Kinv[r, q] -= f * Kinv[besti, q]
+            keep = 0
+            for r in range(size):
+                if r == besti:
+                    continue
+                kq = 0
+                for q in range(size):
+                    if q == besti:
+                        continue
+                    Kinv[keep, kq] = Kinv[r, q]
+                    kq += 1
+                keep += 1
+            for r in range(besti, nf - 1):
+                F[r] = F[r + 1]
+            nf -= 1
+            have_inv = True
     # Exchange passes: the best swap of a member i for a non-member j that lowers the error.
     g = np.empty(n)
     for _ in range(swaps):
