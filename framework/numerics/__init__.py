@@ -9,7 +9,9 @@
 - :mod:`~rigslim.numerics.affine_normals`: normals through a per-vertex affine fit of the handles
   (cages, [P10] section 5);
 - :mod:`~rigslim.numerics.normal_error`: angles between normals and their statistics ([P10] fig. 10);
-- :mod:`~rigslim.numerics.surface_distance`: the two-sided Metro distance between surfaces.
+- :mod:`~rigslim.numerics.surface_distance`: the two-sided Metro distance between surfaces;
+- :mod:`~rigslim.numerics.simplex_nnls`: sum-to-one non-negative least squares (the best-fit selector, the
+  non-negative geometric solver).
 
 Numerics that only one plugin package uses live in that package (the quadrics in
 ``rigslim.plugins.decimation``, the colourings and the multilevel solver in ``rigslim.plugins.solvers``,

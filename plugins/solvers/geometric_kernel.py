@@ -13,7 +13,7 @@ the full deformation and ``eps`` the ridge towards the k-largest weights
 solves them in numba, parallel over vertices, without forming the (m, k, 3p)
 basis: each vertex builds its k x k Gram matrix ``G = B B^T + eps I`` and
 ``c = B y + eps alpha0`` and runs the sum-to-one Lawson & Hanson method of
-:mod:`rigslim.plugins.selection.sparse_fit` (exact: the QP is strictly convex).
+:mod:`rigslim.numerics.simplex_nnls` (exact: the QP is strictly convex).
 :func:`rigslim.plugins.solvers.methods.reduce_weights` takes this path for
 non-negative geometric fits on numpy; the batched active-set reference
 (:func:`rigslim.numerics.small_qp.solve_small_qps` through the local solver) is tested to agree.
@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from rigslim.plugins.selection.sparse_fit import _lawson_hanson
+from rigslim.numerics.simplex_nnls import _lawson_hanson
 
 #: Bound multipliers above ``-TOL * max_l G_ll`` count as non-negative (the batched reference uses 1e-12).
 TOL = 1e-13
