@@ -40,11 +40,10 @@ import dataclasses
 import os
 import shutil
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
-
-import sys
 
 import numpy as np
 
@@ -178,13 +177,13 @@ def compare(template: dict, template_path: Path, jobs, library, cluster, rounds:
             if which == "serial":
                 dt, rows = serial_loop([jobs[i] for i in idx], template, template_path, work / "serial")
                 serial_s += dt
-                for i, row in zip(idx, rows):
+                for i, row in zip(idx, rows, strict=False):
                     serial_rows[i] = row
             else:
                 dt, res = dask_batch(template_path, [library[i] for i in idx], work / "dask",
                                      scheduler=cluster.scheduler_address)
                 dask_s += dt
-                for i, row in zip(idx, res.rows):
+                for i, row in zip(idx, res.rows, strict=False):
                     dask_rows[i] = row
         print(f"{template_path.stem} round {r + 1}/{rounds}: serial {serial_s:.1f} s, Dask {dask_s:.1f} s so far")
     return serial_s, dask_s, serial_rows, dask_rows
@@ -292,7 +291,7 @@ def main(argv=None) -> int:
     # The serial loop's BLAS and numba use every core, a worker's one: the iterative solves take other
     # rounding paths and stop (tolerance 1e-5) at slightly different weights. Record how far apart they end.
     metric_keys = [k for k in serial_rows[0] if k.endswith(("_mean", "_max")) and isinstance(serial_rows[0][k], float)]
-    rel_diff = max(abs(a[k] - b[k]) / max(abs(a[k]), 1e-300) for a, b in zip(serial_rows, dask_rows)
+    rel_diff = max(abs(a[k] - b[k]) / max(abs(a[k]), 1e-300) for a, b in zip(serial_rows, dask_rows, strict=False)
                    for k in metric_keys)
     assert rel_diff < 1e-3, f"serial and Dask metrics differ by {rel_diff:.3g} (relative)"
 
@@ -311,7 +310,7 @@ def main(argv=None) -> int:
           f"2-worker cluster start {started:.1f} s")
 
     families = {}
-    for r_serial, r_dask in zip(serial_rows, dask_rows):
+    for r_serial, r_dask in zip(serial_rows, dask_rows, strict=False):
         fam = r_serial["name"].rsplit("-", 1)[0]
         f = families.setdefault(fam, {"assets": 0, "vertices": r_serial["vertices"], "serial_s": [], "dask_s": [],
                                       "peak_mb": []})

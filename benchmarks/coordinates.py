@@ -81,9 +81,9 @@ def bench_mvc(log) -> list[dict]:
 
 
 def bench_cheb(log) -> list[dict]:
-    from rigslim.plugins.generators.cage import build_cage, enclosure
     from rigslim.io import read_mesh, read_tgf
     from rigslim.plugins.generators.bone_heat import bone_heat_weights
+    from rigslim.plugins.generators.cage import build_cage, enclosure
     from rigslim.plugins.generators.harmonic import harmonic_coordinates
 
     mesh = read_mesh(DATA / "cheburashka.off")
@@ -215,7 +215,8 @@ def main(argv=None) -> int:
     quality = bench_quality(log) if "quality" not in skip else []
     doc = {"machine": machine(),
            "timings": timings, "quality": quality,
-           "paper": [dict(zip(("model", "vertices", "deformation", "max_weights", "optimized_weights"), p))
+           "paper": [dict(zip(("model", "vertices", "deformation", "max_weights", "optimized_weights"), p,
+                              strict=False))
                      for p in PAPER]}
     write(doc, args.out)
     print()

@@ -310,9 +310,9 @@ def run_quick(levels: int = 3, frames: int = 8, ks=(8, 4), copy_mib: int = 512, 
     output written once (``bytes_per_frame`` of each bound deformer).
     """
     from benchmarks.datasets import elephant
+    from rigslim.numerics.area_weighted_normals import operator_for
     from rigslim.plugins.deformers.cpu_deformer import CPUDeformer
     from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
-    from rigslim.numerics.area_weighted_normals import operator_for
     from rigslim.plugins.selection.k_largest import k_largest
     from rigslim.plugins.solvers.k_largest import k_largest_weights
     from rigslim.weights import influence_counts

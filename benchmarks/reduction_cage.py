@@ -62,7 +62,8 @@ def main() -> None:
         _run_step(by_key["evaluate"], asset, host, reporter.context(base), base, PIPELINE, document)
         m = document["evaluations"][0]["metrics"]
         rows.append({"method": label, "solver": solver, "params": extra, "seconds": seconds,
-                     "position_rms_pct": m["position_rms_pct"]["mean"], "position_max_pct": m["position_rms_pct"]["max"],
+                     "position_rms_pct": m["position_rms_pct"]["mean"],
+                     "position_max_pct": m["position_rms_pct"]["max"],
                      "normal_rms_rad": m["normal_rms_rad"]["mean"], "normal_max_rad": m["normal_rms_rad"]["max"],
                      "max_influences": m["max_influences"], "solver_report": {
                          k: v for k, v in ctx.report.items() if isinstance(v, (int, float, str, bool))}})
@@ -82,7 +83,8 @@ def main() -> None:
              "(maxima in parentheses).", "",
              "| method | solve (s) | position RMS (% diag) | normal RMS (rad) |", "|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['method']} | {r['seconds']:.2f} | {r['position_rms_pct']:.4f} ({r['position_max_pct']:.4f}) "
+        lines.append(f"| {r['method']} | {r['seconds']:.2f} | "
+                     f"{r['position_rms_pct']:.4f} ({r['position_max_pct']:.4f}) "
                      f"| {r['normal_rms_rad']:.4f} ({r['normal_max_rad']:.4f}) |")
     write_results(OUT / "reduction_cage", result, "\n".join(lines) + "\n")
     print("\n".join(lines))

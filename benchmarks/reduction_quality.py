@@ -122,7 +122,8 @@ def main():
             neg = float(red.values.min())
             run = {"k": k, "method": name, "params": params, "position_pct_mean": float(p.mean()),
                    "normal_rad_mean": float(n.mean()), "position_pct_rms_over_frames": rms(p),
-                   "normal_rad_rms_over_frames": rms(n), "position_per_frame": p.tolist(), "normal_per_frame": n.tolist(),
+                   "normal_rad_rms_over_frames": rms(n), "position_per_frame": p.tolist(),
+                   "normal_per_frame": n.tolist(),
                    "seconds": rep["seconds"], "min_weight": neg,
                    "solver": {kk: v for kk, v in rep.items() if kk != "seconds"}}
             if name == "poisson+lambda":

@@ -114,8 +114,8 @@ def run_method(asset, method: str, min_faces: int, max_bones, test_stride: int, 
                backend: str = "numba"):
     from rigslim.evaluation import Evaluation
     from rigslim.host import get_host
-    from rigslim.plugin import StepContext
     from rigslim.numerics.surface_distance import metro_distance
+    from rigslim.plugin import StepContext
 
     host = get_host()
     plugin = host.get("articulated-decimation", method)
@@ -170,10 +170,10 @@ def gltfpack_comparison(gltfpack: str, samples: int, ratios=(0.1, 0.02)):
     from rigslim.io.gltf import load_gltf, read_accessor
     from rigslim.io.gltf_write import export_skinned
     from rigslim.mesh import Mesh
+    from rigslim.numerics.surface_distance import metro_distance
     from rigslim.plugin import StepContext
     from rigslim.plugins.decimation.articulated import limited_weights
     from rigslim.plugins.decimation.static_qslim import nearest_vertex_weights
-    from rigslim.numerics.surface_distance import metro_distance
 
     asset = elephant(0)
     W4 = limited_weights(asset.weights, 4)
@@ -193,7 +193,8 @@ def gltfpack_comparison(gltfpack: str, samples: int, ratios=(0.1, 0.02)):
         F = np.asarray(read_accessor(doc, prim["indices"]), np.int64).reshape(-1, 3)
         dist, nearest = cKDTree(asset.mesh.V).query(P)
         assert dist.max() < 1e-4 * asset.mesh.bbox_diagonal, "gltfpack moved vertices"
-        lv = SimplifiedLevel(Mesh(asset.mesh.V[nearest], F), nearest_vertex_weights(asset.mesh.V, W4, asset.mesh.V[nearest]),
+        lv = SimplifiedLevel(Mesh(asset.mesh.V[nearest], F),
+                             nearest_vertex_weights(asset.mesh.V, W4, asset.mesh.V[nearest]),
                              f"gltfpack-si{r:g}", None, float("nan"), "gltfpack")
         levels["gltfpack"].append((lv, secs))
     faces = [lv.n_faces for lv, _ in levels["gltfpack"]]
@@ -305,15 +306,17 @@ def markdown(doc) -> str:
     for d in doc["results"]:
         lines += [f"## {d['dataset']}: {d['faces']:,} faces, {d['handles']} handles, {d['example_poses']} example "
                   f"poses, {d['test_poses']} test poses, max_bones {d['max_bones']}", "",
-                  "| method | time (s) | RMS 10% | max 10% | RMS 2% | max 2% | quartic/this RMS 10% | quartic/this RMS 2% |",
+                  "| method | time (s) | RMS 10% | max 10% | RMS 2% | max 2% "
+                  "| quartic/this RMS 10% | quartic/this RMS 2% |",
                   "|---|---|---|---|---|---|---|---|"]
         q = next(r for r in d["runs"] if r["method"] == "quartic")
         q10, q2 = at(q, 0.1, d["faces"]), at(q, 0.02, d["faces"])
         for r in d["runs"]:
             l10, l2 = at(r, 0.1, d["faces"]), at(r, 0.02, d["faces"])
-            lines.append(f"| {r['method']} | {r['seconds']:.1f} | {l10['rms_pct_mean']:.4f} | {l10['max_pct_mean']:.3f} | "
-                         f"{l2['rms_pct_mean']:.4f} | {l2['max_pct_mean']:.3f} | "
-                         f"{q10['rms_pct_mean'] / l10['rms_pct_mean']:.2f} | {q2['rms_pct_mean'] / l2['rms_pct_mean']:.2f} |")
+            lines.append(f"| {r['method']} | {r['seconds']:.1f} | {l10['rms_pct_mean']:.4f} | "
+                         f"{l10['max_pct_mean']:.3f} | {l2['rms_pct_mean']:.4f} | {l2['max_pct_mean']:.3f} | "
+                         f"{q10['rms_pct_mean'] / l10['rms_pct_mean']:.2f} | "
+                         f"{q2['rms_pct_mean'] / l2['rms_pct_mean']:.2f} |")
         lines.append("")
     g = doc.get("gltfpack")
     if g:
@@ -339,7 +342,7 @@ def plot(doc, path) -> None:
 
     res = doc["results"]
     fig, axes = plt.subplots(1, len(res), figsize=(4.5 * len(res), 4), squeeze=False)
-    for ax, d in zip(axes[0], res):
+    for ax, d in zip(axes[0], res, strict=False):
         for r in d["runs"]:
             lv = sorted(r["levels"], key=lambda x: x["faces"])
             ax.loglog([x["faces"] for x in lv], [x["rms_pct_mean"] for x in lv], "o-", label=r["method"])

@@ -330,8 +330,14 @@ class _Progress:
     """A live bar on stderr: done of total, ok / skipped / failed counts, elapsed and remaining time."""
 
     def __init__(self, console, total: int):
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, \
-            TimeRemainingColumn
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
 
         self.counts = {"ok": 0, "skipped": 0, "failed": 0}
         self.progress = Progress(TextColumn("batch"), BarColumn(), MofNCompleteColumn(),

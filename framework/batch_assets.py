@@ -63,7 +63,7 @@ class AssetJob:
                 "source": self.source, "manifest_dir": str(self.manifest_dir) if self.manifest_dir else None}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "AssetJob":
+    def from_dict(cls, d: dict) -> AssetJob:
         return cls(Path(d["path"]), d["name"], dict(d["overrides"]), d["source"],
                    Path(d["manifest_dir"]) if d.get("manifest_dir") else None)
 

@@ -126,7 +126,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     run.set_defaults(func=_cmd_run)
     report = sub.add_parser("report", help="HTML report of metrics JSON files (table, plots, renders)")
-    report.add_argument("metrics", nargs="+", metavar="METRICS.json", help="metrics documents of 'rigslim run', or one DIR/summary.csv of 'rigslim batch'")
+    report.add_argument("metrics", nargs="+", metavar="METRICS.json",
+                        help="metrics documents of 'rigslim run', or one DIR/summary.csv of 'rigslim batch'")
     report.add_argument("-o", "--output", required=True, metavar="REPORT.html", help="write the report here")
     report.add_argument("--png-dir", metavar="DIR", help="also write the renders as PNG files here")
     report.add_argument("--frames", metavar="F1,F2", help="animation frames to render (default: the worst test frame)")

@@ -124,7 +124,7 @@ class EGLContext:
             EGL.eglDestroyContext(self.display, self.context)
             self.closed = True
 
-    def __enter__(self) -> "EGLContext":
+    def __enter__(self) -> EGLContext:
         self.make_current()
         return self
 

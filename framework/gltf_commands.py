@@ -274,7 +274,7 @@ def cmd_lod(args) -> int:
     step = next(s for s in result.document["steps"] if s["stage"] == "decimate")
     write = result.document["steps"][-1].get("report", {})
     rows = []
-    for r, lv in zip(ratios, levels):
+    for r, lv in zip(ratios, levels, strict=False):
         rows.append({"ratio": r, "label": lv.label, "faces": lv.n_faces, "vertices": lv.n_vertices,
                      "max_bones": int(lv.weights.influence_counts().max())})
     per_prim = {x["label"]: x["primitive_faces"] for x in write.get("level_primitives", [])}
@@ -495,7 +495,7 @@ def cmd_inspect(args) -> int:
             if "influences_histogram" in p:
                 h = p["influences_histogram"]
                 ws = p["weight_sums"]
-                print(f"    influences per vertex: " + ", ".join(f"{i}: {c}" for i, c in enumerate(h) if c)
+                print("    influences per vertex: " + ", ".join(f"{i}: {c}" for i, c in enumerate(h) if c)
                       + f"; weight sums {ws['min']:.4g}..{ws['max']:.4g}, "
                         f"{ws['off_by_more_than_1e-3']} vertices off by more than 1e-3")
     for node, ids in info["lod"].items():

@@ -69,7 +69,7 @@ class Handles:
 
     @staticmethod
     def skeleton(joints: np.ndarray, bones: np.ndarray, source: str | None = None,
-                 names: list[str] | None = None) -> "Handles":
+                 names: list[str] | None = None) -> Handles:
         """A skeleton from joint positions and (parent, child) bone edges."""
         joints = np.asarray(joints, dtype=np.float64)
         bones = np.asarray(bones, dtype=np.int64).reshape(-1, 2)
@@ -79,7 +79,7 @@ class Handles:
         return Handles("skeleton", names, joints=joints, bones=bones, parents=parents, source=source)
 
     @staticmethod
-    def from_cage(cage: Mesh, source: str | None = None) -> "Handles":
+    def from_cage(cage: Mesh, source: str | None = None) -> Handles:
         """Handles for the vertices of a closed triangle cage."""
         return Handles("cage", [f"cage{i}" for i in range(cage.n_vertices)], cage=cage,
                        source=source or cage.source)

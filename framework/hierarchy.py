@@ -247,7 +247,7 @@ class ProgressiveHierarchy:
                                     params=np.array(json.dumps(self.params, default=str)))
 
     @staticmethod
-    def load(path) -> "ProgressiveHierarchy":
+    def load(path) -> ProgressiveHierarchy:
         """Read a hierarchy written by :meth:`save`."""
         import json
 

@@ -26,7 +26,7 @@ from __future__ import annotations
 import os
 import re
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 from rigslim.errors import RigslimError
 
@@ -212,7 +212,7 @@ def pick_device(spec: str | None = None):
                             fix=f"use auto, gpu, cpu or part of one of: {names}")
 
 
-@lru_cache(maxsize=None)
+@cache
 def _runtime_for(key) -> CLRuntime:
     cl = _import_cl()
     device = next(d for d in list_devices() if device_key(d) == key)
@@ -226,7 +226,7 @@ def get_runtime(device: str | None = None) -> CLRuntime:
     return _runtime_for(device_key(pick_device(device)))
 
 
-@lru_cache(maxsize=None)
+@cache
 def _build(runtime: CLRuntime, name: str, options: tuple[str, ...]):
     cl = _import_cl()
     from rigslim.kernels import source

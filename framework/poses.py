@@ -50,7 +50,7 @@ class Poses:
     def n_handles(self) -> int:
         return self.T.shape[1]
 
-    def select(self, frames) -> "Poses":
+    def select(self, frames) -> Poses:
         """The poses of the given frame numbers, in that order."""
         index = {int(f): j for j, f in enumerate(self.frames)}
         rows = [index[int(f)] for f in frames]
@@ -134,7 +134,7 @@ class FrameSplit:
     clips: dict | None = None
 
     @staticmethod
-    def from_specs(examples, test, count: int, *, source: str | None = None) -> "FrameSplit":
+    def from_specs(examples, test, count: int, *, source: str | None = None) -> FrameSplit:
         ex = parse_frames(examples, count, source=source, field_name="poses.examples")
         te = parse_frames(test, count, source=source, field_name="poses.test")
         dropped = sorted(set(ex) & set(te))

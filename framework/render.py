@@ -73,7 +73,7 @@ class Camera:
     @staticmethod
     def fit(points, width: int, height: int, *, azimuth: float = 30.0, elevation: float = 15.0,
             up_axis: int = 1, projection: str = "orthographic", margin: float = 1.05,
-            fov_degrees: float = 30.0, tight: bool = False) -> "Camera":
+            fov_degrees: float = 30.0, tight: bool = False) -> Camera:
         """A camera that sees the whole bounding sphere of ``points``.
 
         Parameters

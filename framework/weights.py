@@ -143,7 +143,7 @@ class ReducedWeights:
         return (self.values != 0).sum(axis=1)
 
     @staticmethod
-    def from_influences(influences: InfluenceSets, values: np.ndarray, n_handles: int) -> "ReducedWeights":
+    def from_influences(influences: InfluenceSets, values: np.ndarray, n_handles: int) -> ReducedWeights:
         """Weights on given influence sets, with padding slots set to (0, 0)."""
         values = np.where(influences.valid, values, 0.0)
         indices = np.where(influences.valid, influences.indices, 0)

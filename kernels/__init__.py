@@ -11,11 +11,11 @@ Example
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 from importlib import resources
 
 
-@lru_cache(maxsize=None)
+@cache
 def source(name: str) -> str:
     """The text of the kernel or shader file ``name`` (e.g. ``"blend.cl"``)."""
     try:

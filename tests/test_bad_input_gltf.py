@@ -16,9 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from _bad_input import (DATA, assert_one_line, assert_unchanged, run_cli, run_cli_subprocess, snapshot,
-                        write_json)
+from _bad_input import DATA, assert_one_line, assert_unchanged, run_cli, run_cli_subprocess, snapshot, write_json
 
 SIMPLE = json.loads((DATA / "gltf" / "simple_skin.gltf").read_text())
 

@@ -20,8 +20,8 @@ import uuid
 from pathlib import Path
 
 import pytest
-
 from _bad_input import DATA, assert_one_line, assert_unchanged, run_cli, run_cli_subprocess, snapshot
+
 from rigslim.io import atomic, read_reduced_npz
 from rigslim.io.atomic import TMP_MARK, OutputError, atomic_dir, atomic_path, output_transaction
 

@@ -14,8 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from _bad_input import (DATA, assert_one_line, assert_unchanged, run_cli, run_cli_subprocess, snapshot)
+from _bad_input import DATA, assert_one_line, assert_unchanged, run_cli, run_cli_subprocess, snapshot
 
 CHEB = """\
 inputs:
@@ -293,7 +292,7 @@ def test_warnings_are_dropped_when_an_error_follows(project, capfd, monkeypatch)
     real = rigslim.pipeline.load_pipeline
 
     def noisy(*args, **kwargs):
-        warnings.warn("overflow encountered in square", RuntimeWarning)
+        warnings.warn("overflow encountered in square", RuntimeWarning, stacklevel=2)
         return real(*args, **kwargs)
 
     monkeypatch.setattr(rigslim.pipeline, "load_pipeline", noisy)
@@ -319,7 +318,8 @@ def test_libigl_stdout_diagnosis_goes_into_the_line(project, capfd):
 
 
 def test_nul_byte_in_a_face_line(project, capfd):
-    (project / "nul.obj").write_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2\x00 4 3\n")  # libigl reads 'f 2'
+    # libigl reads 'f 2'
+    (project / "nul.obj").write_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2\x00 4 3\n")
     line = _bad(project, capfd, _pipeline(project, mesh="nul.obj"), "nul.obj", "line 6", subprocess=True)
     assert "NUL" in line
 

@@ -6,7 +6,6 @@ import copy
 import json
 
 import pytest
-
 from _bad_input import DATA, assert_one_line, assert_unchanged, run_cli, run_cli_subprocess, snapshot, write_json
 
 PIPELINE = """\

@@ -117,7 +117,7 @@ def test_corrupt_asset_fails_alone_and_rerun_skips(library, tmp_path, cluster, c
     doc = json.loads((out / "summary.json").read_text())
     assert [r["name"] for r in table] == [r["name"] for r in doc["rows"]] == list(rows)
     assert doc["counts"] == {"ok": 7, "skipped": 0, "failed": 1}
-    for t, d in zip(table, doc["rows"]):
+    for t, d in zip(table, doc["rows"], strict=False):
         assert t["status"] == d["status"] and t["position_rms_pct_max"] == d["position_rms_pct_max"]
 
     # rerun: every good asset is skipped (outputs untouched), the corrupt one fails again

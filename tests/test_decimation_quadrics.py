@@ -7,8 +7,16 @@ import pytest
 import scipy.sparse as sp
 
 from rigslim.mesh import Mesh
-from rigslim.plugins.decimation.quadrics import (alternate, bone_limit, per_pose_quadrics, position_step, quadric_error,
-                              quartic_error, vertex_quadrics, weight_step)
+from rigslim.plugins.decimation.quadrics import (
+    alternate,
+    bone_limit,
+    per_pose_quadrics,
+    position_step,
+    quadric_error,
+    quartic_error,
+    vertex_quadrics,
+    weight_step,
+)
 
 
 def bumpy_sphere(n=8, seed=1):
@@ -225,5 +233,6 @@ def test_nonnegative_weight_step_matches_a_general_qp_solver(elephant_edges):
         settings.tol_gap_abs = settings.tol_gap_rel = 1e-12
         sol = clarabel.DefaultSolver(P, q, A, rhs, cones, settings).solve()
         x = np.array(sol.x)
-        obj = lambda z: z @ (H + ridge * np.eye(len(k))) @ z - 2 * ridge * a0[b, k] @ z  # noqa: E731
+        def obj(z, H=H, k=k, b=b):
+            return z @ (H + ridge * np.eye(len(k))) @ z - 2 * ridge * a0[b, k] @ z
         assert obj(a[b, k]) <= obj(x) + 1e-8 * max(1.0, abs(obj(x)))

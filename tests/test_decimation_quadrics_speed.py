@@ -1,4 +1,7 @@
-"""The fast paths of rigslim.plugins.decimation.quadrics (shared blended transforms in ``alternate``) equal the public formulas."""
+"""The fast paths of rigslim.plugins.decimation.quadrics (shared blended transforms in ``alternate``).
+
+They equal the public formulas.
+"""
 
 import numpy as np
 

@@ -8,9 +8,9 @@ import scipy.sparse as sp
 
 from rigslim.blend import linear_blend, per_vertex_normals
 from rigslim.errors import InputError, StepError
+from rigslim.numerics.blended_normals import blended_matrix_normals
 from rigslim.plugins.deformers.base import fixed_k_arrays, handle_data, pack_weights, resolve_normals
 from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
-from rigslim.numerics.blended_normals import blended_matrix_normals
 from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.k_largest import k_largest_weights
 from rigslim.weights import ReducedWeights

@@ -166,11 +166,11 @@ def test_normal_estimators_on_the_opencl_backend(elephant, skeleton, cage):
 
     mesh, handles, poses = skeleton
     reduced = reduce_to(elephant.weights, 8)
-    for est, (mesh, handles, weights, poses) in ((BlendedMatrixNormals(), (mesh, handles, reduced, poses)),
+    for est, (est_mesh, est_handles, weights, est_poses) in ((BlendedMatrixNormals(), (mesh, handles, reduced, poses)),
                                                  (ApproximateAffineNormals(), cage)):
-        for T in poses:
-            ref = est.estimate(mesh, weights, handles, T, None, est.Params())
-            dev = est.estimate(mesh, weights, handles, T, None, est.Params(backend="opencl"))
+        for T in est_poses:
+            ref = est.estimate(est_mesh, weights, est_handles, T, None, est.Params())
+            dev = est.estimate(est_mesh, weights, est_handles, T, None, est.Params(backend="opencl"))
             assert angles(dev, ref).max() < NORMAL_TOL
 
 

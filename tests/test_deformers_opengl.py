@@ -10,13 +10,12 @@ import json
 
 import numpy as np
 import pytest
+from test_deformers_opencl import angles, cage_poses, idw_weights, jittered_box_cage, reduce_to
 
 from rigslim.egl import EGLUnavailable, shared_context
 from rigslim.errors import StepError
 from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
 from rigslim.plugins.deformers.opengl_deformer import OpenGLDeformer
-
-from test_deformers_opencl import angles, cage_poses, idw_weights, jittered_box_cage, reduce_to
 
 pytestmark = pytest.mark.opengl
 
@@ -112,18 +111,18 @@ def test_normal_estimators_on_the_opengl_backend(elephant, skeleton, cage):
 
     mesh, handles, poses = skeleton
     reduced = reduce_to(elephant.weights, 8)
-    for est, (mesh, handles, weights, poses) in ((BlendedMatrixNormals(), (mesh, handles, reduced, poses)),
+    for est, (est_mesh, est_handles, weights, est_poses) in ((BlendedMatrixNormals(), (mesh, handles, reduced, poses)),
                                                  (ApproximateAffineNormals(), cage)):
-        for T in poses:
-            ref = est.estimate(mesh, weights, handles, T, None, est.Params())
-            dev = est.estimate(mesh, weights, handles, T, None, est.Params(backend="opengl"))
+        for T in est_poses:
+            ref = est.estimate(est_mesh, weights, est_handles, T, None, est.Params())
+            dev = est.estimate(est_mesh, weights, est_handles, T, None, est.Params(backend="opengl"))
             assert angles(dev, ref).max() < NORMAL_TOL
 
 
 def test_yaml_deform_opengl(write_pipeline, tmp_path, capsys):
-    from rigslim.cli import main
-
     from test_deformers_opencl import PIPELINE
+
+    from rigslim.cli import main
 
     results = {}
     for label, extra in (("numpy", ""), ("opengl", "  - deform: opengl\n  - normals: blended-matrix\n"

@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from _bad_input import snapshot
+
 from rigslim.io import read_reduced_npz
 from rigslim.io.atomic import TMP_MARK
 

@@ -13,7 +13,7 @@ from rigslim.plugins.generators.bbw import bounded_biharmonic_weights
 
 def tet_bar(nx=8, ny=2, nz=2, size=(4.0, 1.0, 1.0)):
     """A box split into cubes and each cube into 6 tetrahedra (Freudenthal/Kuhn)."""
-    axes = [np.linspace(0, s, n + 1) for s, n in zip(size, (nx, ny, nz))]
+    axes = [np.linspace(0, s, n + 1) for s, n in zip(size, (nx, ny, nz), strict=False)]
     V = np.array(list(itertools.product(*axes)))
     shape = (nx + 1, ny + 1, nz + 1)
     T = []

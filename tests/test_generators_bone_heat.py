@@ -8,8 +8,7 @@ import pytest
 
 from rigslim.errors import StepError
 from rigslim.mesh import Mesh
-from rigslim.plugins.generators.bone_heat import (bone_heat_weights, nearest_visible_bones,
-                                                  point_segment_distances)
+from rigslim.plugins.generators.bone_heat import bone_heat_weights, nearest_visible_bones, point_segment_distances
 
 
 @pytest.fixture(scope="module")

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from rigslim.plugins.generators.cage import build_cage, enclosure, skinned_cage_poses, transfer_weights
 from rigslim.errors import StepError
 from rigslim.mesh import Mesh
+from rigslim.plugins.generators.cage import build_cage, enclosure, skinned_cage_poses, transfer_weights
 from rigslim.poses import Poses
 
 

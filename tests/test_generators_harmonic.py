@@ -7,8 +7,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from rigslim.plugins.generators.harmonic import (HarmonicGrid, conjugate_gradient, harmonic_coordinates,
-                                                 hat_values)
+from rigslim.plugins.generators.harmonic import HarmonicGrid, conjugate_gradient, harmonic_coordinates, hat_values
 
 TET_V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
 TET_F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])

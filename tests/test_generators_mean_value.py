@@ -177,10 +177,10 @@ steps:
 @pytest.mark.opencl
 def test_user_cage_file_and_opencl_backend(write_pipeline, tmp_path):
     pytest.importorskip("pyopencl")
-    from rigslim.plugins.generators.cage import build_cage
     from rigslim.io import read_mesh
     from rigslim.opencl import OpenCLUnavailable, get_runtime
     from rigslim.pipeline import run_pipeline
+    from rigslim.plugins.generators.cage import build_cage
 
     try:
         get_runtime("cpu")

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.gltf_validator import validate_gltf, validation_errors, validator_available
 
 from rigslim.cli import main
 from rigslim.io.gltf import load_gltf, read_accessor, skinning_sets
-from support.gltf_validator import validate_gltf, validation_errors, validator_available
 
 GLTF = Path(__file__).resolve().parents[1] / "examples" / "data" / "gltf"
 #: Every skinned glTF character bundled in examples/data/gltf (assimp conversions, Khronos samples, the tube).
@@ -57,7 +57,7 @@ def check_lod_structure(source: Path, out: Path, levels: int) -> None:
             assert lvl_node["skin"] == node["skin"]
             mesh = js["meshes"][lvl_node["mesh"]]
             assert len(mesh["primitives"]) == len(orig["primitives"])
-            for p_src, p in zip(orig["primitives"], mesh["primitives"]):
+            for p_src, p in zip(orig["primitives"], mesh["primitives"], strict=False):
                 assert p.get("material") == p_src.get("material")
                 assert set(p_src["attributes"]) <= set(p["attributes"]) | {"JOINTS_1", "WEIGHTS_1"}
                 assert len(p.get("targets", [])) == len(p_src.get("targets", []))
@@ -110,7 +110,7 @@ def test_tube_levels_keep_seams_materials_and_morph_targets(tmp_path):
     js = doc.json
     level_mesh = js["meshes"][js["nodes"][js["nodes"][1]["extensions"]["MSFT_lod"]["ids"][0]]["mesh"]]
     assert level_mesh["weights"] == [0.0] and level_mesh["extras"]["targetNames"] == ["bulge"]
-    for p_src, p in zip(js["meshes"][1]["primitives"], level_mesh["primitives"]):
+    for p_src, p in zip(js["meshes"][1]["primitives"], level_mesh["primitives"], strict=False):
         uv_src = read_accessor(doc, p_src["attributes"]["TEXCOORD_0"])
         uv = read_accessor(doc, p["attributes"]["TEXCOORD_0"])
         assert uv[:, 0].min() >= uv_src[:, 0].min() - 1e-6 and uv[:, 0].max() <= uv_src[:, 0].max() + 1e-6

@@ -67,5 +67,7 @@ def test_lod_rows_of_a_file_without_lod_is_empty():
     from rigslim.report.gltf import lod_rows
 
     assert lod_rows(GLTF / "huesitos.glb") == []
-    with pytest.raises(Exception):
+    from rigslim.errors import InputError
+
+    with pytest.raises(InputError):
         lod_rows(GLTF / "missing.glb")

@@ -8,8 +8,15 @@ import numpy as np
 import pytest
 
 from rigslim.io.gltf import read_gltf_skin
-from rigslim.io.gltf_lod import (collapse_parameters, hierarchy_attributes, input_weights_normalized,
-                                 level_primitives, level_representatives, primitive_data, seam_vertices)
+from rigslim.io.gltf_lod import (
+    collapse_parameters,
+    hierarchy_attributes,
+    input_weights_normalized,
+    level_primitives,
+    level_representatives,
+    primitive_data,
+    seam_vertices,
+)
 
 GLTF = Path(__file__).resolve().parents[1] / "examples" / "data" / "gltf"
 TUBE = GLTF / "tube_two_materials.glb"

@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.report_browser import find_chromium
 
 from rigslim.cli import main
-from support.report_browser import find_chromium
 
 ROOT = Path(__file__).resolve().parents[1]
 THREE = ROOT / "tools" / "node" / "node_modules" / "three"
@@ -73,8 +73,7 @@ def render_glb(path: Path, t: float, *, eye=(3.2, 1.4, 3.2), target=(0.0, 1.0, 0
                timeout: float = 90.0) -> np.ndarray:
     """RGB image (h, w, 3) of a .glb as three.js renders it at clip time t."""
     from PIL import Image
-
-    from support.report_browser import WebSocket, _CDP
+    from support.report_browser import _CDP, WebSocket
 
     loader = (THREE / "examples/jsm/loaders/GLTFLoader.js").read_text()
     loader = loader.replace("'../utils/BufferGeometryUtils.js'", "'bgu'")

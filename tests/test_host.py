@@ -39,4 +39,4 @@ class DupModule:
 def test_duplicate_names_are_an_error():
     host = PluginHost(extra=[DupModule])
     with pytest.raises(PluginNotFoundError, match="two plugins are named 'k-largest'"):
-        host.registry
+        _ = host.registry

@@ -49,7 +49,7 @@ def test_failed_write_leaves_no_file(tmp_path):
         def __array__(self, *a, **k):
             raise RuntimeError("boom")
 
-    with pytest.raises(Exception):
+    with pytest.raises(RuntimeError, match="boom"):
         write_dmat(tmp_path / "x.dmat", Boom())
     assert list(tmp_path.iterdir()) == []
 

@@ -13,8 +13,15 @@ from scipy.spatial.transform import Rotation
 
 from rigslim.blend import linear_blend
 from rigslim.errors import InputError, RigslimError
-from rigslim.io.gltf import (load_gltf, quaternion_matrix, read_accessor, read_gltf_skin, sample_sampler, slerp,
-                             trs_matrix)
+from rigslim.io.gltf import (
+    load_gltf,
+    quaternion_matrix,
+    read_accessor,
+    read_gltf_skin,
+    sample_sampler,
+    slerp,
+    trs_matrix,
+)
 
 GLTF = Path(__file__).resolve().parents[1] / "examples" / "data" / "gltf"
 
@@ -23,9 +30,9 @@ def _rot(q):
     return Rotation.from_quat(q).as_matrix()  # scipy uses (x, y, z, w) like glTF
 
 
-def _h(R=np.eye(3), t=(0, 0, 0)):
+def _h(R=None, t=(0, 0, 0)):
     M = np.eye(4)
-    M[:3, :3] = R
+    M[:3, :3] = np.eye(3) if R is None else R
     M[:3, 3] = t
     return M
 
@@ -164,7 +171,7 @@ def _expected_T(t):
     foot = _h(np.diag([sx, 1, 1]), FOOT_T)
     world = [HIP, HIP @ knee, HIP @ knee @ foot]
     rest = [HIP, HIP @ _h(_rot(KNEE_R), KNEE_T), HIP @ _h(_rot(KNEE_R), KNEE_T) @ _h(np.eye(3), FOOT_T)]
-    return np.array([(W @ np.linalg.inv(R))[:3] for W, R in zip(world, rest)])
+    return np.array([(W @ np.linalg.inv(R))[:3] for W, R in zip(world, rest, strict=False)])
 
 
 # ------------------------------------------------------------------ small functions against references
@@ -289,7 +296,7 @@ def test_simple_skin_from_the_khronos_tutorial():
     anim = doc.json["animations"][0]["samplers"][0]
     times, quats = read_accessor(doc, anim["input"]), read_accessor(doc, anim["output"])
     ibm = read_accessor(doc, doc.json["skins"][0]["inverseBindMatrices"]).reshape(2, 4, 4).transpose(0, 2, 1)
-    for f, (t, q) in enumerate(zip(times, quats)):
+    for f, (t, q) in enumerate(zip(times, quats, strict=False)):
         assert abs(t - f / 2) < 1e-6
         world1 = _h(np.eye(3), (0, 1, 0)) @ _h(_rot(q))   # node 1 translation, node 2 rotation
         np.testing.assert_allclose(skin.poses.T[f, 1], (world1 @ ibm[1])[:3], atol=1e-6)

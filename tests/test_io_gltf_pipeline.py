@@ -6,10 +6,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.gltf_validator import validate_gltf, validation_errors, validator_available
 
 from rigslim.errors import RigslimError
 from rigslim.io.gltf import read_gltf_skin, skinning_sets
-from support.gltf_validator import validate_gltf, validation_errors, validator_available
 from rigslim.pipeline import run_pipeline
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -126,7 +126,7 @@ steps:
 
     doc = load_gltf(out)
     names = [m.get("name") for m in doc.json["meshes"][1:]]
-    assert len(names) == len(levels) and all(n.endswith(lv.label) for n, lv in zip(names, levels))
+    assert len(names) == len(levels) and all(n.endswith(lv.label) for n, lv in zip(names, levels, strict=False))
     for i, level in enumerate(levels, 1):
         back = read_gltf_skin(out, mesh=i)
         assert back.mesh.n_faces == level.n_faces

@@ -13,13 +13,12 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
+from support.gltf_validator import validate_gltf, validation_errors, validator_available
 
 from rigslim.blend import linear_blend
 from rigslim.errors import InputError, StepError
 from rigslim.io.gltf import load_gltf, read_accessor, read_gltf_skin, skinning_sets
-from support.gltf_validator import validate_gltf, validation_errors, validator_available
-from rigslim.io.gltf_write import (export_skinned, matrix_quaternion, quantize_weights, skinning_sets_arrays,
-                                   write_gltf)
+from rigslim.io.gltf_write import export_skinned, matrix_quaternion, quantize_weights, skinning_sets_arrays, write_gltf
 from rigslim.poses import Poses
 from rigslim.weights import ReducedWeights
 
@@ -89,6 +88,7 @@ def test_sets_of_four_sorted_with_zero_padding():
     J = np.concatenate([s[0] for s in sets], 1)
     W = np.concatenate([s[1] for s in sets], 1)
     np.testing.assert_array_equal(J[0, :5], [1, 9, 5, 3, 4])   # stable order for the tie 0.3/0.3
+    np.testing.assert_allclose(W[0, :5], [0.3, 0.3, 0.25, 0.1, 0.05])
     np.testing.assert_array_equal(J[0, 5:], 0)                   # zero weights point at joint 0
     np.testing.assert_array_equal(J[1], [2, 0, 0, 0, 0, 0, 0, 0])
     assert len(skinning_sets_arrays(idx[:, :4], val[:, :4] / val[:, :4].sum(1, keepdims=True))) == 1

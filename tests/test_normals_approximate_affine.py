@@ -11,8 +11,8 @@ from rigslim.blend import linear_blend, per_vertex_normals
 from rigslim.errors import StepError
 from rigslim.handles import Handles, cage_transforms
 from rigslim.mesh import Mesh
-from rigslim.numerics.normal_error import normal_rms_angle
 from rigslim.numerics.affine_normals import affine_fit_rest, approximate_affine_normals
+from rigslim.numerics.normal_error import normal_rms_angle
 from rigslim.plugins.normals.approximate_affine import ApproximateAffineNormals
 from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.k_largest import k_largest_weights

@@ -10,8 +10,8 @@ from rigslim.blend import blended_matrices, per_vertex_normals
 from rigslim.errors import StepError
 from rigslim.handles import Handles
 from rigslim.mesh import Mesh
-from rigslim.numerics.normal_error import normal_rms_angle
 from rigslim.numerics.blended_normals import blended_matrix_normals, cofactor_apply
+from rigslim.numerics.normal_error import normal_rms_angle
 from rigslim.plugins.normals.blended_matrix import BlendedMatrixNormals
 from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.k_largest import k_largest_weights
@@ -54,7 +54,6 @@ def test_matches_explicit_inverse_transpose_on_animation(elephant):
 
 
 def test_reflection_keeps_inverse_transpose_direction(rng):
-    V = rng.standard_normal((10, 3))
     N0 = rng.standard_normal((10, 3))
     N0 /= np.linalg.norm(N0, axis=1, keepdims=True)
     W = sp.csr_matrix(np.ones((10, 1)))

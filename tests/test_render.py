@@ -19,13 +19,15 @@ def _icosphere(subdivisions: int = 2):
     V = list(V / np.linalg.norm(V, axis=1, keepdims=True))
     for _ in range(subdivisions):
         mids, newF = {}, []
-        def mid(a, b):
+
+        def mid(a, b, mids=mids):
             key = (min(a, b), max(a, b))
             if key not in mids:
                 p = V[a] + V[b]
                 V.append(p / np.linalg.norm(p))
                 mids[key] = len(V) - 1
             return mids[key]
+
         for a, b, c in F:
             ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
             newF += [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
@@ -135,7 +137,10 @@ def test_opengl_silhouette_matches_projected_elephant(elephant):
     rows = np.clip(72 - 1 - win[:, 1].astype(int), 0, 71)
     m = _mask(img)
     grown = m.copy()
-    grown[1:] |= m[:-1]; grown[:-1] |= m[1:]; grown[:, 1:] |= m[:, :-1]; grown[:, :-1] |= m[:, 1:]
+    grown[1:] |= m[:-1]
+    grown[:-1] |= m[1:]
+    grown[:, 1:] |= m[:, :-1]
+    grown[:, :-1] |= m[:, 1:]
     assert grown[rows, cols].all()
     ref = _mask(render_numpy(X, elephant.mesh.F, [0.7, 0.75, 0.85], cam))
     assert (ref ^ m).sum() <= 0.01 * ref.sum() + 2

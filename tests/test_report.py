@@ -12,8 +12,7 @@ import pytest
 
 from rigslim.cli import main
 from rigslim.errors import InputError
-from rigslim.report import (build_report, heat_colors, load_document, normal_deviation_degrees, render_rows,
-                            summarize)
+from rigslim.report import build_report, heat_colors, load_document, normal_deviation_degrees, render_rows, summarize
 
 PIPELINE = """
 name: elephant-small
@@ -74,7 +73,7 @@ def test_metrics_json_has_influence_histograms(run, elephant):
     folder, result = run
     doc = json.loads((folder / "out" / "m.json").read_text())
     m = elephant.mesh.n_vertices
-    for ev, k in zip(doc["evaluations"], (2, 4)):
+    for ev, k in zip(doc["evaluations"], (2, 4), strict=False):
         hist = ev["influence_histogram"]
         assert sum(hist["input"]) == sum(hist["reduced"]) == m
         assert len(hist["reduced"]) - 1 == ev["metrics"]["max_influences"] == k

@@ -6,7 +6,6 @@ import io
 
 import numpy as np
 import pytest
-
 from support.report_browser import check_page, find_chromium
 
 pytestmark = [pytest.mark.browser,

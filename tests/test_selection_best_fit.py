@@ -6,17 +6,16 @@ from itertools import combinations
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from support.synthetic import cage_asset, tube_asset
 
 from rigslim.asset import Asset
 from rigslim.mesh import Mesh
+from rigslim.numerics.small_qp import solve_small_qps
 from rigslim.plugins.selection.best_fit import best_fit, one_ring_vote, rank_entries
 from rigslim.plugins.selection.sparse_fit import sparse_fit, sparse_fit_reference
 from rigslim.plugins.solvers.global_solver import global_solve
 from rigslim.plugins.solvers.local_solver import local_solve
 from rigslim.plugins.solvers.problem import build_problem
-from support.synthetic import cage_asset, tube_asset
-from rigslim.poses import FrameSplit, Poses
-from rigslim.numerics.small_qp import solve_small_qps
 
 
 def random_problem(rng, m=40, n=6, p=5, density=0.8):

@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 from pydantic import ValidationError
+from support.synthetic import tube_asset
 
 from rigslim.errors import StepError
 from rigslim.plugin import StepContext
 from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.auto_lambda import choose_position_weight, held_out_errors
 from rigslim.plugins.solvers.methods import PoissonParams, PoissonSolver, reduce_weights
-from support.synthetic import tube_asset
 from rigslim.poses import FrameSplit
 
 

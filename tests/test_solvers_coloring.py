@@ -3,8 +3,13 @@
 import numpy as np
 import scipy.sparse as sp
 
-from rigslim.plugins.solvers.coloring import (color_classes, color_graph, distance2_coloring, distance2_graph,
-                              is_valid_coloring)
+from rigslim.plugins.solvers.coloring import (
+    color_classes,
+    color_graph,
+    distance2_coloring,
+    distance2_graph,
+    is_valid_coloring,
+)
 
 
 def test_path_graph_distance2():

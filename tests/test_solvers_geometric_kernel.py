@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from support.synthetic import tube_asset
 
 from rigslim.asset import Asset
 from rigslim.mesh import Mesh
@@ -11,7 +12,6 @@ from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.local_solver import local_solve
 from rigslim.plugins.solvers.methods import ReductionParams, reduce_weights
 from rigslim.plugins.solvers.problem import build_problem
-from support.synthetic import tube_asset
 
 
 def reference(asset):

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from support.synthetic import cage_asset, tube_asset
 
 from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.global_solver import assemble_hessian, global_solve, linear_term
 from rigslim.plugins.solvers.problem import build_problem
-from support.synthetic import cage_asset, tube_asset
 
 
 @pytest.mark.parametrize("method", ["geometric", "smooth", "poisson"])
@@ -29,7 +29,8 @@ def test_matches_dense_kkt(method):
     # The Hessian form agrees with the energy: E(a) = a^T H a + 2 f^T a + const.
     a1 = ref + 0.01 * np.random.default_rng(0).normal(size=ref.shape)
     a1 = np.where(prob.valid, a1, 0)
-    e = lambda a: a.ravel() @ H @ a.ravel() + 2 * f @ a.ravel()
+    def e(a):
+        return a.ravel() @ H @ a.ravel() + 2 * f @ a.ravel()
     assert prob.energy(a1) - prob.energy(ref) == pytest.approx(e(a1) - e(ref), rel=1e-8)
 
 

@@ -2,13 +2,13 @@
 
 import numpy as np
 import pytest
+from support.synthetic import cage_asset, tube_asset
 
 from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.global_solver import global_solve
 from rigslim.plugins.solvers.local_solver import feasible_start, local_solve
 from rigslim.plugins.solvers.multilevel_solver import multilevel_solve
 from rigslim.plugins.solvers.problem import build_problem
-from support.synthetic import cage_asset, tube_asset
 
 
 def _gap(e, eref):
@@ -67,8 +67,8 @@ def test_multilevel_reaches_global_elephant(elephant, method):
 
 def test_multilevel_smoother_is_the_local_sweep(elephant):
     # One smoothing sweep in null-space coordinates is exactly one plain local sweep (same colours).
-    from rigslim.plugins.solvers.multilevel import ColoredBlockSmoother
     from rigslim.plugins.solvers.local_solver import vertex_classes
+    from rigslim.plugins.solvers.multilevel import ColoredBlockSmoother
     from rigslim.plugins.solvers.nullspace import nullspace_system
 
     elephant.influences = k_largest(elephant.weights, 4)

@@ -4,13 +4,12 @@ import json
 
 import numpy as np
 import pytest
+from support.synthetic import cage_asset, tube_asset
 
 from rigslim.errors import RigslimError, StepError
 from rigslim.pipeline import run_pipeline
 from rigslim.plugins.selection.k_largest import k_largest
-from rigslim.plugins.solvers.methods import (LaplacianParams, PoissonParams, ReductionParams,
-                                             reduce_weights)
-from support.synthetic import cage_asset, tube_asset
+from rigslim.plugins.solvers.methods import LaplacianParams, PoissonParams, ReductionParams, reduce_weights
 
 PARAMS = {"geometric": ReductionParams, "smooth": LaplacianParams, "poisson": PoissonParams}
 
@@ -71,7 +70,8 @@ def test_geometric_is_per_vertex_optimal_with_nonnegativity(elephant):
     elephant.influences = k_largest(elephant.weights, 4)
     red, rep = reduce_weights(elephant, "geometric", ReductionParams())
     prob = build_problem(elephant, "geometric")
-    per_vertex = lambda a: ((np.einsum("mkd,mk->md", prob.B, a) - prob.Y) ** 2).sum(axis=1)
+    def per_vertex(a):
+        return ((np.einsum("mkd,mk->md", prob.B, a) - prob.Y) ** 2).sum(axis=1)
     e = per_vertex(red.values)
     # Any feasible point is no better, e.g. normalised NNLS fits and the k-largest weights.
     rows = np.arange(0, prob.m, 97)

@@ -43,7 +43,7 @@ def cage_pose(C: np.ndarray, t: float) -> np.ndarray:
     """Cage vertex positions at clip time t in [0, 1)."""
     centroid = C.mean(axis=0)
     out = C.copy()
-    for d, (axis, amp, cycles, phase) in zip(DIRECTIONS, MOTION):
+    for d, (axis, amp, cycles, phase) in zip(DIRECTIONS, MOTION, strict=False):
         e = C[np.argmax(C @ (d / np.linalg.norm(d)))]
         p = e + 0.6 * (centroid - e)
         sigma = 0.5 * np.linalg.norm(e - p)
@@ -58,11 +58,11 @@ def main():
     sys.path.insert(0, str(HERE.parents[1]))
     import igl
 
-    from rigslim.plugins.generators.cage import build_cage, enclosure
     from rigslim.handles import cage_transforms
     from rigslim.io import read_mesh, write_dmat
     from rigslim.io.animation import transforms_to_stacked
     from rigslim.io.atomic import atomic_path
+    from rigslim.plugins.generators.cage import build_cage, enclosure
 
     mesh = read_mesh(HERE / "armadillo.obj")
     cage = build_cage(mesh, CAGE_VERTICES)

@@ -210,10 +210,11 @@ def load_gltf(path, *, allow_external_uris: bool = False) -> GltfDocument:
     check_document(doc, path)
     out = GltfDocument(path, doc, [], allow_external_uris=bool(allow_external_uris))
     try:  # pygltflib's typed parse rejects properties of the wrong type (a string where a list belongs...)
-        out.typed
+        _ = out.typed
     except (TypeError, ValueError, AttributeError, KeyError) as e:
         raise InputError(f"the document does not follow the glTF 2.0 schema ({type(e).__name__}: {e})",
-                         source=path, field="json", fix="re-export the file; check it with the glTF-Validator") from None
+                         source=path, field="json",
+                         fix="re-export the file; check it with the glTF-Validator") from None
     for i, buf in enumerate(doc.get("buffers", [])):
         if "uri" in buf:
             raw = out.uri_bytes(buf["uri"], f"buffers[{i}]", buf["byteLength"])
@@ -815,7 +816,8 @@ def read_gltf_skin(path, *, animation=None, fps: float = 30.0, mesh=None, skin=N
         as the only frame).
     fps : float
         Sampling rate: frame f is the pose at time ``f / fps`` seconds, for
-        ``f = 0 .. floor(duration * fps + 0.001)`` (a thousandth of a frame absorbs float32 key times; times past the last key clamp).
+        ``f = 0 .. floor(duration * fps + 0.001)`` (a thousandth of a frame absorbs float32 key times;
+        times past the last key clamp).
     mesh : str or int, optional
         Read only this mesh (name or index), wherever its node is; default
         every mesh that nodes of the default scene instantiate with the

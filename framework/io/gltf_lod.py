@@ -103,7 +103,7 @@ def primitive_data(skin: GltfSkin) -> list[PrimitiveData]:
                                  fix="re-export the file")
             values[name] = a
         targets = []
-        for j, t in enumerate(prim.get("targets", [])):
+        for _j, t in enumerate(prim.get("targets", [])):
             targets.append({name: np.asarray(read_accessor(doc, t[name]), np.float64).reshape(sl.count, -1)
                             for name in sorted(t)})
         idx = (np.asarray(read_accessor(doc, prim["indices"]), np.int64) if "indices" in prim
@@ -131,7 +131,7 @@ def seam_vertices(skin: GltfSkin, data: list[PrimitiveData] | None = None) -> np
     vmap = _vertex_map(skin)
     m = skin.mesh.n_vertices
     keys = []
-    for d, sl in zip(data, skin.slices):
+    for d, sl in zip(data, skin.slices, strict=False):
         cols = [v for k, v in d.attributes.items() if k not in SOFT_ATTRIBUTES]
         cols += [v for t in d.targets for v in t.values()]
         keys.append((sl, np.hstack(cols) if cols else np.zeros((sl.count, 0))))
@@ -196,7 +196,7 @@ def welded_faces(skin: GltfSkin, data: list[PrimitiveData]) -> list[tuple[np.nda
     """Per primitive: the welded faces the reader kept and their file-vertex corners (global file ids)."""
     vmap = _vertex_map(skin)
     out = []
-    for d, sl in zip(data, skin.slices):
+    for d, sl in zip(data, skin.slices, strict=False):
         Ff = d.faces + sl.start
         Fw = vmap[Ff]
         keep = (Fw[:, 0] != Fw[:, 1]) & (Fw[:, 1] != Fw[:, 2]) & (Fw[:, 2] != Fw[:, 0])
@@ -245,7 +245,7 @@ def hierarchy_attributes(skin: GltfSkin, hier, data: list[PrimitiveData]) -> lis
     vmap = _vertex_map(skin)
     m, N = hier.n_original, len(hier.V)
     blocks, widths = [], []
-    for d, sl in zip(data, skin.slices):
+    for d, sl in zip(data, skin.slices, strict=False):
         X = d.matrix()
         w = vmap[sl.start:sl.start + sl.count]
         S = np.zeros((m, X.shape[1]))
@@ -267,7 +267,7 @@ def hierarchy_attributes(skin: GltfSkin, hier, data: list[PrimitiveData]) -> lis
         x = (1.0 - t[i]) * xa + t[i] * xb
         A[m + i] = np.where(np.isnan(xa), xb, np.where(np.isnan(xb), xa, x))
     out, c = [], 0
-    for d, w in zip(data, widths):
+    for d, w in zip(data, widths, strict=False):
         B = A[:, c:c + w].copy()
         _normalise_blocks(B[m:], d.columns())
         out.append(B)
@@ -440,7 +440,7 @@ def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | No
     C = int(charts.max(initial=0)) + 1
     out = []
     offset = 0
-    for d, sl, (Fw, Ff), A in zip(data, skin.slices, welded_faces(skin, data), attributes):
+    for d, sl, (Fw, Ff), A in zip(data, skin.slices, welded_faces(skin, data), attributes, strict=False):
         Ff_all_slice = Ff
         ch_all = charts[offset:offset + len(Fw)]
         offset += len(Fw)
@@ -627,7 +627,7 @@ def attribute_quadrics(skin: GltfSkin, weights: dict[str, float], data: list[Pri
     V = skin.mesh.V
     m = len(V)
     Q = np.zeros((m, 4, 4))
-    for d, sl, (Fw, Ff) in zip(data, skin.slices, welded_faces(skin, data)):
+    for d, sl, (Fw, Ff) in zip(data, skin.slices, welded_faces(skin, data), strict=False):
         chans = []
         for name, arr in d.attributes.items():
             lam = _attribute_weight(name, weights)
@@ -674,7 +674,7 @@ def face_charts(skin: GltfSkin, data: list[PrimitiveData] | None = None) -> np.n
     data = primitive_data(skin) if data is None else data
     parts = welded_faces(skin, data)
     rows = []
-    for i, (d, sl, (Fw, Ff)) in enumerate(zip(data, skin.slices, parts)):
+    for i, (d, sl, (Fw, Ff)) in enumerate(zip(data, skin.slices, parts, strict=False)):
         cols = [v for k, v in d.attributes.items() if k not in SOFT_ATTRIBUTES]
         cols += [v for t in d.targets for v in t.values()]
         K = np.hstack(cols) if cols else np.zeros((sl.count, 0))

@@ -18,12 +18,16 @@ import copy
 import json
 import struct
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
 
 from rigslim.errors import InputError, StepError
 from rigslim.io.atomic import atomic_path, output_transaction
+
+if TYPE_CHECKING:
+    from rigslim.weights import ReducedWeights
 from rigslim.io.gltf import CHUNK_BIN, CHUNK_JSON, GLB_MAGIC, GltfSkin, skinning_sets
 
 #: Weight encodings: name -> (numpy dtype, componentType, normalized, scale).
@@ -415,7 +419,7 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
     # 2. copy every kept bufferView into the new blob byte for byte, then images stored as files
     blob = _Blob(js)
     js["bufferViews"] = [blob.add_view(doc.buffer_view_bytes(i), template=view)
-                         for i, view in zip(kept_views, js.get("bufferViews", []))]
+                         for i, view in zip(kept_views, js.get("bufferViews", []), strict=False)]
     if not js["bufferViews"]:
         js.pop("bufferViews")
     same_folder = path.parent.resolve() == doc.path.parent.resolve()
@@ -524,7 +528,7 @@ def _write_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp, lo
     skinned = _skinned_nodes(js, source)
     node_levels = {i: [] for i in skinned}
     summary = []
-    for j, level in enumerate(levels):
+    for _j, level in enumerate(levels):
         parts = level_primitives(source, hierarchy, level, data, attributes)
         values = np.asarray(level.weights.values, dtype=np.float64)
         if clamp is not None:
@@ -706,7 +710,8 @@ def rigid_parts(T: np.ndarray, *, tolerance: float = 1e-5, source=None) -> tuple
         bad = np.unravel_index(int(np.argmax(err + (det <= 0))), err.shape)
         raise InputError(f"bone transform {tuple(int(x) for x in bad)} is not a rotation plus translation "
                          f"(|R^T R - I| = {err.max():.2g}, det = {det.min():.3g})", source=source,
-                         field="animation", fix="glTF joints animate by rotation and translation: give rigid transforms")
+                         field="animation",
+                         fix="glTF joints animate by rotation and translation: give rigid transforms")
     return R, t
 
 
@@ -725,7 +730,7 @@ def _dense_rows(W: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
     return I, V
 
 
-def fixed_width_weights(W) -> "ReducedWeights":
+def fixed_width_weights(W) -> ReducedWeights:
     """Sparse (m, n) weights as :class:`ReducedWeights` with k = the largest row count."""
     from rigslim.weights import ReducedWeights
 
@@ -913,7 +918,7 @@ def write_pruned(path, doc, js: dict) -> None:
     _drop(js, "bufferViews", set(old_views) - used_views, _view_refs)
     blob = _Blob(js)
     js["bufferViews"] = [blob.add_view(doc.buffer_view_bytes(i), template=view)
-                         for i, view in zip(keep, js.get("bufferViews", []))]
+                         for i, view in zip(keep, js.get("bufferViews", []), strict=False)]
     if not js["bufferViews"]:
         js.pop("bufferViews")
     data = blob.bytes()

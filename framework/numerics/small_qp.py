@@ -166,7 +166,7 @@ def solve_small_qps(H, g, C, d, nonneg=False, x0=None, max_iter: int | None = No
     x = np.where(W, 0.0, x)
     done = np.zeros(nb, dtype=bool)
     act = np.arange(nb)
-    for it in range(max_iter):
+    for _it in range(max_iter):
         if act.size == 0:
             break
         Ha, Ca, xa, Wa = H[act], C[act], x[act], W[act]

@@ -11,8 +11,17 @@
 
 from rigslim.report.data import RenderData, load_render_data
 from rigslim.report.html import Report, build_report, write_report
-from rigslim.report.renders import (FULL_COLOR, HEAT_CMAP, LEVEL_COLOR, REDUCED_COLOR, RenderedFrame, RenderSet,
-                                    heat_colors, normal_deviation_degrees, render_rows)
+from rigslim.report.renders import (
+                                    FULL_COLOR,
+                                    HEAT_CMAP,
+                                    LEVEL_COLOR,
+                                    REDUCED_COLOR,
+                                    RenderedFrame,
+                                    RenderSet,
+                                    heat_colors,
+                                    normal_deviation_degrees,
+                                    render_rows,
+)
 from rigslim.report.summary import EvaluationRow, load_document, summarize
 
 __all__ = ["EvaluationRow", "FULL_COLOR", "HEAT_CMAP", "LEVEL_COLOR", "REDUCED_COLOR", "RenderData", "RenderSet",

@@ -93,7 +93,7 @@ def lod_section(documents) -> str:
     from rigslim.errors import RigslimError
 
     parts = []
-    for doc, source in documents:
+    for doc, _source in documents:
         base = Path(doc["pipeline"]).parent if doc.get("pipeline") else None
         for path in written_gltfs(doc, base):
             try:

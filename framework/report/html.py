@@ -33,9 +33,9 @@ from __future__ import annotations
 import base64
 import datetime as _dt
 import html
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 from rigslim.errors import RigslimError
 from rigslim.io.atomic import atomic_path, output_transaction
@@ -198,7 +198,7 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
         notes += rset.notes
     # HTML
     title = title or ("rigslim report: " + ", ".join(dict.fromkeys(r.run for r in rows)))
-    when = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    when = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     parts = [f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>",
              "<meta name=\"viewport\" content=\"width=device-width,initial-scale=1\">",
              f"<style>{_CSS}</style></head><body>",

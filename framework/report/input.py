@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Union
+from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
@@ -30,7 +30,7 @@ MAX_BYTES = 256 << 20
 MAX_RENDER_SIDE = 8192
 FIX = "give the file written by 'rigslim run --metrics FILE.json'"
 
-Number = Union[int, float, None]
+Number = int | float | None
 
 
 class _Model(BaseModel):

@@ -57,7 +57,7 @@ def error_curves(rows) -> bytes:
         if any(getattr(r, attr, None) is not None for r in rows)]
     fig = _figure(8.0, 1.0 + 2.1 * max(len(panels), 1))
     axes = fig.subplots(max(len(panels), 1), 1, sharex=True, squeeze=False)[:, 0]
-    for ax, (attr, label, scale) in zip(axes, panels):
+    for ax, (attr, label, scale) in zip(axes, panels, strict=False):
         for i, r in enumerate(rows):
             per = getattr(r, attr, None)
             if per is not None and len(per) == len(r.frames):
@@ -88,11 +88,11 @@ def error_vs_k(rows) -> bytes:
         ks = [r.k for r in group]
         for ax, mean, peak, scale in ((ax_p, "position_mean", "position_max", 1.0),
                                       (ax_n, "normal_mean", "normal_max", 180 / math.pi)):
-            pts = [(k, getattr(r, mean), getattr(r, peak)) for k, r in zip(ks, group)
+            pts = [(k, getattr(r, mean), getattr(r, peak)) for k, r in zip(ks, group, strict=False)
                    if getattr(r, mean) is not None]
             if not pts:
                 continue
-            k_, m_, x_ = zip(*pts)
+            k_, m_, x_ = zip(*pts, strict=False)
             ax.plot(k_, np.array(m_) * scale, color=color(i), marker="o", label=f"{method} mean")
             ax.plot(k_, np.array(x_) * scale, color=color(i), marker="^", ls="--", alpha=0.7, label=f"{method} max")
     ax_p.set_ylabel("position RMS (% of diagonal)")

@@ -1,4 +1,4 @@
-"""Articulated decimation plugins built on the shared collapse loop: ``quartic``, ``mohr-gleicher``, ``decoro-rusinkiewicz``.
+"""Articulated decimation plugins on the shared collapse loop: ``quartic``, ``mohr-gleicher``, ``decoro-rusinkiewicz``.
 
 Each builds a :class:`rigslim.hierarchy.ProgressiveHierarchy` of the rest
 mesh with per-vertex skin weights, fitted to the asset's example poses, and
@@ -171,7 +171,7 @@ class ArticulatedDecimator(Decimator):
         hier = simplify(mesh.V, mesh.F, W, T, X, model, min_faces=min_faces, keep_boundary=params.keep_boundary,
                         min_normal_cos=params.min_normal_cos, progress=ctx.progress, method=self.name,
                         params=params.model_dump(), backend=params.backend, locked=locked, seams=seams)
-        levels = [hier.at_faces(f, target_label(self.name, t, f)) for t, f in zip(params.targets, faces)]
+        levels = [hier.at_faces(f, target_label(self.name, t, f)) for t, f in zip(params.targets, faces, strict=False)]
         levels += [hier.at_error(e, f"{self.name}-err{e:g}") for e in params.error_targets]
         levels += [hier.adaptive(a.budget(mesh.V), a.label or f"{self.name}-adaptive{i + 1}")
                    for i, a in enumerate(params.adaptive_targets)]

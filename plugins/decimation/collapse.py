@@ -212,7 +212,7 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
             table.stamp[e] += 1
 
     evaluate(ids)
-    heap = list(zip(table.cost[ids].tolist(), table.stamp[ids].tolist(), ids.tolist()))
+    heap = list(zip(table.cost[ids].tolist(), table.stamp[ids].tolist(), ids.tolist(), strict=False))
     heapq.heapify(heap)
     dirty: set[int] = set()
     blocked_at: dict[int, set] = {}

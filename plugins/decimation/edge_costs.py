@@ -285,7 +285,7 @@ def _weight_step(H, K, a0, nonneg, ridge, free, warm, x, L, w, idx):
             free[k] = x[k] >= 0.0
         lam = _solve_free(H, ridge, g, K, free, x, L, w, idx)
     # primal-dual active set
-    for it in range(2 * K + 5):
+    for _it in range(2 * K + 5):
         rmax = 0.0
         for k in range(K):
             rmax = max(rmax, abs(_gradient(H, ridge, g, K, x, 0.0, k)))
@@ -317,7 +317,7 @@ def _weight_step(H, K, a0, nonneg, ridge, free, warm, x, L, w, idx):
         x[k] = x[k] / s if s > 1e-12 else 1.0 / K
         free[k] = x[k] > 0.0
     xs = np.empty(K)
-    for it in range(3 * K + 10):
+    for _it in range(3 * K + 10):
         lam = _solve_free(H, ridge, g, K, free, xs, L, w, idx)
         pmax, xmax = 0.0, 0.0
         for k in range(K):

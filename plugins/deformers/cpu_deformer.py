@@ -28,9 +28,16 @@ import numpy as np
 
 from rigslim.errors import StepError
 from rigslim.plugin import Deformer
-
-from rigslim.plugins.deformers.base import (COMPACT_MAX_HANDLES, DeviceBound, DeformerParams, check_weights,
-                                            fixed_k_arrays, n_handles_of, resolve_normals, rest_normal_data)
+from rigslim.plugins.deformers.base import (
+    COMPACT_MAX_HANDLES,
+    DeformerParams,
+    DeviceBound,
+    check_weights,
+    fixed_k_arrays,
+    n_handles_of,
+    resolve_normals,
+    rest_normal_data,
+)
 from rigslim.weights import ReducedWeights
 
 

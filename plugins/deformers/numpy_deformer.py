@@ -13,11 +13,9 @@ import time
 import numpy as np
 
 from rigslim.blend import blended_matrices, per_vertex_normals
-from rigslim.weights import ReducedWeights
 from rigslim.plugin import Deformer
-
-from rigslim.plugins.deformers.base import (BoundDeformer, DeformerParams, check_weights, n_handles_of,
-                                            resolve_normals)
+from rigslim.plugins.deformers.base import BoundDeformer, DeformerParams, check_weights, n_handles_of, resolve_normals
+from rigslim.weights import ReducedWeights
 
 
 class NumpyBound(BoundDeformer):

@@ -15,9 +15,17 @@ import numpy as np
 
 from rigslim.errors import StepError
 from rigslim.plugin import Deformer
-
-from rigslim.plugins.deformers.base import (DeviceBound, DeformerParams, Layout, check_weights, handle_data,
-                                            n_handles_of, pack_weights, resolve_normals, rest_normal_data)
+from rigslim.plugins.deformers.base import (
+    DeformerParams,
+    DeviceBound,
+    Layout,
+    check_weights,
+    handle_data,
+    n_handles_of,
+    pack_weights,
+    resolve_normals,
+    rest_normal_data,
+)
 
 _NORMALS_CODE = {None: 0, "blended-matrix": 1, "approximate-affine": 2}
 _LAYOUT_CODE = {"fixed": 0, "compact": 1, "csr": 2}

@@ -25,9 +25,17 @@ import numpy as np
 import rigslim.egl  # noqa: F401  (light; sets PYOPENGL_PLATFORM=egl unless set, before anything imports OpenGL)
 from rigslim.errors import StepError
 from rigslim.plugin import Deformer
-
-from rigslim.plugins.deformers.base import (DeviceBound, DeformerParams, Layout, check_weights, handle_data,
-                                            n_handles_of, pack_weights, resolve_normals, rest_normal_data)
+from rigslim.plugins.deformers.base import (
+    DeformerParams,
+    DeviceBound,
+    Layout,
+    check_weights,
+    handle_data,
+    n_handles_of,
+    pack_weights,
+    resolve_normals,
+    rest_normal_data,
+)
 
 _NORMALS_CODE = {None: 0, "blended-matrix": 1, "approximate-affine": 2}
 
@@ -51,7 +59,8 @@ def compile_program(source: str, defines: dict, varyings: list[str]):
     program = GL.glCreateProgram()
     GL.glAttachShader(program, shader)
     names = (ctypes.c_char_p * len(varyings))(*[v.encode() for v in varyings])
-    GL.glTransformFeedbackVaryings(program, len(varyings), ctypes.cast(names, ctypes.POINTER(ctypes.POINTER(ctypes.c_char))),
+    GL.glTransformFeedbackVaryings(program, len(varyings),
+                                   ctypes.cast(names, ctypes.POINTER(ctypes.POINTER(ctypes.c_char))),
                                    GL.GL_SEPARATE_ATTRIBS)
     GL.glLinkProgram(program)
     GL.glDeleteShader(shader)

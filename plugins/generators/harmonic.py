@@ -194,7 +194,7 @@ class HarmonicGrid:
         if missing.size:
             nodes = self.origin + self.h * np.stack(np.unravel_index(missing, self.shape), axis=1)
             hv = hat_values(nodes, self.V, self.F)
-            extra = dict(zip(missing.tolist(), range(len(missing))))
+            extra = dict(zip(missing.tolist(), range(len(missing)), strict=False))
         for k, c in enumerate(corners):
             wt = np.prod(np.where(c == 1, frac, 1.0 - frac), axis=1)
             inside = idx[:, k] >= 0

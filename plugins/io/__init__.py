@@ -7,9 +7,10 @@ glTF 2.0 reader and writer: :mod:`rigslim.plugins.io.gltf`.
 """
 
 from rigslim import hookimpl
+from rigslim.plugins.io.gltf import READERS as GLTF_READERS
+from rigslim.plugins.io.gltf import WRITERS as GLTF_WRITERS
 from rigslim.plugins.io.readers import READERS
 from rigslim.plugins.io.writers import WRITERS
-from rigslim.plugins.io.gltf import READERS as GLTF_READERS, WRITERS as GLTF_WRITERS
 
 
 @hookimpl

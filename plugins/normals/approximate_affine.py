@@ -1,4 +1,7 @@
-"""The ``approximate-affine`` normal estimator for cages ([P10] section 5; math in :mod:`rigslim.numerics.affine_normals`)."""
+"""The ``approximate-affine`` normal estimator for cages ([P10] section 5).
+
+The math is in :mod:`rigslim.numerics.affine_normals`.
+"""
 
 from __future__ import annotations
 
@@ -32,7 +35,7 @@ class ApproximateAffineNormals(NormalEstimator):
 
     def rest_fit(self, mesh, weights, handles) -> AffineFitRest:
         key = (mesh, weights, handles)
-        if self._key is None or any(a is not b for a, b in zip(self._key, key)):
+        if self._key is None or any(a is not b for a, b in zip(self._key, key, strict=False)):
             C0 = cage_rest_positions(handles)
             self._rest = affine_fit_rest(weights, C0, per_vertex_normals(mesh.V, mesh.F))
             self._key = key

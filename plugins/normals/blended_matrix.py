@@ -1,4 +1,7 @@
-"""The ``blended-matrix`` normal estimator for skeletons ([P10] section 5; math in :mod:`rigslim.numerics.blended_normals`)."""
+"""The ``blended-matrix`` normal estimator for skeletons ([P10] section 5).
+
+The math is in :mod:`rigslim.numerics.blended_normals`.
+"""
 
 from __future__ import annotations
 

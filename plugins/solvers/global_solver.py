@@ -18,8 +18,8 @@ symmetric positive definite system
 assembled blockwise in the null-space coordinates without forming ``H``
 (:func:`rigslim.plugins.solvers.nullspace.nullspace_system`; ``H`` and ``f``
 are kept here, :func:`assemble_hessian` and :func:`linear_term`, as the
-reference the tests check that system against) and solved by a sparse direct factorisation: Intel MKL PARDISO's supernodal
-Cholesky (``pypardiso``, the ``fast-direct`` extra; nested-dissection
+reference the tests check that system against) and solved by a sparse direct
+factorisation: Intel MKL PARDISO's supernodal Cholesky (``pypardiso``, the ``fast-direct`` extra; nested-dissection
 ordering, real symmetric positive definite mode on the upper triangle) when
 it is installed, SuperLU otherwise (symmetric minimum-degree ordering, no
 pivoting). This is the exact minimiser without inequality constraints, and

@@ -28,8 +28,8 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from rigslim.plugins.solvers.coloring import color_classes, distance2_coloring
 from rigslim.numerics.small_qp import solve_small_qps
+from rigslim.plugins.solvers.coloring import color_classes, distance2_coloring
 
 
 def feasible_start(prob) -> tuple[np.ndarray, int]:

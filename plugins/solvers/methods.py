@@ -34,13 +34,13 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from rigslim.errors import StepError
+from rigslim.numerics.small_qp import solve_small_qps
 from rigslim.plugin import Params, WeightSolver
 from rigslim.plugins.solvers.auto_lambda import GRID, choose_position_weight
+from rigslim.plugins.solvers.geometric_kernel import geometric_nonnegative
 from rigslim.plugins.solvers.global_solver import global_solve
 from rigslim.plugins.solvers.local_solver import feasible_start, kkt_residual, local_solve
 from rigslim.plugins.solvers.multilevel_solver import multilevel_solve
-from rigslim.numerics.small_qp import solve_small_qps
-from rigslim.plugins.solvers.geometric_kernel import geometric_nonnegative
 from rigslim.plugins.solvers.problem import RIDGE, build_problem, default_nonnegative, initial_weights
 from rigslim.weights import ReducedWeights
 

@@ -6,8 +6,8 @@ import numpy as np
 from pydantic import Field
 
 from rigslim import hookimpl
-from rigslim.plugin import InfluenceSelector, Params
 from rigslim.numerics.k_largest import check_k, k_largest
+from rigslim.plugin import InfluenceSelector, Params
 
 
 class LargestAbsSelector(InfluenceSelector):
