@@ -10,6 +10,8 @@ pymeshlab, so the hierarchy is ``None``.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from pydantic import Field
 
@@ -18,6 +20,10 @@ from rigslim.hierarchy import SimplifiedLevel
 from rigslim.plugin import Decimation, Decimator, Params
 from rigslim.plugins.decimation.articulated import limited_weights, target_faces, target_label
 from rigslim.weights import ReducedWeights
+
+if TYPE_CHECKING:
+    from rigslim.asset import Asset
+    from rigslim.plugin import Decimation, Params, StepContext
 
 
 def nearest_vertex_weights(V_orig: np.ndarray, W: np.ndarray, V_new: np.ndarray) -> ReducedWeights:
@@ -45,7 +51,7 @@ class StaticQSlim(Decimator):
         preserve_normal: bool = True
         quality_threshold: float = Field(default=0.3, ge=0.0, le=1.0)
 
-    def decimate(self, asset, params, ctx) -> Decimation:
+    def decimate(self, asset: Asset, params: Params, ctx: StepContext) -> Decimation:
         try:
             import pymeshlab
         except ImportError:  # pragma: no cover - pymeshlab is in the 'metro' extra

@@ -12,11 +12,18 @@ Both are chosen by name (``writer: hierarchy`` / ``writer: levels``), since
 from __future__ import annotations
 
 import json
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from rigslim.errors import StepError
 from rigslim.plugin import Params, Writer
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from rigslim.asset import Asset
+    from rigslim.plugin import StepContext
 
 
 def write_obj(path, V: np.ndarray, F: np.ndarray) -> None:
@@ -52,7 +59,7 @@ class HierarchyWriter(Writer):
     summary = "the progressive hierarchy of a decimate step (every collapse) as a compressed .npz"
     suffixes = ()
 
-    def write(self, path, asset, params, ctx):
+    def write(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
         hier = asset.hierarchy
         if hier is None:
             raise StepError("there is no progressive hierarchy to write", field="write",
@@ -69,7 +76,7 @@ class LevelsWriter(Writer):
     class Params(Params):
         binary: bool = True
 
-    def write(self, path, asset, params, ctx):
+    def write(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
         levels = asset.levels
         if not levels:
             raise StepError("there are no simplified levels to write", field="write",

@@ -6,11 +6,18 @@ it in ``asset.extras["volume"]``) and restricted to its surface vertices.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+import scipy.sparse as sp
 from pydantic import Field
 
 from rigslim.errors import StepError
 from rigslim.plugin import Params, WeightGenerator
+
+if TYPE_CHECKING:
+    from rigslim.asset import Asset
+    from rigslim.plugin import StepContext
 
 
 def bounded_biharmonic_weights(V, T, joints, bones, *, max_iter: int = 8, report: dict | None = None) -> np.ndarray:
@@ -79,7 +86,7 @@ class BBWGenerator(WeightGenerator):
     class Params(Params):
         max_iter: int = Field(8, ge=1, le=1000, description="active-set iterations of igl.bbw")
 
-    def generate(self, asset, params, ctx):
+    def generate(self, asset: Asset, params: Params, ctx: StepContext) -> sp.spmatrix | np.ndarray:
         h = asset.handles
         if h.is_cage or h.joints is None:
             raise StepError("bbw needs a skeleton, the handles are a cage", field="generate.bbw",

@@ -8,6 +8,8 @@ to the vertices that see it as their nearest bone.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import scipy.sparse as sp
 from pydantic import Field
@@ -16,6 +18,10 @@ from scipy.sparse.linalg import splu
 
 from rigslim.errors import StepError
 from rigslim.plugin import Params, WeightGenerator
+
+if TYPE_CHECKING:
+    from rigslim.asset import Asset
+    from rigslim.plugin import StepContext
 
 
 def point_segment_distances(P: np.ndarray, A: np.ndarray, B: np.ndarray):
@@ -185,7 +191,7 @@ class BoneHeatGenerator(WeightGenerator):
         heat: float = Field(1.0, gt=0, description="c in H_jj = c / d_j^2")
         visibility: bool = Field(True, description="only bones a vertex sees heat it")
 
-    def generate(self, asset, params, ctx):
+    def generate(self, asset: Asset, params: Params, ctx: StepContext) -> sp.spmatrix | np.ndarray:
         h = asset.handles
         if h.is_cage or h.joints is None:
             raise StepError("bone-heat needs a skeleton, the handles are a cage", field="generate.bone-heat",

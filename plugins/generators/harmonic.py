@@ -11,7 +11,7 @@ continuous ones' non-negativity and partition of unity exactly.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import scipy.sparse as sp
@@ -20,6 +20,10 @@ from scipy.sparse.linalg import splu
 
 from rigslim.plugin import WeightGenerator
 from rigslim.plugins.generators.cage_setup import CageParams, prepare_cage
+
+if TYPE_CHECKING:
+    from rigslim.asset import Asset
+    from rigslim.plugin import Params, StepContext
 
 #: Offsets of the 7-point stencil's neighbours.
 _NEIGHBOURS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]])
@@ -242,7 +246,7 @@ class HarmonicGenerator(WeightGenerator):
         resolution: int = Field(64, ge=8, le=256, description="grid cells along the cage's longest side")
         solver: Literal["cg", "lu"] = Field("cg", description="conjugate gradients or sparse LU")
 
-    def generate(self, asset, params, ctx):
+    def generate(self, asset: Asset, params: Params, ctx: StepContext) -> sp.spmatrix | np.ndarray:
         cage = prepare_cage(asset, params, ctx, "generate.harmonic")
         ctx.report["harmonic"] = {}
         W = harmonic_coordinates(asset.mesh.V, cage.V, cage.F, resolution=params.resolution, solver=params.solver,

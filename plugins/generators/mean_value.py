@@ -11,7 +11,7 @@ get the (well-defined, possibly negative) exterior coordinates.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import scipy.sparse as sp
@@ -19,6 +19,10 @@ import scipy.sparse as sp
 from rigslim.errors import InputError
 from rigslim.plugin import WeightGenerator
 from rigslim.plugins.generators.cage_setup import CageParams, prepare_cage
+
+if TYPE_CHECKING:
+    from rigslim.asset import Asset
+    from rigslim.plugin import Params, StepContext
 
 #: A point closer than ``PLANE_EPS * sqrt(2 * area)`` to a face's plane is "in the plane"
 #: (on the face: barycentric coordinates; outside it: the face is skipped).
@@ -215,7 +219,7 @@ class MeanValueGenerator(WeightGenerator):
         backend: Literal["numpy", "opencl"] = "numpy"
         device: str | None = None
 
-    def generate(self, asset, params, ctx):
+    def generate(self, asset: Asset, params: Params, ctx: StepContext) -> sp.spmatrix | np.ndarray:
         cage = prepare_cage(asset, params, ctx, "generate.mean-value")
         if params.backend == "opencl":
             W = mean_value_coordinates_opencl(asset.mesh.V, cage.V, cage.F, device=params.device)

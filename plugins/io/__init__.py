@@ -6,18 +6,25 @@ Writers: DMAT (dense reduced weights) and ``.npz`` (fixed-k reduced weights).
 glTF 2.0 reader and writer: :mod:`rigslim.plugins.io.gltf`.
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 from rigslim import hookimpl
 from rigslim.plugins.io.gltf import READERS as GLTF_READERS
 from rigslim.plugins.io.gltf import WRITERS as GLTF_WRITERS
 from rigslim.plugins.io.readers import READERS
 from rigslim.plugins.io.writers import WRITERS
 
+if TYPE_CHECKING:
+    from rigslim.plugin import Reader, Writer
+
 
 @hookimpl
-def rigslim_readers():
+def rigslim_readers() -> list[Reader]:
     return [cls() for cls in READERS + GLTF_READERS]
 
 
 @hookimpl
-def rigslim_writers():
+def rigslim_writers() -> list[Writer]:
     return [cls() for cls in WRITERS + GLTF_WRITERS]

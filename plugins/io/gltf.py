@@ -8,9 +8,15 @@ skinned document from libigl-style inputs. See docs/gltf.md.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from rigslim.plugin import Params, Reader, Writer
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from rigslim.asset import Asset
+    from rigslim.plugin import Params, StepContext
 
 
 class GltfReader(Reader):
@@ -29,7 +35,7 @@ class GltfReader(Reader):
         times: list[float] | None = None
         allow_external_uris: bool = False
 
-    def read(self, path, asset, params, ctx):
+    def read(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
         from rigslim.io.gltf import read_gltf_skin
 
         skin = read_gltf_skin(path, animation=params.animation, fps=params.fps, mesh=params.mesh,
@@ -61,7 +67,7 @@ class GltfWriter(Writer):
         """With no solve step, keep the file's skinning bytes when they sum to one (else write them normalised)."""
         clamp_negative: bool = False
 
-    def write(self, path, asset, params, ctx):
+    def write(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
         from rigslim.io.gltf_write import export_skinned, fixed_width_weights, write_gltf
 
         levels = (asset.levels or None) if params.levels else None

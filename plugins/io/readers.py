@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from rigslim.errors import InputError
 from rigslim.handles import Handles
@@ -11,6 +12,10 @@ from rigslim.io.meshfile import MESH_SUFFIXES
 from rigslim.plugin import Params, Reader
 from rigslim.weights import validate_weights
 
+if TYPE_CHECKING:
+    from rigslim.asset import Asset
+    from rigslim.plugin import Params, StepContext
+
 
 class MeshReader(Reader):
     name = "mesh"
@@ -18,7 +23,7 @@ class MeshReader(Reader):
     role = "mesh"
     suffixes = MESH_SUFFIXES
 
-    def read(self, path: Path, asset, params, ctx):
+    def read(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
         if path.suffix.lower() == ".mesh":
             V, F, volume = read_medit_surface(path)
             from rigslim.mesh import Mesh
@@ -35,7 +40,7 @@ class TGFReader(Reader):
     role = "skeleton"
     suffixes = (".tgf",)
 
-    def read(self, path, asset, params, ctx):
+    def read(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
         asset.handles = read_tgf(path)
 
 
@@ -45,7 +50,7 @@ class CageReader(Reader):
     role = "cage"
     suffixes = (".obj", ".off", ".ply", ".stl")
 
-    def read(self, path, asset, params, ctx):
+    def read(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
         asset.handles = Handles.from_cage(read_mesh(path), source=str(path))
 
 
@@ -59,7 +64,7 @@ class DMATWeightsReader(Reader):
     class Params(Params):
         normalize: bool = False
 
-    def read(self, path, asset, params, ctx):
+    def read(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
         if asset.mesh is None:
             raise InputError("weights are given but no mesh", source=path, field="inputs.mesh",
                              fix="add 'mesh:' under inputs")
@@ -75,7 +80,7 @@ class StackedAnimationReader(Reader):
     suffixes = (".dmat",)
     after = ("mesh", "skeleton", "cage", "weights")
 
-    def read(self, path, asset, params, ctx):
+    def read(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
         n = asset.handles.n if asset.handles is not None else None
         if n is None and asset.weights is not None:
             n = asset.weights.shape[1]

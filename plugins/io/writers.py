@@ -2,9 +2,17 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from rigslim.errors import StepError
 from rigslim.io import write_dmat, write_reduced_npz
 from rigslim.plugin import Params, Writer
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from rigslim.asset import Asset
+    from rigslim.plugin import Params, StepContext
 
 
 def _reduced(asset):
@@ -17,7 +25,7 @@ class NPZWriter(Writer):
     summary = "reduced weights as fixed-k indices (int32) and values in a compressed .npz"
     suffixes = (".npz",)
 
-    def write(self, path, asset, params, ctx):
+    def write(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
         write_reduced_npz(path, _reduced(asset))
 
 
@@ -29,7 +37,7 @@ class DMATWriter(Writer):
     class Params(Params):
         binary: bool = True
 
-    def write(self, path, asset, params, ctx):
+    def write(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
         reduced = _reduced(asset)
         if reduced.n_vertices * reduced.n_handles > 2e8:
             raise StepError("the dense matrix would exceed 200M entries", field="write",

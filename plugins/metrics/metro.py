@@ -8,11 +8,19 @@ compared with the full deformation.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from pydantic import Field
 
 from rigslim.errors import StepError
 from rigslim.numerics.surface_distance import metro_distance
 from rigslim.plugin import Metric, Params, aggregate
+
+if TYPE_CHECKING:
+    from typing import Any
+
+    from rigslim.evaluation import Evaluation
+    from rigslim.plugin import Params, StepContext
 
 __all__ = ["Metro", "metro_distance"]
 
@@ -25,7 +33,8 @@ class Metro(Metric):
         samples: int = Field(default=20000, ge=100)
         """Surface samples per direction and pose."""
 
-    def compute(self, evaluation, params, ctx=None):
+    def compute(self, evaluation: Evaluation, params: Params,
+                ctx: StepContext | None = None) -> dict[str, Any]:
         try:
             import pymeshlab  # noqa: F401
         except ImportError:  # pragma: no cover - pymeshlab is in the 'metro' extra

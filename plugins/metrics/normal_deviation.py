@@ -20,10 +20,18 @@ Each is aggregated over frames as ``{"mean", "max", "per_frame"}``.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from rigslim.numerics.normal_error import normal_angles, normal_rms_angle, normal_statistics
 from rigslim.plugin import Metric, aggregate
+
+if TYPE_CHECKING:
+    from typing import Any
+
+    from rigslim.evaluation import Evaluation
+    from rigslim.plugin import Params, StepContext
 
 __all__ = ["NormalDeviation", "normal_angles", "normal_rms_angle", "normal_statistics"]
 
@@ -34,7 +42,8 @@ class NormalDeviation(Metric):
                "area-weighted normals of the full deformation: RMS, median, p95, p99, count > 90 deg, "
                "area-weighted RMS")
 
-    def compute(self, evaluation, params, ctx=None):
+    def compute(self, evaluation: Evaluation, params: Params,
+                ctx: StepContext | None = None) -> dict[str, Any]:
         areas = np.asarray(evaluation.mesh.massmatrix.diagonal(), dtype=np.float64)
         frames = [normal_statistics(normal_angles(evaluation.reduced_normals(j), evaluation.full_normals(j)), areas)
                   for j in range(len(evaluation))]

@@ -2,9 +2,17 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from rigslim.plugin import Metric, aggregate
+
+if TYPE_CHECKING:
+    from typing import Any
+
+    from rigslim.evaluation import Evaluation
+    from rigslim.plugin import Params, StepContext
 
 
 def position_rms(X: np.ndarray, Xhat: np.ndarray) -> float:
@@ -16,7 +24,8 @@ class PositionRMS(Metric):
     name = "position-rms"
     summary = "RMS over vertices of |v(alpha) - vhat| per test frame, % of the rest bounding-box diagonal"
 
-    def compute(self, evaluation, params, ctx=None):
+    def compute(self, evaluation: Evaluation, params: Params,
+                ctx: StepContext | None = None) -> dict[str, Any]:
         scale = 100.0 / evaluation.mesh.bbox_diagonal
         per_frame = [scale * position_rms(evaluation.reduced_positions(j), evaluation.full_positions(j))
                      for j in range(len(evaluation))]

@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from rigslim.errors import StepError
 from rigslim.plugin import Params, Writer
+
+if TYPE_CHECKING:
+    from rigslim.asset import Asset
+    from rigslim.plugin import StepContext
 
 
 class ReportWriter(Writer):
@@ -32,7 +36,7 @@ class ReportWriter(Writer):
         up_axis: Literal[0, 1, 2] = 1
         render: bool = True
 
-    def write(self, path, asset, params, ctx):
+    def write(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
         from rigslim.report import RenderData, build_report, load_document, write_report
 
         document = ctx.document

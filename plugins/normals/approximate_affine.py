@@ -5,6 +5,8 @@ The math is in :mod:`rigslim.numerics.affine_normals`.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from rigslim.blend import per_vertex_normals
@@ -16,6 +18,12 @@ from rigslim.numerics.affine_normals import (
 )
 from rigslim.plugin import NormalEstimator, Params
 from rigslim.plugins.normals.backends import Backend, normals_from_backend
+
+if TYPE_CHECKING:
+    from rigslim.handles import Handles
+    from rigslim.mesh import Mesh
+    from rigslim.plugin import StepContext
+    from rigslim.weights import ReducedWeights
 
 
 class ApproximateAffineNormals(NormalEstimator):
@@ -41,7 +49,8 @@ class ApproximateAffineNormals(NormalEstimator):
             self._key = key
         return self._rest
 
-    def estimate(self, mesh, weights, handles, T, positions, params, ctx=None):
+    def estimate(self, mesh: Mesh, weights: ReducedWeights, handles: Handles | None, T: np.ndarray,
+                 positions: np.ndarray | None, params: Params, ctx: StepContext | None = None) -> np.ndarray:
         C0 = cage_rest_positions(handles)
         if params.backend != "numpy":
             return normals_from_backend(params.backend, "approximate-affine", mesh, weights, handles, T,

@@ -5,6 +5,8 @@ The math is in :mod:`rigslim.numerics.blended_normals`.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from rigslim.blend import per_vertex_normals
@@ -12,6 +14,12 @@ from rigslim.errors import StepError
 from rigslim.numerics.blended_normals import blended_matrix_normals
 from rigslim.plugin import NormalEstimator, Params
 from rigslim.plugins.normals.backends import Backend, normals_from_backend
+
+if TYPE_CHECKING:
+    from rigslim.handles import Handles
+    from rigslim.mesh import Mesh
+    from rigslim.plugin import StepContext
+    from rigslim.weights import ReducedWeights
 
 
 class BlendedMatrixNormals(NormalEstimator):
@@ -32,7 +40,8 @@ class BlendedMatrixNormals(NormalEstimator):
             self._rest = (mesh, per_vertex_normals(mesh.V, mesh.F))
         return self._rest[1]
 
-    def estimate(self, mesh, weights, handles, T, positions, params, ctx=None):
+    def estimate(self, mesh: Mesh, weights: ReducedWeights, handles: Handles | None, T: np.ndarray,
+                 positions: np.ndarray | None, params: Params, ctx: StepContext | None = None) -> np.ndarray:
         if handles is not None and handles.is_cage:
             raise StepError("blended-matrix normals need bone transforms; a cage's blended linear part is zero",
                             field="normals", fix="use 'normals: approximate-affine' for cages")

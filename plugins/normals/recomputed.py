@@ -2,8 +2,18 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+import numpy as np
+
 from rigslim.blend import per_vertex_normals
 from rigslim.plugin import NormalEstimator
+
+if TYPE_CHECKING:
+    from rigslim.handles import Handles
+    from rigslim.mesh import Mesh
+    from rigslim.plugin import Params, StepContext
+    from rigslim.weights import ReducedWeights
 
 
 class RecomputedNormals(NormalEstimator):
@@ -11,5 +21,6 @@ class RecomputedNormals(NormalEstimator):
     summary = ("area-weighted vertex normals of the deformed mesh (precomputed face->vertex operator, "
                "compiled; equal to igl.per_vertex_normals to rounding)")
 
-    def estimate(self, mesh, weights, handles, T, positions, params, ctx=None):
+    def estimate(self, mesh: Mesh, weights: ReducedWeights, handles: Handles | None, T: np.ndarray,
+                 positions: np.ndarray | None, params: Params, ctx: StepContext | None = None) -> np.ndarray:
         return per_vertex_normals(positions, mesh.F)

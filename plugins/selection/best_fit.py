@@ -31,7 +31,7 @@ influences, and the time.
 from __future__ import annotations
 
 import time
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import scipy.sparse as sp
@@ -41,6 +41,10 @@ from rigslim.plugin import InfluenceSelector, Params
 from rigslim.plugins.selection.k_largest import check_k
 from rigslim.plugins.selection.sparse_fit import sparse_fit
 from rigslim.weights import InfluenceSets
+
+if TYPE_CHECKING:
+    from rigslim.asset import Asset
+    from rigslim.plugin import Params, StepContext
 
 
 def rank_entries(A: sp.csr_matrix, score: np.ndarray, k: int) -> InfluenceSets:
@@ -108,7 +112,7 @@ class BestFitSelector(InfluenceSelector):
         swaps: int = Field(0, ge=0, description="by: error: passes of single exchanges (member for "
                            "non-member) that lower the example-pose error further")
 
-    def select(self, asset, params, ctx):
+    def select(self, asset: Asset, params: Params, ctx: StepContext) -> InfluenceSets:
         asset.require("mesh", "handles", "weights", "poses", "split", step="select: best-fit")
         check_k(params.k, asset.weights.shape[1])
         sets, report = best_fit(asset, params.k, params.by, swaps=params.swaps)

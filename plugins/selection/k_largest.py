@@ -2,10 +2,17 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from pydantic import Field
 
 from rigslim.numerics.k_largest import check_k, k_largest
 from rigslim.plugin import InfluenceSelector, Params
+
+if TYPE_CHECKING:
+    from rigslim.asset import Asset
+    from rigslim.plugin import StepContext
+    from rigslim.weights import InfluenceSets
 
 __all__ = ["KLargestSelector", "check_k", "k_largest"]
 
@@ -17,7 +24,7 @@ class KLargestSelector(InfluenceSelector):
     class Params(Params):
         k: int = Field(ge=1, description="influences per vertex")
 
-    def select(self, asset, params, ctx):
+    def select(self, asset: Asset, params: Params, ctx: StepContext) -> InfluenceSets:
         asset.require("weights", step="select: k-largest")
         check_k(params.k, asset.weights.shape[1])
         return k_largest(asset.weights, params.k)

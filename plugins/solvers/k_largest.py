@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import scipy.sparse as sp
 
 from rigslim.errors import StepError
 from rigslim.plugin import WeightSolver
 from rigslim.weights import InfluenceSets, ReducedWeights
+
+if TYPE_CHECKING:
+    from rigslim.asset import Asset
+    from rigslim.plugin import Params, StepContext
 
 
 def gather(A: sp.csr_matrix, influences: InfluenceSets) -> np.ndarray:
@@ -43,6 +49,6 @@ class KLargestSolver(WeightSolver):
     name = "k-largest"
     summary = "keep the selected input weights and divide by their sum"
 
-    def solve(self, asset, params, ctx):
+    def solve(self, asset: Asset, params: Params, ctx: StepContext) -> ReducedWeights:
         asset.require("weights", "influences", step="solve: k-largest")
         return k_largest_weights(asset.weights, asset.influences)

@@ -28,7 +28,7 @@ and, when the equality-only optimum is known, the relative gap to it.
 from __future__ import annotations
 
 import time
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from pydantic import Field, field_validator
@@ -43,6 +43,10 @@ from rigslim.plugins.solvers.local_solver import feasible_start, kkt_residual, l
 from rigslim.plugins.solvers.multilevel_solver import multilevel_solve
 from rigslim.plugins.solvers.problem import RIDGE, build_problem, default_nonnegative, initial_weights
 from rigslim.weights import ReducedWeights
+
+if TYPE_CHECKING:
+    from rigslim.asset import Asset
+    from rigslim.plugin import Params, StepContext
 
 
 class ReductionParams(Params):
@@ -200,7 +204,7 @@ class GeometricSolver(WeightSolver):
     summary = "per-vertex least squares fit of the example poses' positions ([P10] eq. 3)"
     Params = ReductionParams
 
-    def solve(self, asset, params, ctx):
+    def solve(self, asset: Asset, params: Params, ctx: StepContext) -> ReducedWeights:
         return reduce_weights(asset, "geometric", params, ctx)[0]
 
 
@@ -209,7 +213,7 @@ class SmoothSolver(WeightSolver):
     summary = "weights whose Laplacian best matches the input weights' ([P10] sec. 3.1; no poses)"
     Params = LaplacianParams
 
-    def solve(self, asset, params, ctx):
+    def solve(self, asset: Asset, params: Params, ctx: StepContext) -> ReducedWeights:
         return reduce_weights(asset, "smooth", params, ctx)[0]
 
 
@@ -218,7 +222,7 @@ class PoissonSolver(WeightSolver):
     summary = "weights whose deformed Laplacians match the full deformation's ([P10] eq. 5)"
     Params = PoissonParams
 
-    def solve(self, asset, params, ctx):
+    def solve(self, asset: Asset, params: Params, ctx: StepContext) -> ReducedWeights:
         if params.position_weight != "auto":
             return reduce_weights(asset, "poisson", params, ctx)[0]
         asset.require("mesh", "handles", "weights", "influences", "poses", "split", step="solve: poisson")
