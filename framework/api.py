@@ -26,7 +26,7 @@ from rigslim.handles import Handles
 from rigslim.host import PluginHost, PluginInfo, get_host
 from rigslim.mesh import Mesh
 from rigslim.pipeline import PipelineDoc, RunResult, Step, load_pipeline, run_pipeline
-from rigslim.plugin import Decimation, StepContext
+from rigslim.plugin import Decimation, Decimator, StepContext
 from rigslim.poses import FrameSplit, Poses
 from rigslim.weights import ReducedWeights, validate_weights
 
@@ -220,6 +220,7 @@ def simplify(mesh: Mesh | tuple[np.ndarray, np.ndarray], weights: Any, poses: Po
     host = host or get_host()
     asset = _asset(mesh, weights, poses, handles)
     decimator = host.get("articulated-decimation", method)
+    assert isinstance(decimator, Decimator)
     ctx = StepContext()
     result = decimator.decimate(asset, decimator.parse_params({"targets": list(targets), **params}), ctx)
     if report is not None:
