@@ -13,15 +13,8 @@ from scipy.spatial.transform import Rotation
 
 from rigslim.blend import linear_blend
 from rigslim.errors import InputError, RigslimError
-from rigslim.io.gltf import (
-    load_gltf,
-    quaternion_matrix,
-    read_accessor,
-    read_gltf_skin,
-    sample_sampler,
-    slerp,
-    trs_matrix,
-)
+from rigslim.io.gltf import load_gltf, read_accessor, read_gltf_skin, sample_sampler
+from rigslim.io.transforms import quaternion_matrix, slerp, trs_matrix
 
 GLTF = Path(__file__).resolve().parents[1] / "examples" / "data" / "gltf"
 

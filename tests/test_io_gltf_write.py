@@ -18,7 +18,8 @@ from support.gltf_validator import validate_gltf, validation_errors, validator_a
 from rigslim.blend import linear_blend
 from rigslim.errors import InputError, StepError
 from rigslim.io.gltf import load_gltf, read_accessor, read_gltf_skin, skinning_sets
-from rigslim.io.gltf_write import export_skinned, matrix_quaternion, quantize_weights, skinning_sets_arrays, write_gltf
+from rigslim.io.gltf_write import export_skinned, quantize_weights, skinning_sets_arrays, write_gltf
+from rigslim.io.transforms import matrix_quaternion
 from rigslim.poses import Poses
 from rigslim.weights import ReducedWeights
 

@@ -43,6 +43,7 @@ import scipy.sparse as sp
 
 from rigslim.errors import InputError, brief
 from rigslim.handles import Handles
+from rigslim.io.transforms import slerp, trs_matrix
 from rigslim.mesh import Mesh
 from rigslim.poses import Poses
 from rigslim.weights import validate_weights
@@ -304,48 +305,6 @@ def read_accessor(doc: GltfDocument, index: int, *, normalize: bool = True) -> n
 # --------------------------------------------------------------------------- transforms
 
 
-def quaternion_matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices of unit quaternions in glTF order ``(x, y, z, w)``.
-
-    Parameters
-    ----------
-    q : (..., 4) array
-
-    Returns
-    -------
-    (..., 3, 3) array
-
-    Notes
-    -----
-    ``R = I + 2 w [u]_x + 2 [u]_x^2`` for ``q = (u, w)`` normalised first.
-    """
-    q = np.asarray(q, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    x, y, z, w = np.moveaxis(q, -1, 0)
-    R = np.empty(q.shape[:-1] + (3, 3))
-    R[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    R[..., 0, 1] = 2 * (x * y - z * w)
-    R[..., 0, 2] = 2 * (x * z + y * w)
-    R[..., 1, 0] = 2 * (x * y + z * w)
-    R[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    R[..., 1, 2] = 2 * (y * z - x * w)
-    R[..., 2, 0] = 2 * (x * z - y * w)
-    R[..., 2, 1] = 2 * (y * z + x * w)
-    R[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return R
-
-
-def trs_matrix(t: np.ndarray, r: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """(..., 4, 4) matrices ``T @ R @ S`` from translations, quaternions (x, y, z, w) and scales."""
-    t, r, s = (np.asarray(x, dtype=np.float64) for x in (t, r, s))
-    shape = np.broadcast_shapes(t.shape[:-1], r.shape[:-1], s.shape[:-1])
-    M = np.zeros(shape + (4, 4))
-    M[..., :3, :3] = quaternion_matrix(r) * s[..., None, :]
-    M[..., :3, 3] = t
-    M[..., 3, 3] = 1.0
-    return M
-
-
 def node_trs(node: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """A node's rest translation, rotation and scale, or None when it has a ``matrix``."""
     if "matrix" in node:
@@ -409,31 +368,6 @@ def world_matrices(local: np.ndarray, parent: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- animation
-
-
-def slerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Spherical linear interpolation of unit quaternions along the shorter arc.
-
-    Notes
-    -----
-    ``slerp(q0, q1, u) = sin((1-u) a) / sin a * q0 + sin(u a) / sin a * q1``
-    with ``cos a = |q0 . q1|`` and ``q1`` negated when ``q0 . q1 < 0``
-    (glTF 2.0 Appendix C); falls back to normalised lerp when ``a`` is tiny.
-    """
-    q0 = np.asarray(q0, float)
-    q1 = np.asarray(q1, float)
-    u = np.asarray(u, float)[..., None]
-    d = np.sum(q0 * q1, axis=-1, keepdims=True)
-    q1 = np.where(d < 0, -q1, q1)
-    d = np.abs(d)
-    a = np.arccos(np.clip(d, -1.0, 1.0))
-    sa = np.sin(a)
-    small = sa < 1e-6
-    sa_safe = np.where(small, 1.0, sa)
-    w0 = np.where(small, 1 - u, np.sin((1 - u) * a) / sa_safe)
-    w1 = np.where(small, u, np.sin(u * a) / sa_safe)
-    q = w0 * q0 + w1 * q1
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
 def sample_sampler(times: np.ndarray, values: np.ndarray, interpolation: str, t: np.ndarray,

@@ -23,8 +23,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 import scipy.sparse as sp
 
-from rigslim.errors import InputError, StepError
+from rigslim.errors import StepError
 from rigslim.io.atomic import atomic_path, output_transaction
+from rigslim.io.transforms import matrix_quaternion, rigid_parts
 
 if TYPE_CHECKING:
     from rigslim.weights import ReducedWeights
@@ -634,85 +635,6 @@ def _write_document(path: Path, js: dict, data: bytes, *, embed: bool = False) -
 
 
 # --------------------------------------------------------------------------- export from libigl data
-
-
-def matrix_quaternion(R: np.ndarray) -> np.ndarray:
-    """Unit quaternions ``(x, y, z, w)`` of rotation matrices (Shepperd's method).
-
-    Parameters
-    ----------
-    R : (..., 3, 3) rotation matrices
-
-    Returns
-    -------
-    (..., 4) array with ``w >= 0``
-
-    Notes
-    -----
-    Picks the largest of ``4w^2 = 1 + tr R`` and ``4x^2 = 1 + R_00 - R_11 - R_22``
-    (and y, z alike) for stability, then recovers the other components from
-    the off-diagonal sums and differences.
-    """
-    R = np.asarray(R, dtype=np.float64)
-    shape = R.shape[:-2]
-    R = R.reshape(-1, 3, 3)
-    tr = np.trace(R, axis1=1, axis2=2)
-    d = np.stack([tr, R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], 1)
-    case = np.argmax(d, axis=1)
-    q = np.empty((len(R), 4))
-    for c in range(4):
-        s = case == c
-        if not s.any():
-            continue
-        M = R[s]
-        if c == 0:
-            w = 0.5 * np.sqrt(np.maximum(1 + tr[s], 0))
-            f = 0.25 / w
-            q[s] = np.stack([(M[:, 2, 1] - M[:, 1, 2]) * f, (M[:, 0, 2] - M[:, 2, 0]) * f,
-                             (M[:, 1, 0] - M[:, 0, 1]) * f, w], 1)
-        else:
-            i, j, k = [(0, 1, 2), (1, 2, 0), (2, 0, 1)][c - 1]
-            a = 0.5 * np.sqrt(np.maximum(1 + M[:, i, i] - M[:, j, j] - M[:, k, k], 0))
-            f = 0.25 / a
-            v = np.empty((s.sum(), 4))
-            v[:, i] = a
-            v[:, j] = (M[:, j, i] + M[:, i, j]) * f
-            v[:, k] = (M[:, k, i] + M[:, i, k]) * f
-            v[:, 3] = (M[:, k, j] - M[:, j, k]) * f
-            q[s] = v
-    q *= np.where(q[:, 3:] < 0, -1.0, 1.0)
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    return q.reshape(shape + (4,))
-
-
-def rigid_parts(T: np.ndarray, *, tolerance: float = 1e-5, source=None) -> tuple[np.ndarray, np.ndarray]:
-    """Split 3x4 transforms into rotations and translations, checking that they are rigid.
-
-    Parameters
-    ----------
-    T : (..., 3, 4) array
-
-    Returns
-    -------
-    R : (..., 3, 3), t : (..., 3)
-
-    Notes
-    -----
-    Rigid means ``||R^T R - I||_max <= tolerance`` and ``det R > 0``; only
-    such transforms are a glTF joint's rotation and translation (TRS
-    channels cannot hold shear).
-    """
-    T = np.asarray(T, dtype=np.float64)
-    R, t = T[..., :3], T[..., 3]
-    err = np.abs(np.einsum("...ji,...jk->...ik", R, R) - np.eye(3)).max(axis=(-1, -2))
-    det = np.linalg.det(R)
-    if err.size and (err.max() > tolerance or det.min() <= 0):
-        bad = np.unravel_index(int(np.argmax(err + (det <= 0))), err.shape)
-        raise InputError(f"bone transform {tuple(int(x) for x in bad)} is not a rotation plus translation "
-                         f"(|R^T R - I| = {err.max():.2g}, det = {det.min():.3g})", source=source,
-                         field="animation",
-                         fix="glTF joints animate by rotation and translation: give rigid transforms")
-    return R, t
 
 
 def _dense_rows(W: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
