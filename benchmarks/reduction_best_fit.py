@@ -274,7 +274,8 @@ def markdown(doc):
     out = ["# Reduction quality with best-fit influence sets", "",
            f"Machine: {m['cpu']}, nproc {m['nproc']}, Python {m['python']}. "
            "`flock /tmp/rigslim-bench.lock .venv/bin/python benchmarks/reduction_best_fit.py "
-           f"--parts PART` wrote this, one run per part ({', '.join(doc['parts'])}). Errors on test frames never used for fitting, means "
+           f"--parts PART` wrote this, one run per part ({', '.join(doc['parts'])}). "
+           "Errors on test frames never used for fitting, means "
            "over frames; normal p99: the 99th percentile of the per-vertex normal angle, mean over frames. "
            "Times: best of the repeats (Poisson rows: one run), after a warm-up; `total` is select + solve. "
            "All skeleton rows non-negative (the default).", ""]
@@ -291,7 +292,8 @@ def markdown(doc):
                 out.append(f"| {blk['k']} | {r['method']} | {fmt(r['position_pct'])} | {fmt(r['normal_rad'])} | "
                            f"{fmt(r['normal_p99_rad'])} | {fmt(r['total_s'], 3)} |")
         out.append("")
-    for key, title in (("cheb", "Cheb, bone heat, 17 -> 5"), ("armadillo", "Armadillo, mean value coordinates, 110 -> 8")):
+    for key, title in (("cheb", "Cheb, bone heat, 17 -> 5"),
+                       ("armadillo", "Armadillo, mean value coordinates, 110 -> 8")):
         if key in doc:
             c = doc[key]
             out += [f"## {title} (`{c['pipeline']}`: {c['vertices']:,} vertices, {c['handles']} handles, "
@@ -299,7 +301,8 @@ def markdown(doc):
             for r in c["rows"]:
                 if "held_out" in r:
                     out.append(f"- {r['method']}: held-out " + "; ".join(
-                        f"lambda {g['position_weight']:g}: {g['position_rms_pct']:.4f} % / {g['normal_rms_rad']:.4f} rad"
+                        f"lambda {g['position_weight']:g}: {g['position_rms_pct']:.4f} % / "
+                        f"{g['normal_rms_rad']:.4f} rad"
                         f" (score {g['score']:.3f})" for g in r["held_out"]))
             out.append("")
     if "386k" in doc:
