@@ -329,3 +329,29 @@ def test_nul_byte_in_a_face_line(project, capfd):
                                          ("steps:\n  - 1: 2\n    select: k-largest\n", "steps.0.1")])
 def test_keys_that_are_not_names(project, capfd, text, field):
     _bad(project, capfd, _pipeline(project, text), "pipeline.yaml", field)
+
+
+@pytest.mark.parametrize("body", [
+    b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+    b"element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1\n3 0 1 2\n",
+    b"plx\nformat ascii 1.0\n",
+    b"ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\nproperty float x\nproperty float y\n"
+    b"property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n" + bytes(40),
+])
+def test_malformed_ply(project, capfd, body):
+    """libigl 2.6 frees memory twice (abort) on each of these; plyfile reads PLY instead."""
+    (project / "bad.ply").write_bytes(body)
+    _bad(project, capfd, _pipeline(project, mesh="bad.ply"), "bad.ply", subprocess=True)
+
+
+def test_ply_reads_like_libigl(tmp_path):
+    import igl
+
+    from rigslim.io.meshfile import read_mesh
+
+    V, F = igl.read_triangle_mesh(str(DATA / "armadillo-cage.obj"))
+    for binary in (False, True):
+        path = tmp_path / f"cage{int(binary)}.ply"
+        igl.write_triangle_mesh(str(path), V, F, igl.FileEncoding.Binary if binary else igl.FileEncoding.Ascii)
+        mesh = read_mesh(path)
+        assert np.allclose(mesh.V, V) and (mesh.F == F).all()

@@ -3,7 +3,7 @@
 Inputs are mutations of the bundled data: pipelines from examples/,
 the .glb/.gltf characters (truncated, bytes flipped, JSON fields replaced by
 hostile values such as -1, 2**31, "10", true, null, huge strings), DMAT,
-TGF, OBJ and OFF files (with their Laplacian) and a metrics JSON. The property: every input either reads
+TGF, OBJ, OFF and PLY files (with their Laplacian) and a metrics JSON. The property: every input either reads
 or raises rigslim's own error with a one-line message of at most
 :data:`rigslim.errors.MAX_LINE` characters.
 
@@ -213,6 +213,7 @@ def test_worker_reads_the_untouched_files(worker):
     assert worker.run("tgf", ".tgf", (DATA / "cheburashka.tgf").read_bytes())[0] == "ok"
     assert worker.run("obj", ".obj", (DATA / "armadillo-cage.obj").read_bytes())[0] == "ok"
     assert worker.run("obj", ".off", OFF)[0] == "ok"
+    assert worker.run("obj", ".ply", PLY[False])[0] == "ok" and worker.run("obj", ".ply", PLY[True])[0] == "ok"
     assert worker.run("dmat", ".dmat", (DATA / "cheburashka-anim.dmat").read_bytes())[0] == "ok"
     for p in PIPELINES:
         assert worker.run("yaml", ".yaml", p.read_bytes())[0] == "ok", p
@@ -354,6 +355,31 @@ def test_obj(worker, data):
 @given(data=st.data())
 def test_off(worker, data):
     check(worker, "obj", ".off", data.draw(byte_mutations(OFF)))
+
+
+def _ply_seeds() -> dict[bool, bytes]:
+    """The armadillo cage as ASCII and binary PLY."""
+    import tempfile
+
+    import igl
+
+    V, F = igl.read_triangle_mesh(str(DATA / "armadillo-cage.obj"))
+    seeds = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for binary in (False, True):
+            out = Path(tmp) / f"seed{int(binary)}.ply"
+            igl.write_triangle_mesh(str(out), V, F, igl.FileEncoding.Binary if binary else igl.FileEncoding.Ascii)
+            seeds[binary] = out.read_bytes()
+    return seeds
+
+
+PLY = _ply_seeds()
+
+
+@examples(150)
+@given(data=st.data())
+def test_ply(worker, data):
+    check(worker, "obj", ".ply", data.draw(byte_mutations(PLY[data.draw(st.booleans())])))
 
 
 REPORT = {"name": "fuzz", "steps": [{"stage": "read", "plugin": "inputs", "seconds": 0.1},

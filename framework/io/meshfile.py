@@ -33,6 +33,9 @@ def read_mesh(path) -> Mesh:
     if suffix not in MESH_SUFFIXES:
         raise InputError(f"unknown mesh format '{suffix}'", source=path, field="suffix",
                          fix="use one of " + ", ".join(MESH_SUFFIXES))
+    if suffix == ".ply":
+        V, F = read_ply(path)
+        return Mesh(V, F, source=str(path))
     import igl
 
     from rigslim.native import native_stderr
@@ -53,6 +56,85 @@ def read_mesh(path) -> Mesh:
         raise InputError("no vertices or no triangles", source=path, field="contents",
                          fix="check that it is a valid, non-empty triangle mesh")
     return Mesh(V, F, source=str(path))
+
+
+def read_ply(path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and triangles of a PLY file (ASCII or binary), read with ``plyfile``.
+
+    libigl 2.6's PLY reader frees memory twice on malformed files (the
+    process aborts), so PLY goes through plyfile, which raises Python
+    errors. Polygons are split into fans ``(p0, p_i, p_{i+1})``; faces of
+    fewer than 3 corners are refused.
+    """
+    from plyfile import PlyData, PlyParseError
+
+    path = Path(path)
+    _check_file(path)
+    _check_ply_counts(path)
+    try:
+        with open(path, "rb") as f:
+            ply = PlyData.read(f)
+        vertex = ply["vertex"].data
+        V = np.stack([np.asarray(vertex[c], np.float64) for c in ("x", "y", "z")], axis=1)
+        face = ply["face"].data
+        names = [n for n in ("vertex_indices", "vertex_index") if n in (face.dtype.names or ())]
+        if not names:
+            raise KeyError("face vertex_indices")
+        polygons = face[names[0]]
+    except (PlyParseError, KeyError, ValueError, TypeError, IndexError, EOFError, UnicodeDecodeError,
+            MemoryError, OverflowError, AttributeError, struct_error()) as e:
+        raise InputError(f"not a readable PLY triangle mesh ({type(e).__name__}: {e})", source=path,
+                         field="contents", fix="check that it is a valid PLY mesh with vertex x, y, z and "
+                         "face vertex_indices") from None
+    except OSError as e:
+        raise InputError(f"cannot read file ({e.strerror})", source=path, field="path", fix="check the path") from None
+    if not len(V) or not len(polygons):
+        raise InputError("no vertices or no faces", source=path, field="contents",
+                         fix="check that it is a valid, non-empty triangle mesh")
+    lengths = np.array([len(p) for p in polygons])
+    if (lengths < 3).any():
+        i = int(np.argmax(lengths < 3))
+        raise InputError(f"face {i} has {lengths[i]} corners; a face needs at least 3", source=path,
+                         field=f"face[{i}]", fix="repair or re-export the mesh")
+    if (lengths == 3).all():
+        F = np.stack([np.asarray(p, np.int64) for p in polygons])
+    else:
+        F = np.array([[p[0], p[j], p[j + 1]] for p in polygons for j in range(1, len(p) - 1)], np.int64)
+    return V, F
+
+
+def _check_ply_counts(path: Path) -> None:
+    """Refuse element counts the file cannot hold (each property takes at least one byte), before
+    plyfile allocates arrays of that many rows."""
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        head = f.read(1 << 16)
+    need, current = 0, None
+    for number, line in enumerate(head.split(b"\n")[:2000], 1):
+        tok = line.split()
+        if tok[:1] == [b"end_header"]:
+            break
+        if tok[:1] == [b"element"] and len(tok) >= 3:
+            try:
+                current = int(tok[2])
+            except ValueError:
+                return  # plyfile reports the malformed header
+            if current < 0:
+                raise InputError(f"element '{tok[1].decode(errors='replace')}' has count {current}", source=path,
+                                 field=f"line {number}", fix="repair or re-export the mesh")
+        elif tok[:1] == [b"property"] and current is not None:
+            need += current
+            if need > size:
+                raise InputError(f"the header promises more elements than the file's {size} bytes can hold",
+                                 source=path, field=f"line {number}", fix="the file is truncated or its header "
+                                 "is wrong; re-export it")
+
+
+def struct_error():
+    """``struct.error`` (plyfile raises it for truncated binary data)."""
+    import struct
+
+    return struct.error
 
 
 def _check_polygons(path: Path, suffix: str) -> None:

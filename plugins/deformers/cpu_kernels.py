@@ -1,8 +1,9 @@
 """Compiled (numba) kernels of the ``cpu`` deformer: positions and normals in one pass over the vertices.
 
 Every kernel runs ``prange`` over blocks of :data:`BLOCK` vertices and, per
-vertex, blends the 3x4 handle transforms of its k influences into twelve
-scalar accumulators (the handle table, n x 16 float32, stays in L1/L2), then
+vertex, blends the 3x4 handle transforms of its k influences into one
+16-float vector accumulator (:func:`blend_row`: one cache-line load and one
+FMA per influence; the handle table, n x 16 float32, stays in L1/L2), then
 writes the position and, optionally, the normal:
 
 - positions: ``v' = X_v [v; 1]``, ``X_v = sum_l w_l T_{i_l}``;
@@ -31,14 +32,16 @@ import numpy as np
 # loaded 2-core VM (0.01 ms passive); read once when numba first starts its thread pool. A user's setting wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "passive")
 
-from numba import njit, prange  # noqa: E402
+from llvmlite import ir  # noqa: E402
+from numba import njit, prange, types  # noqa: E402
+from numba.extending import intrinsic  # noqa: E402
 
 #: Vertices per parallel work unit (a few hundred KB of inputs and outputs).
 BLOCK = 2048
 #: Floats per handle record (the 12 entries of T_i, padded to 16: one 64-byte cache line).
 HANDLE_STRIDE = 16
-#: fastmath without reassociation: with ``reassoc`` LLVM vectorises the sum over the k influences into
-#: gathers and horizontal adds, which measured 2.3x slower than twelve scalar FMA chains.
+#: fastmath without reassociation (the per-vertex normal arithmetic): with ``reassoc`` LLVM vectorised
+#: the k-term sums into gathers and horizontal adds, 2.3x slower than scalar FMA chains.
 FAST = {"contract", "nnan", "ninf", "nsz", "arcp", "afn"}
 
 
@@ -56,6 +59,66 @@ def half_tables() -> tuple[np.ndarray, np.ndarray]:
     offset = np.where(e > 0, 1024.0, 0.0).astype(np.float32)
     scale = (sign * np.ldexp(1.0, np.where(e > 0, e - 25, -24))).astype(np.float32)
     return offset, scale
+
+
+@intrinsic
+def blend_row(typingctx, idx, wt, hf, v):
+    """``sum_l w_{v,l} H[idx[v, l]]`` as one 16-float vector: a UniTuple(float32, 16) (entries 12-15 unused).
+
+    numba has no SIMD types and LLVM does not vectorise twelve scalar accumulators over a runtime k,
+    so the loop over the influences is emitted here with a ``<16 x float>`` accumulator: per
+    influence one load of the handle's cache line and one FMA with the broadcast weight
+    (measured 2.7x faster than twelve scalar FMA chains at k = 8). ``idx`` (m, k) int32 or uint16
+    and ``wt`` (m, k) float32, or uint16 float16 bits (converted exactly by ``fpext half``), are
+    C-contiguous; ``hf`` is the flat (n * 16) float32 handle table. Same summation order as a
+    scalar loop over the influences.
+    """
+    tup = types.UniTuple(types.float32, HANDLE_STRIDE)
+    half_bits = isinstance(wt.dtype, types.Integer)
+
+    def codegen(context, builder, sig, args):
+        idx_v, wt_v, hf_v, v_v = args
+        ia = context.make_array(sig.args[0])(context, builder, idx_v)
+        wa = context.make_array(sig.args[1])(context, builder, wt_v)
+        ha = context.make_array(sig.args[2])(context, builder, hf_v)
+        i32, i64 = ir.IntType(32), ir.IntType(64)
+        vty = ir.VectorType(ir.FloatType(), HANDLE_STRIDE)
+        k = builder.extract_value(ia.shape, 1)
+        row = builder.mul(v_v, k)
+        pre = builder.block
+        head = builder.function.append_basic_block("blend_row.head")
+        body = builder.function.append_basic_block("blend_row.body")
+        done = builder.function.append_basic_block("blend_row.done")
+        builder.branch(head)
+        builder.position_at_end(head)
+        l = builder.phi(i64)
+        acc = builder.phi(vty)
+        l.add_incoming(ir.Constant(i64, 0), pre)
+        acc.add_incoming(ir.Constant(vty, [0.0] * HANDLE_STRIDE), pre)
+        builder.cbranch(builder.icmp_signed("<", l, k), body, done)
+        builder.position_at_end(body)
+        p = builder.add(row, l)
+        h = builder.load(builder.gep(ia.data, [p], inbounds=True))
+        h = builder.zext(h, i64) if h.type.width < 64 else h           # indices are non-negative
+        w = builder.load(builder.gep(wa.data, [p], inbounds=True))
+        if half_bits:
+            w = builder.fpext(builder.bitcast(w, ir.HalfType()), ir.FloatType())
+        hp = builder.gep(ha.data, [builder.mul(h, ir.Constant(i64, HANDLE_STRIDE))], inbounds=True)
+        hv = builder.load(builder.bitcast(hp, vty.as_pointer()), align=4)
+        wv = builder.insert_element(ir.Constant(vty, ir.Undefined), w, ir.Constant(i32, 0))
+        wv = builder.shuffle_vector(wv, ir.Constant(vty, ir.Undefined),
+                                    ir.Constant(ir.VectorType(i32, HANDLE_STRIDE), [0] * HANDLE_STRIDE))
+        nacc = builder.fadd(acc, builder.fmul(wv, hv, flags=("contract",)), flags=("contract",))
+        l.add_incoming(builder.add(l, ir.Constant(i64, 1)), builder.block)
+        acc.add_incoming(nacc, builder.block)
+        builder.branch(head)
+        builder.position_at_end(done)
+        out = context.get_constant_undef(tup)
+        for i in range(HANDLE_STRIDE):
+            out = builder.insert_value(out, builder.extract_element(acc, ir.Constant(i32, i)), i)
+        return out
+
+    return tup(idx, wt, hf, types.intp), codegen
 
 
 @njit(inline="always", fastmath=FAST)
@@ -89,23 +152,9 @@ def blend_skin(rest, idx, wt, offset, scale, H, out_p, N0, out_n):  # pragma: no
     for b in prange(nblocks):
         end = min(m, (b + 1) * BLOCK)
         for v in range(b * BLOCK, end):
-            a0 = a1 = a2 = a3 = a4 = a5 = a6 = a7 = a8 = a9 = a10 = a11 = np.float32(0.0)
-            for l in range(k):
-                h = idx[v, l]
-                w = _weight(wt, v, l, offset, scale)
-                r = np.uint64(h) * np.uint64(HANDLE_STRIDE)
-                a0 += w * Hf[r]
-                a1 += w * Hf[r + 1]
-                a2 += w * Hf[r + 2]
-                a3 += w * Hf[r + 3]
-                a4 += w * Hf[r + 4]
-                a5 += w * Hf[r + 5]
-                a6 += w * Hf[r + 6]
-                a7 += w * Hf[r + 7]
-                a8 += w * Hf[r + 8]
-                a9 += w * Hf[r + 9]
-                a10 += w * Hf[r + 10]
-                a11 += w * Hf[r + 11]
+            a = blend_row(idx, wt, Hf, v)
+            a0, a1, a2, a3, a4, a5, a6, a7, a8, a9, a10, a11 = a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], \
+                a[8], a[9], a[10], a[11]
             x = rest[v, 0]
             y = rest[v, 1]
             z = rest[v, 2]
@@ -162,25 +211,14 @@ def blend_cage(rest, idx, wt, offset, scale, H, C, out_p, N0, ridge, out_n):  # 
     for b in prange(nblocks):
         end = min(m, (b + 1) * BLOCK)
         for v in range(b * BLOCK, end):
-            a0 = a1 = a2 = a3 = a4 = a5 = a6 = a7 = a8 = a9 = a10 = a11 = np.float32(0.0)
+            a = blend_row(idx, wt, Hf, v)
+            a0, a1, a2, a3, a4, a5, a6, a7, a8, a9, a10, a11 = a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], \
+                a[8], a[9], a[10], a[11]
             sw = hx = hy = hz = cx = cy = cz = 0.0
-            for l in range(k):
-                h = idx[v, l]
-                w = _weight(wt, v, l, offset, scale)
-                r = np.uint64(h) * np.uint64(HANDLE_STRIDE)
-                a0 += w * Hf[r]
-                a1 += w * Hf[r + 1]
-                a2 += w * Hf[r + 2]
-                a3 += w * Hf[r + 3]
-                a4 += w * Hf[r + 4]
-                a5 += w * Hf[r + 5]
-                a6 += w * Hf[r + 6]
-                a7 += w * Hf[r + 7]
-                a8 += w * Hf[r + 8]
-                a9 += w * Hf[r + 9]
-                a10 += w * Hf[r + 10]
-                a11 += w * Hf[r + 11]
-                if N0 is not None:
+            if N0 is not None:
+                for l in range(k):
+                    h = idx[v, l]
+                    w = _weight(wt, v, l, offset, scale)
                     w2 = np.float64(w) * np.float64(w)
                     sw += w2
                     hx += w2 * C[h, 0]
