@@ -108,7 +108,7 @@ def bench(path: Path, tmp: Path, gltfpack: list[str] | None, samples: int) -> di
            "rigslim_process_seconds": min(times), "rigslim_process_seconds_all": times,
            "rigslim_command_seconds": min(command_times), "rigslim_command_seconds_all": command_times,
            "levels": []}
-    for level, (ratio, lv) in enumerate(zip(RATIOS, rep["levels"]), 1):
+    for level, (ratio, _lv) in enumerate(zip(RATIOS, rep["levels"], strict=False), 1):
         r = compare(path, out, test, level, samples)
         entry = {"ratio": ratio, "rigslim": {"faces": r["faces"], "rms_pct": r["hausdorff_rms_pct"],
                                              "max_pct": r["hausdorff_max_pct"], "rms_m": r["hausdorff_rms_m"]}}
@@ -126,7 +126,8 @@ def bench(path: Path, tmp: Path, gltfpack: list[str] | None, samples: int) -> di
             if all(abs(entry[k]["faces"] - rf) > 0.05 * max(rf, 1) for k in ("gltfpack", "gltfpack_sa")) \
                     and ga["faces"] < row["input_faces"]:
                 extra = tmp / f"{stem}-rigslim-at-{ga['faces']}.glb"
-                run(RIGSLIM + ["lod", str(path), "-o", str(extra), "--ratios", f"{ga['faces'] / row['input_faces']:.6f}"])
+                ratio = f"{ga['faces'] / row['input_faces']:.6f}"
+                run(RIGSLIM + ["lod", str(path), "-o", str(extra), "--ratios", ratio])
                 e = compare(path, extra, test, 1, samples)
                 entry["rigslim_at_gltfpack_sa"] = {"faces": e["faces"], "rms_pct": e["hausdorff_rms_pct"],
                                                    "max_pct": e["hausdorff_max_pct"],
