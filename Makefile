@@ -14,6 +14,7 @@ $(VENV)/.installed: pyproject.toml
 
 $(VENV)/.installed-test: $(VENV)/.installed
 	$(PIP) install --quiet -e '.[test]'
+	$(PIP) install --quiet -e examples/rigslim-absweights
 	touch $@
 
 install: $(VENV)/.installed
