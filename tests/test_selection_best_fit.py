@@ -15,7 +15,6 @@ from rigslim.plugins.solvers.global_solver import global_solve
 from rigslim.plugins.solvers.local_solver import local_solve
 from rigslim.plugins.solvers.problem import build_problem
 from rigslim.plugins.solvers.synthetic import cage_asset, tube_asset
-from rigslim.poses import FrameSplit, Poses
 from rigslim.qp import solve_small_qps
 
 
