@@ -27,7 +27,7 @@ class GltfReader(Reader):
         normalize: bool = True
         weld: bool = True
         times: list[float] | None = None
-        allow_external_uris: bool = False
+        allow_external_uris: bool | None = None  # None: RIGSLIM_ALLOW_EXTERNAL_URIS / --allow-external-uris
 
     def read(self, path, asset, params, ctx):
         from rigslim.io.gltf import read_gltf_skin
