@@ -238,7 +238,7 @@ def main(argv=None) -> int:
     parser.add_argument("--assets", type=int, default=100, help="library size (the mix is scaled to it)")
     parser.add_argument("--tiny", type=int, default=100, help="tiny assets for the overhead measurement")
     parser.add_argument("--rounds", type=int, default=4, help="interleaved serial / Dask rounds")
-    parser.add_argument("--noop-tasks", type=int, default=20000, help="no-op tasks for the scheduler's rate")
+    parser.add_argument("--noop-tasks", type=int, default=5000, help="no-op tasks for the scheduler's rate")
     parser.add_argument("--work", type=Path, help="work folder (default: a temporary folder)")
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "results" / "batch")
     args = parser.parse_args(argv)
