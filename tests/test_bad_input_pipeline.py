@@ -319,7 +319,8 @@ def test_libigl_stdout_diagnosis_goes_into_the_line(project, capfd):
 
 
 def test_nul_byte_in_a_face_line(project, capfd):
-    (project / "nul.obj").write_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2\x00 4 3\n")  # libigl reads 'f 2'
+    # libigl reads the last face as 'f 2' (one corner) and aborts
+    (project / "nul.obj").write_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2\x00 4 3\n")
     line = _bad(project, capfd, _pipeline(project, mesh="nul.obj"), "nul.obj", "line 6", subprocess=True)
     assert "NUL" in line
 
