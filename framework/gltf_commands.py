@@ -367,6 +367,14 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
     from rigslim.blend import per_vertex_normals
     from rigslim.plugins.metrics.metro import metro_distance
 
+    if hausdorff:
+        try:
+            import pymeshlab  # noqa: F401
+        except ImportError:
+            from rigslim.errors import StepError
+
+            raise StepError("rigslim compare measures Hausdorff distances with pymeshlab, which is not installed",
+                            field="compare", fix="pip install 'rigslim[metro]'") from None
     count, clip_name, _ = clip_frames(ref, clip, fps)
     chosen = parse_frames_spec(frames, count)
     if max(chosen) >= count:
