@@ -302,8 +302,9 @@ def cmd_lod(args) -> int:
           f"{doc['input_faces']}), at most {args.max_bones} bones per vertex, {seconds:.2f} s")
     for r in rows:
         if r["faces"] > 1.05 * r["ratio"] * (doc["input_faces"] or 0):
-            print(f"rigslim lod: level {r['label']} stopped at {r['faces']} faces: UV seams and material "
-                  f"boundaries ({doc['locked_seam_vertices']} vertices) are kept", file=sys.stderr)
+            print(f"rigslim lod: level {r['label']} stopped at {r['faces']} faces: no valid collapse was left "
+                  f"(seam corners and mesh boundaries stay fixed; {doc['locked_seam_vertices']} seam vertices)",
+                  file=sys.stderr)
     return 0
 
 
