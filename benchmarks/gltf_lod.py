@@ -146,11 +146,12 @@ def markdown(doc: dict) -> str:
              f"Machine: {m['cpu']}, nproc {m['nproc']}, Python {m['python']} (shared 2-core machine; other jobs "
              "ran at the same time, so timings are upper bounds). Written by `benchmarks/gltf_lod.py`.", "",
              f"gltfpack: {doc['gltfpack'] or 'not run'} (`-si R -noq`). rigslim: `rigslim lod IN -o OUT --ratios "
-             "0.5,0.25` (quartic [S09], at most 4 bones per vertex, UV seams and material boundaries locked). "
+             "0.5,0.25` (quartic [S09], at most 4 bones per vertex, UV seams and material boundaries collapsed only "
+             "along themselves). "
              "Errors: `rigslim compare` (two-sided Hausdorff, pymeshlab, "
              f"{doc['samples']} samples per direction and frame) on the test frames, RMS averaged over them, as % of "
              "the input's world-space bounding-box diagonal; ratio = rigslim RMS / gltfpack RMS (target <= 0.5). "
-             "Face counts differ where locked seams stop rigslim early or gltfpack stops at its error limit.", "",
+             "Face counts differ where seam corners stop rigslim early or gltfpack stops at its error limit.", "",
              "Two gltfpack runs per ratio: `-si R -noq` as the issue states (gltfpack stops at its error limit, "
              "so it may keep more faces) and `-si R -sa -noq` (aggressive: ignores the limit, reaches R). The target "
              "is judged against the gltfpack result with the same face count as rigslim's (within 5 %), when one has "

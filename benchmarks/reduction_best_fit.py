@@ -220,8 +220,6 @@ ARMADILLO_ROWS = [
     ("geometric on k-largest", "k-largest", {}, "geometric", {}),
     ("best-fit by weight + geometric", "best-fit", {"by": "weight"}, "geometric", {}),
     ("best-fit by error + geometric", "best-fit", {"by": "error"}, "geometric", {}),
-    ("poisson on k-largest, lambda auto", "k-largest", {}, "poisson",
-     {"position_weight": "auto", "position_weight_grid": [0.01, 0.1, 1.0]}),
     ("best-fit by error + poisson, lambda auto", "best-fit", {"by": "error"}, "poisson",
      {"position_weight": "auto", "position_weight_grid": [0.01, 0.1, 1.0]}),
 ]

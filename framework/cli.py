@@ -124,6 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="override a step parameter, or with STEP=PLUGIN replace a step's plugin "
                           "(STEP: step name, stage key, plugin or 1-based index)")
     run.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    run.add_argument("--allow-external-uris", action="store_true",
+                     help="let glTF buffer/image URIs name files outside the glTF's folder (trusted files only)")
     run.set_defaults(func=_cmd_run)
     report = sub.add_parser("report", help="HTML report of metrics JSON files (table, plots, renders)")
     report.add_argument("metrics", nargs="+", metavar="METRICS.json",
@@ -141,6 +143,8 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("--title", help="page title")
     report.add_argument("--no-renders", action="store_true", help="table and plots only")
     report.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    report.add_argument("--allow-external-uris", action="store_true",
+                        help="let glTF buffer/image URIs name files outside the glTF's folder (trusted files only)")
     report.set_defaults(func=_cmd_report)
     plugins = sub.add_parser("plugins", help="list loaded plugins")
     plugins.add_argument("--json", action="store_true", help="machine-readable output")
@@ -163,16 +167,19 @@ def _terminate(signum, frame):
 
 
 def main(argv=None) -> int:
+    import os
     import signal
     import threading
+    import warnings
 
     parser = build_parser()
     args = parser.parse_args(argv)
     previous = None
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGTERM, _terminate)
-    import warnings
-
+    allow_before = os.environ.get("RIGSLIM_ALLOW_EXTERNAL_URIS")
+    if getattr(args, "allow_external_uris", False):  # read by the glTF reader (rigslim.io.gltf)
+        os.environ["RIGSLIM_ALLOW_EXTERNAL_URIS"] = "1"
     try:
         # Warnings (numpy's RuntimeWarnings...) are held until the command ends: shown after a success,
         # dropped when a one-line error explains what went wrong.
@@ -195,6 +202,11 @@ def main(argv=None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+        if getattr(args, "allow_external_uris", False):
+            if allow_before is None:
+                os.environ.pop("RIGSLIM_ALLOW_EXTERNAL_URIS", None)
+            else:
+                os.environ["RIGSLIM_ALLOW_EXTERNAL_URIS"] = allow_before
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -295,8 +295,9 @@ def cmd_lod(args) -> int:
           f"{doc['input_faces']}), at most {args.max_bones} bones per vertex, {seconds:.2f} s")
     for r in rows:
         if r["faces"] > 1.05 * r["ratio"] * (doc["input_faces"] or 0):
-            print(f"rigslim lod: level {r['label']} stopped at {r['faces']} faces: UV seams and material "
-                  f"boundaries ({doc['locked_seam_vertices']} vertices) are kept", file=sys.stderr)
+            print(f"rigslim lod: level {r['label']} stopped at {r['faces']} faces: no valid collapse was left "
+                  f"(seam corners and mesh boundaries stay fixed; {doc['locked_seam_vertices']} seam vertices)",
+                  file=sys.stderr)
     return 0
 
 
@@ -360,6 +361,14 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
     from rigslim.blend import per_vertex_normals
     from rigslim.numerics.surface_distance import metro_distance
 
+    if hausdorff:
+        try:
+            import pymeshlab  # noqa: F401
+        except ImportError:
+            from rigslim.errors import StepError
+
+            raise StepError("rigslim compare measures Hausdorff distances with pymeshlab, which is not installed",
+                            field="compare", fix="pip install 'rigslim[metro]'") from None
     count, clip_name, _ = clip_frames(ref, clip, fps)
     chosen = parse_frames_spec(frames, count)
     if max(chosen) >= count:

@@ -288,6 +288,24 @@ def test_buffer_outside_the_folder_allowed_explicitly(project, capfd):
     assert code == 0, lines
 
 
+def test_buffer_outside_the_folder_allowed_by_the_command_line(project, capfd, monkeypatch):
+    import os
+
+    sub = project / "models"
+    sub.mkdir()
+    write_json(sub / "model.gltf", _external(_doc(), sub, "../secret.bin"))
+    pipeline = _pipeline(project, "models/model.gltf")
+    monkeypatch.delenv("RIGSLIM_ALLOW_EXTERNAL_URIS", raising=False)
+    code, lines = run_cli(["run", pipeline, "-q", "--allow-external-uris"], capfd)
+    assert code == 0, lines
+    assert "RIGSLIM_ALLOW_EXTERNAL_URIS" not in os.environ  # restored after the command
+    code, lines = run_cli(["run", pipeline, "-q"], capfd)
+    assert_one_line(code, lines, "buffers[3].uri", "--allow-external-uris")
+    monkeypatch.setenv("RIGSLIM_ALLOW_EXTERNAL_URIS", "1")
+    code, lines = run_cli(["run", pipeline, "-q"], capfd)
+    assert code == 0, lines
+
+
 def test_buffer_absolute_path_refused(project, capfd):
     doc = _doc()
     doc["buffers"][3]["uri"] = "/etc/passwd"

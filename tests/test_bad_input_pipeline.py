@@ -318,7 +318,7 @@ def test_libigl_stdout_diagnosis_goes_into_the_line(project, capfd):
 
 
 def test_nul_byte_in_a_face_line(project, capfd):
-    # libigl reads 'f 2'
+    # libigl reads the last face as 'f 2' (one corner) and aborts
     (project / "nul.obj").write_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2\x00 4 3\n")
     line = _bad(project, capfd, _pipeline(project, mesh="nul.obj"), "nul.obj", "line 6", subprocess=True)
     assert "NUL" in line
@@ -355,3 +355,9 @@ def test_ply_reads_like_libigl(tmp_path):
         igl.write_triangle_mesh(str(path), V, F, igl.FileEncoding.Binary if binary else igl.FileEncoding.Ascii)
         mesh = read_mesh(path)
         assert np.allclose(mesh.V, V) and (mesh.F == F).all()
+
+
+def test_medit_tetrahedron_index_out_of_range(project, capfd):
+    (project / "bad.mesh").write_text("MeshVersionFormatted 1\nDimension 3\nVertices\n4\n0 0 0 0\n1 0 0 0\n0 1 0 0\n"
+                                      "0 0 1 0\nTetrahedra\n1\n1 2 3 2082712575 0\nEnd\n")
+    _bad(project, capfd, _pipeline(project, mesh="bad.mesh"), "bad.mesh", "Tetrahedra")

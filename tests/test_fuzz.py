@@ -3,7 +3,7 @@
 Inputs are mutations of the bundled data: pipelines from examples/,
 the .glb/.gltf characters (truncated, bytes flipped, JSON fields replaced by
 hostile values such as -1, 2**31, "10", true, null, huge strings), DMAT,
-TGF, OBJ, OFF and PLY files (with their Laplacian) and a metrics JSON. The property: every input either reads
+TGF, OBJ, OFF, PLY and MEDIT files (with their Laplacian) and a metrics JSON. The property: every input either reads
 or raises rigslim's own error with a one-line message of at most
 :data:`rigslim.errors.MAX_LINE` characters.
 
@@ -213,6 +213,7 @@ def test_worker_reads_the_untouched_files(worker):
     assert worker.run("tgf", ".tgf", (DATA / "cheburashka.tgf").read_bytes())[0] == "ok"
     assert worker.run("obj", ".obj", (DATA / "armadillo-cage.obj").read_bytes())[0] == "ok"
     assert worker.run("obj", ".off", OFF)[0] == "ok"
+    assert worker.run("obj", ".mesh", MEDIT)[0] == "ok"
     assert worker.run("obj", ".ply", PLY[False])[0] == "ok" and worker.run("obj", ".ply", PLY[True])[0] == "ok"
     assert worker.run("dmat", ".dmat", (DATA / "cheburashka-anim.dmat").read_bytes())[0] == "ok"
     for p in PIPELINES:
@@ -374,6 +375,27 @@ def _ply_seeds() -> dict[bool, bytes]:
 
 
 PLY = _ply_seeds()
+MEDIT = b"""MeshVersionFormatted 1
+Dimension 3
+Vertices
+5
+0 0 0 0
+1 0 0 0
+0 1 0 0
+0 0 1 0
+1 1 1 0
+Tetrahedra
+2
+1 2 3 4 0
+2 3 4 5 0
+End
+"""
+
+
+@examples(100)
+@given(data=st.data())
+def test_medit(worker, data):
+    check(worker, "obj", ".mesh", data.draw(byte_mutations(MEDIT)))
 
 
 @examples(150)

@@ -71,3 +71,37 @@ def test_lod_rows_of_a_file_without_lod_is_empty():
 
     with pytest.raises(InputError):
         lod_rows(GLTF / "missing.glb")
+
+
+def test_report_gives_errors_in_world_units(tmp_path):
+    """assimp's character: joints scale by 100, so % of the bind diagonal overstates the error 100 times."""
+    import json
+    import re
+
+    yml = tmp_path / "k2.yaml"
+    yml.write_text(f"""
+inputs:
+  gltf: {GLTF / 'animation_with_skeleton.glb'}
+  fps: 30
+poses: {{examples: "0:26:4", test: "1:26:2"}}
+steps:
+  - select: k-largest
+    k: 2
+  - solve: k-largest
+  - evaluate: [position-rms]
+""")
+    assert main(["run", str(yml), "--metrics", str(tmp_path / "m.json"), "-q"]) == 0
+    doc = json.loads((tmp_path / "m.json").read_text())
+    out = tmp_path / "report.html"
+    assert main(["report", str(tmp_path / "m.json"), "-o", str(out), "--no-renders", "-q"]) == 0
+    text = out.read_text()
+    row = re.search(r"<td>position_rms_pct</td><td>([^<]+)</td><td>([^<]+)</td><td>([^<]+)</td><td>([^<]+)</td>",
+                    text)
+    assert row, "no world-units row"
+    pct_bind, metres, pct_world, world = (float(x) for x in row.groups())
+    from rigslim.report.gltf import world_diagonal
+
+    assert world == pytest.approx(world_diagonal(GLTF / "animation_with_skeleton.glb"), rel=1e-3)
+    assert world > 50 * doc["mesh"]["bbox_diagonal"]                    # the x100 joint scale
+    assert metres == pytest.approx(pct_bind / 100 * doc["mesh"]["bbox_diagonal"], rel=1e-3)
+    assert pct_world == pytest.approx(100 * metres / world, rel=1e-3)

@@ -78,15 +78,16 @@ class GltfDocument:
         The JSON document exactly as stored.
     buffers : list of bytes
         Contents of ``buffers[i]`` (GLB binary chunk, data URI or external file).
-    allow_external_uris : bool
-        Whether URIs may name files outside the document's folder (see :meth:`uri_bytes`).
+    allow_external_uris : bool or None
+        Whether URIs may name files outside the document's folder (see
+        :meth:`uri_bytes`); None: as :func:`external_uris_allowed` says.
     """
 
     path: Path
     json: dict
     buffers: list[bytes]
     _typed: object = field(default=None, repr=False)
-    allow_external_uris: bool = False
+    allow_external_uris: bool | None = None
 
     @property
     def typed(self):
@@ -130,10 +131,10 @@ class GltfDocument:
                              field=field_name, fix="give a data: URI or a path relative to the .gltf")
         folder = self.path.parent.resolve()
         file = (self.path.parent / unquote(uri)).resolve()
-        if not self.allow_external_uris and not file.is_relative_to(folder):
+        if not external_uris_allowed(self.allow_external_uris) and not file.is_relative_to(folder):
             raise InputError(f"'{brief(uri)}' leads outside the glTF's folder ({file})", source=self.path,
-                             field=field_name, fix="move the file next to the .gltf, or set "
-                             "'allow_external_uris: true' on the gltf input if you trust this file")
+                             field=field_name, fix="move the file next to the .gltf, or, if you trust this "
+                             "file, set 'allow_external_uris: true' on the gltf input (or --allow-external-uris)")
         try:
             st = os.stat(file)
         except OSError as e:
@@ -175,7 +176,15 @@ def _parse_glb(data: bytes, path) -> tuple[dict, bytes | None]:
     return json.loads(js.decode("utf-8")), binary
 
 
-def load_gltf(path, *, allow_external_uris: bool = False) -> GltfDocument:
+def external_uris_allowed(flag: bool | None = None) -> bool:
+    """``flag`` when given, else whether ``RIGSLIM_ALLOW_EXTERNAL_URIS`` is ``1``/``true``/``yes``
+    (what ``rigslim run --allow-external-uris`` sets)."""
+    if flag is not None:
+        return bool(flag)
+    return os.environ.get("RIGSLIM_ALLOW_EXTERNAL_URIS", "").strip().lower() in ("1", "true", "yes")
+
+
+def load_gltf(path, *, allow_external_uris: bool | None = None) -> GltfDocument:
     """Load a ``.glb`` or ``.gltf`` file with all its buffers.
 
     Parameters
@@ -209,7 +218,7 @@ def load_gltf(path, *, allow_external_uris: bool = False) -> GltfDocument:
     from rigslim.io.gltf_schema import check_document
 
     check_document(doc, path)
-    out = GltfDocument(path, doc, [], allow_external_uris=bool(allow_external_uris))
+    out = GltfDocument(path, doc, [], allow_external_uris=allow_external_uris)
     try:  # pygltflib's typed parse rejects properties of the wrong type (a string where a list belongs...)
         _ = out.typed
     except (TypeError, ValueError, AttributeError, KeyError) as e:
@@ -738,7 +747,7 @@ def _choose_skin(doc: GltfDocument, skin, mesh) -> tuple[int, list[int]]:
 
 def read_gltf_skin(path, *, animation=None, fps: float = 30.0, mesh=None, skin=None,
                    normalize: bool = True, weld: bool = False, times=None,
-                   allow_external_uris: bool = False) -> GltfSkin:
+                   allow_external_uris: bool | None = None) -> GltfSkin:
     """Read a skinned glTF: merged mesh, joints as handles, weights and sampled poses.
 
     Parameters
@@ -768,9 +777,10 @@ def read_gltf_skin(path, *, animation=None, fps: float = 30.0, mesh=None, skin=N
     times : sequence of float, optional
         Sample the clip at these times (seconds) instead: frame j is
         ``times[j]`` (``fps`` then only labels the frames for writers).
-    allow_external_uris : bool
+    allow_external_uris : bool, optional
         Let buffer and image URIs name files outside the file's folder
-        (by default they must resolve inside it, symbolic links resolved).
+        (by default they must resolve inside it, symbolic links resolved);
+        None: :func:`external_uris_allowed` (the environment) decides.
 
     Returns
     -------

@@ -220,6 +220,12 @@ def read_medit_surface(path):
     if T.size == 0:
         raise InputError("no tetrahedra", source=path, field="Tetrahedra",
                          fix="give a tetrahedral MEDIT mesh")
+    if T.min() < 0 or T.max() >= len(VV):
+        raise InputError(f"tetrahedra refer to vertices outside 1..{len(VV)}", source=path, field="Tetrahedra",
+                         fix="repair or re-export the mesh")
+    if not np.isfinite(VV).all():
+        raise InputError("vertex positions contain NaN or inf", source=path, field="Vertices",
+                         fix="repair or re-export the mesh")
     Fb, _, _ = igl.boundary_facets(T)
     # libigl's boundary facets of tets face inward for positively oriented tets: make them outward.
     Fb = _orient_outward(VV, Fb)

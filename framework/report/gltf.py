@@ -4,6 +4,8 @@
   is rendered from that file (no extra ``.npz`` step): the written file is read
   with the reader options of the run's input (welded the same way, so rows are
   the run's mesh vertices) and its ``JOINTS_n``/``WEIGHTS_n`` become the reduced weights.
+- :func:`world_units_section`: the recorded errors of runs read from glTF in world
+  units and % of the world-space diagonal (the metrics divide by the bind-space one).
 - :func:`lod_section`: an HTML table of the ``MSFT_lod`` levels of every glTF a
   run wrote: per original node, each level's node, mesh, primitives (material),
   triangles and vertices.
@@ -113,3 +115,57 @@ def lod_section(documents) -> str:
         return ""
     return ("<h2>Levels of detail</h2><div class=\"meta\">MSFT_lod chains of the glTF files the runs wrote: "
             "each original node and its own level nodes (level 0: the original mesh).</div>" + "".join(parts))
+
+
+def world_diagonal(path) -> float:
+    """Bounding-box diagonal of a skinned glTF posed at t = 0 in world space (``G(joint) IBM v``; glTF: metres)."""
+    import numpy as np
+
+    from rigslim.blend import linear_blend
+    from rigslim.io.gltf import read_gltf_skin
+
+    skin = read_gltf_skin(path, weld=True, times=[0.0])
+    P = linear_blend(skin.mesh.V, skin.weights, skin.poses.T[0])
+    return float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
+
+
+def world_units_section(documents) -> str:
+    """The report's "World units" table for runs read from glTF (empty otherwise).
+
+    The pipeline metrics divide distances measured in posed (world) space by the bind-space mesh's
+    diagonal (``mesh.bbox_diagonal`` of the document), which misleads when the joints carry a scale
+    (assimp's FBX conversions: x100). Here each ``*_rms_pct`` mean becomes world units
+    (``pct / 100 * bbox_diagonal``) and % of the world-space diagonal at t = 0.
+    """
+    from rigslim.errors import RigslimError
+
+    rows = []
+    for doc, source in documents:
+        gltf = (doc.get("inputs") or {}).get("gltf")
+        diag = (doc.get("mesh") or {}).get("bbox_diagonal")
+        if not gltf or not diag or not Path(gltf).is_file():
+            continue
+        try:
+            world = world_diagonal(gltf)
+        except (RigslimError, OSError, ValueError):
+            continue
+        for ev in doc.get("evaluations") or []:
+            for key, value in (ev.get("metrics") or {}).items():
+                if not key.startswith(("position_rms_pct", "hausdorff_rms_pct")) or \
+                        not isinstance(value, (dict, float)):
+                    continue
+                mean = value.get("mean") if isinstance(value, dict) else value
+                if mean is None:
+                    continue
+                metres = float(mean) / 100.0 * float(diag)
+                run = html.escape(str(doc.get("name", source)))
+                rows.append(f"<tr><td>{run}</td><td>{html.escape(str(ev.get('name')))}</td><td>{html.escape(key)}"
+                            f"</td><td>{float(mean):.4g}</td><td>{metres:.4g}</td>"
+                            f"<td>{100.0 * metres / world:.4g}</td><td>{world:.4g}</td></tr>")
+    if not rows:
+        return ""
+    return ("<h2>World units</h2><div class=\"meta\">Runs read from glTF: the recorded errors (% of the bind-space "
+            "diagonal) in world units (glTF: metres) and as % of the world-space diagonal of the input posed at "
+            "t = 0.</div><table><tr><th>run</th><th>evaluation</th><th>metric</th><th>mean (% bind diagonal)</th>"
+            "<th>mean (world units)</th><th>mean (% world diagonal)</th><th>world diagonal</th></tr>"
+            + "".join(rows) + "</table>")

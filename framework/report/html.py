@@ -261,7 +261,9 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
                             f"src=\"{_data_uri(p1)}\"><figcaption>{html.escape(label)} ({faces} faces, "
                             f"own weights)</figcaption></figure></div>")
             parts.append(f"<div class=\"frame\"><h3>{html.escape(rf.run)}, frame {rf.frame}</h3>{''.join(figs)}</div>")
-    from rigslim.report.gltf import lod_section
+    from rigslim.report.gltf import lod_section, world_units_section
+
+    parts.append(world_units_section(documents))
 
     parts.append(lod_section(documents))
     if notes:

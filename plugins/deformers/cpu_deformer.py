@@ -150,7 +150,7 @@ class CPUDeformer(Deformer):
 
     Notes
     -----
-    Per vertex ``X_v = sum_l w_l T_{i_l}`` (twelve float32 accumulators,
+    Per vertex ``X_v = sum_l w_l T_{i_l}`` (one 16-float vector accumulator,
     handle rows gathered from an (n, 16) table) and ``v' = X_v [v; 1]``; with
     normals ``n' = sign(det R) normalize(cof(R) n)`` (blended matrix) or
     ``n' = sign(det X) normalize(adj(X) (P + lambda I) n)`` (approximate

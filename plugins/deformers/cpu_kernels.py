@@ -73,6 +73,8 @@ def blend_row(typingctx, idx, wt, hf, v):
     C-contiguous; ``hf`` is the flat (n * 16) float32 handle table. Same summation order as a
     scalar loop over the influences.
     """
+    if not all(isinstance(a, types.Array) and a.layout == "C" for a in (idx, wt, hf)):
+        return None                     # the row arithmetic below assumes C-contiguous arrays
     tup = types.UniTuple(types.float32, HANDLE_STRIDE)
     half_bits = isinstance(wt.dtype, types.Integer)
 

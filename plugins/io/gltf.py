@@ -33,7 +33,7 @@ class GltfReader(Reader):
         normalize: bool = True
         weld: bool = True
         times: list[float] | None = None
-        allow_external_uris: bool = False
+        allow_external_uris: bool | None = None  # None: RIGSLIM_ALLOW_EXTERNAL_URIS / --allow-external-uris
 
     def read(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
         from rigslim.io.gltf import read_gltf_skin
