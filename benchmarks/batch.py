@@ -247,6 +247,7 @@ def main(argv=None) -> int:
 
     work = args.work or Path(tempfile.mkdtemp(prefix="rigslim-batch-bench-"))
     work.mkdir(parents=True, exist_ok=True)
+    load_before = os.getloadavg()
     template_path = work / "template.yaml"
     template_path.write_text(TEMPLATE)
     template = load_template(template_path)
@@ -323,7 +324,7 @@ def main(argv=None) -> int:
                     "serial_mean_s": statistics.mean(v["serial_s"]), "dask_mean_s": statistics.mean(v["dask_s"]),
                     "worker_peak_mb": max(v["peak_mb"])} for k, v in families.items()}
     per_asset_dask = statistics.mean(r["seconds"] for r in dask_rows)
-    doc = {"machine": machine(), "load_before": os.getloadavg(), "assets": len(library), "mix": mix,
+    doc = {"machine": machine(), "load_before": load_before, "assets": len(library), "mix": mix,
            "rounds": rounds, "metrics_max_rel_diff": rel_diff, "serial_s": serial_s,
            "dask_s": dask_s, "worker_warm_up_s": warm_up, "dask_with_start_s": dask_total,
            "speedup": serial_s / dask_s, "speedup_with_start": serial_s / dask_total,
@@ -337,7 +338,8 @@ def main(argv=None) -> int:
     doc["load_after"] = os.getloadavg()
     md = [f"# rigslim batch: {len(library)} assets, LocalCluster (2 workers) vs a serial loop", "",
           f"Machine: {doc['machine']['cpu']}, {doc['machine']['nproc']} cores, Python {doc['machine']['python']}; "
-          f"load average before {doc['load_before'][0]:.2f}, after {doc['load_after'][0]:.2f} "
+          f"load average (1, 5, 15 min) before {', '.join(f'{x:.2f}' for x in doc['load_before'])}, after "
+          f"{', '.join(f'{x:.2f}' for x in doc['load_after'])} "
           "(the machine is shared with other sessions).", "",
           f"Command: `{doc['command']}`", "",
           "| run | wall time | speed-up |", "|---|---:|---:|",

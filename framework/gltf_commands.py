@@ -91,8 +91,31 @@ def _json_only(path: Path):
         return None
 
 
-def _gltf_input(path: Path, clip, fps: float, frames: int) -> dict:
+def skins_used(js: dict) -> list[int]:
+    """Skins that mesh nodes of the default scene use, in depth-first order of first use."""
+    nodes = js.get("nodes", [])
+    scenes = js.get("scenes", [])
+    if scenes:
+        scene = scenes[js.get("scene", 0)] if isinstance(js.get("scene", 0), int) else scenes[0]
+        order, stack = [], list(reversed(scene.get("nodes", [])))
+        while stack:
+            i = stack.pop()
+            order.append(i)
+            stack.extend(reversed(nodes[i].get("children", [])))
+    else:
+        order = range(len(nodes))
+    out = []
+    for i in order:
+        n = nodes[i]
+        if "skin" in n and "mesh" in n and n["skin"] not in out:
+            out.append(n["skin"])
+    return out
+
+
+def _gltf_input(path: Path, clip, fps: float, frames: int, skin: int | None = None) -> dict:
     spec = {"path": str(path), "fps": fps}
+    if skin is not None:
+        spec["skin"] = skin
     if clip is not None:
         spec["animation"] = clip
     if frames < 2:
@@ -125,6 +148,26 @@ def _run(pipeline: dict, args, console) -> tuple[object, float]:
         t0 = time.perf_counter()
         result = run_pipeline(yml, console=console)
         return result, time.perf_counter() - t0
+
+
+def _chain(src: Path, out: Path, make, args, console, tmp: Path):
+    """Run ``make(input, output, skin)`` pipelines once per skin, each reading the previous one's output.
+
+    One skin: one run, ``skin`` None (the reader's default). Returns ``[(pipeline, result, seconds), ...]``.
+    """
+    from rigslim.io.gltf import load_gltf
+
+    skins = skins_used(load_gltf(src).json)
+    if len(skins) <= 1:
+        pipeline = make(src, out, None)
+        return [(pipeline, *_run(pipeline, args, console))]
+    runs, inp = [], src
+    for i, s in enumerate(skins):
+        dst = out if i == len(skins) - 1 else tmp / f"skin{s}{out.suffix}"
+        pipeline = make(inp, dst, s)
+        runs.append((pipeline, *_run(pipeline, args, console)))
+        inp = dst
+    return runs
 
 
 def _console(args):
@@ -160,7 +203,7 @@ def _header(command: str) -> dict:
 
 
 def reduce_pipeline(src: Path, out: Path, *, k: int, select: str, solve: str, clip, fps: float, frames: int,
-                    quantize: str) -> dict:
+                    quantize: str, skin: int | None = None) -> dict:
     """The pipeline ``rigslim reduce`` runs (without animation: k-largest, no evaluation; select None: rewrite only)."""
     steps = []
     animated = frames >= 2
@@ -169,7 +212,7 @@ def reduce_pipeline(src: Path, out: Path, *, k: int, select: str, solve: str, cl
         if animated:
             steps.append({"evaluate": ["position-rms", "normal-deviation", "max-influences"]})
     steps.append({"write": str(out), "quantize": quantize, "clamp_negative": True, "keep_input_weights": False})
-    return {"name": f"reduce-{src.stem}", "inputs": {"gltf": _gltf_input(src, clip, fps, frames)},
+    return {"name": f"reduce-{src.stem}", "inputs": {"gltf": _gltf_input(src, clip, fps, frames, skin)},
             "poses": _poses(frames), "steps": steps}
 
 
@@ -188,9 +231,12 @@ def cmd_reduce(args) -> int:
     elif frames < 2:
         print(f"rigslim reduce: {src.name} has no animation: falling back to k-largest weights", file=sys.stderr)
         select, solve = "k-largest", "k-largest"
-    pipeline = reduce_pipeline(src, out, k=args.k, select=select, solve=solve, clip=args.clip, fps=args.fps,
-                               frames=frames, quantize=args.quantize)
-    result, seconds = _run(pipeline, args, console)
+    with tempfile.TemporaryDirectory(prefix="rigslim-reduce-") as tmp:
+        runs = _chain(src, out, lambda i, o, s: reduce_pipeline(
+            i, o, k=args.k, select=select, solve=solve, clip=args.clip, fps=args.fps, frames=frames,
+            quantize=args.quantize, skin=s), args, console, Path(tmp))
+    pipeline, result, _ = runs[-1]
+    seconds = sum(r[2] for r in runs)
     metrics = result.evaluations[-1]["metrics"] if result.evaluations else {}
     world = {}
     if frames >= 2:     # the test frames again, in world units, from the written file
@@ -201,6 +247,9 @@ def cmd_reduce(args) -> int:
                                 "frames": frames, "k": args.k, "select": select, "solve": solve,
                                 "fallback_k_largest": frames < 2, "seconds": seconds, "metrics": metrics,
                                 "world": world, "pipeline": pipeline, "run": result.document}
+    if len(runs) > 1:
+        doc["per_skin"] = [{"skin": p["inputs"]["gltf"].get("skin"), "pipeline": p, "seconds": t,
+                            "metrics": r.evaluations[-1]["metrics"] if r.evaluations else {}} for p, r, t in runs]
     _emit_report(args, doc)
     line = f"wrote {out} (k = {args.k}, {select or 'no'}/{solve or 'no'} reduction, {seconds:.2f} s)"
     if "position_rms_m" in world:
@@ -239,13 +288,13 @@ def split_names(out: Path, ratios) -> list[Path]:
 
 
 def lod_pipeline(src: Path, out: Path, *, ratios, max_bones: int, clip, fps: float, frames: int, quantize: str,
-                 method: str = "quartic", measure: bool = False) -> dict:
+                 method: str = "quartic", measure: bool = False, skin: int | None = None) -> dict:
     """The pipeline ``rigslim lod`` runs: a decimation step with a bone limit, then the LOD writer."""
     steps = [{"decimate": method, "targets": list(ratios), "max_bones": max_bones}]
     if measure:
         steps.append({"evaluate": ["metro", "max-influences"]})
     steps.append({"write": str(out), "quantize": quantize, "lod": True, "clamp_negative": True})
-    return {"name": f"lod-{src.stem}", "inputs": {"gltf": _gltf_input(src, clip, fps, frames)},
+    return {"name": f"lod-{src.stem}", "inputs": {"gltf": _gltf_input(src, clip, fps, frames, skin)},
             "poses": _poses(frames), "steps": steps}
 
 
@@ -263,9 +312,11 @@ def cmd_lod(args) -> int:
     console = _console(args)
     with tempfile.TemporaryDirectory(prefix="rigslim-lod-", dir=out.parent if out.parent.exists() else None) as tmp:
         target = Path(tmp) / f"lod{out.suffix}" if args.split else out
-        pipeline = lod_pipeline(src, target, ratios=ratios, max_bones=args.max_bones, clip=args.clip, fps=args.fps,
-                                frames=frames, quantize=args.quantize, method=args.method, measure=args.measure)
-        result, seconds = _run(pipeline, args, console)
+        runs = _chain(src, target, lambda i, o, s: lod_pipeline(
+            i, o, ratios=ratios, max_bones=args.max_bones, clip=args.clip, fps=args.fps, frames=frames,
+            quantize=args.quantize, method=args.method, measure=args.measure, skin=s), args, console, Path(tmp))
+        pipeline, result, _ = runs[0]
+        seconds = sum(r[2] for r in runs)
         outputs = [out]
         if args.split:
             outputs = split_names(out, ratios)
@@ -289,6 +340,13 @@ def cmd_lod(args) -> int:
                              # the command report keeps KEY@LEVEL names (rigslim-gltf-command v1)
                              "metrics": flat_metrics(result.evaluations[-1]) if result.evaluations else {},
                              "pipeline": pipeline, "run": result.document}
+    if len(runs) > 1:          # one decimation per skin; the top-level levels are the first skin's
+        doc["per_skin"] = []
+        for p, r, t in runs:
+            st = next(x for x in r.document["steps"] if x["stage"] == "decimate").get("report", {})
+            doc["per_skin"].append({"skin": p["inputs"]["gltf"].get("skin"), "seconds": t, "pipeline": p,
+                                    "input_faces": st.get("input_faces"),
+                                    "levels": [lv["faces"] for lv in st.get("levels", [])]})
     _emit_report(args, doc)
     faces = ", ".join(f"{r['faces']}" for r in rows)
     print(f"wrote {', '.join(str(p) for p in outputs)}: {len(rows)} levels ({faces} faces of "
@@ -323,7 +381,7 @@ def parse_frames_spec(spec: str | None, count: int) -> list[int]:
 
 
 def posed_surfaces(path: Path, *, clip, times, level: int = 0):
-    """World-space positions of a file's skinned primitives (unwelded) at ``times``, its faces and its skin.
+    """World-space positions of a file's skinned primitives (unwelded, every skin) at ``times``, faces, skins.
 
     Each file poses with its own skin: ``v' = sum_i w_i G(joint_i) IBM_i v``, which
     is in world units (metres) whatever scale the joints carry.
@@ -333,9 +391,14 @@ def posed_surfaces(path: Path, *, clip, times, level: int = 0):
     from rigslim.io.gltf_lod import level_document
 
     doc = level_document(load_gltf(path), level)
-    skin = _read_gltf_skin(doc, clip, DEFAULT_FPS, None, None, True, False, list(times))
-    P = np.stack([linear_blend(skin.mesh.V, skin.weights, skin.poses.T[j]) for j in range(len(times))])
-    return P, np.asarray(skin.mesh.F), skin
+    Ps, Fs, skins, start = [], [], [], 0
+    for s in skins_used(doc.json) or [None]:          # every skin's meshes, as one surface
+        skin = _read_gltf_skin(doc, clip, DEFAULT_FPS, None, s, True, False, list(times))
+        Ps.append(np.stack([linear_blend(skin.mesh.V, skin.weights, skin.poses.T[j]) for j in range(len(times))]))
+        Fs.append(np.asarray(skin.mesh.F) + start)
+        start += skin.mesh.n_vertices
+        skins.append(skin)
+    return np.concatenate(Ps, axis=1), np.concatenate(Fs), skins
 
 
 def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, level: int = 0, fps: float = DEFAULT_FPS,

@@ -20,7 +20,7 @@ from rigslim.handles import Handles, cage_transforms
 from rigslim.mesh import Mesh
 from rigslim.opencl import OpenCLUnavailable
 from rigslim.plugins.deformers.cpu_deformer import CPUDeformer
-from rigslim.plugins.deformers.cpu_kernels import BLOCK, half_tables
+from rigslim.plugins.deformers.cpu_kernels import BLOCK, LANES, SUB, half_tables
 from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
 from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.k_largest import k_largest_weights
@@ -127,17 +127,28 @@ def test_cage_matches_numpy(cage, k, layout):
 
 def test_small_mesh_below_one_block_and_random_transforms(rng):
     """Fewer vertices than one block, 13 handles, k = 5, general (non-rigid) transforms and a reflection."""
-    m, n, k = 37, 13, 5
+    random_mesh_against_numpy(rng, 37)
+
+
+@pytest.mark.parametrize("m", [SUB - 3, 3 * SUB + 5, BLOCK + 2 * SUB + LANES + 1])
+def test_vector_normal_pass_partial_sub_blocks(rng, m):
+    """The skeleton normal pass runs on sub-blocks of SUB vertices, LANES at a time: partial last sub-blocks."""
+    assert m % SUB and m % LANES
+    random_mesh_against_numpy(rng, m)
+
+
+def random_mesh_against_numpy(rng, m):
+    n, k = 13, 5
     V = rng.standard_normal((m, 3))
     F = np.array([[i, i + 1, i + 2] for i in range(m - 2)])
     idx = np.stack([rng.choice(n, k, replace=False) for _ in range(m)]).astype(np.int32)
     val = rng.uniform(0.1, 1.0, (m, k))
     weights = ReducedWeights(idx, val / val.sum(axis=1, keepdims=True), n)
-    T = np.concatenate([np.eye(3)[None].repeat(n, 0) + 0.2 * rng.standard_normal((n, 3, 3)),
-                        rng.standard_normal((n, 3, 1))], axis=2)
-    T[:, 0, :3] *= -1                                   # det < 0: normals keep their orientation
+    T = np.concatenate([np.eye(3)[None, None].repeat(n, 1).repeat(2, 0) + 0.2 * rng.standard_normal((2, n, 3, 3)),
+                        rng.standard_normal((2, n, 3, 1))], axis=3)
+    T[0, :, 0, :3] *= -1                                # det < 0: normals keep their orientation
     mesh = Mesh(V, F)
-    check_against_numpy(mesh, weights, None, T[None], "fixed")
+    check_against_numpy(mesh, weights, None, T, "fixed")  # two frames: the second reuses the normal scratch
 
 
 def test_half_tables_decode_every_finite_float16():

@@ -310,3 +310,38 @@ def test_lod_is_a_pipeline_rigslim_run_can_run(tmp_path):
     a, b = load_gltf(tmp_path / "a.glb").json, load_gltf(tmp_path / "b.glb").json
     assert [m["name"] for m in a["meshes"]] == [m["name"] for m in b["meshes"]]
     assert a["accessors"] == b["accessors"]
+
+
+def _two_skin_tube(path: Path) -> None:
+    """The tube with a second skin (same joints) for the Torso node: reduce and lod must handle every skin."""
+    src = load_gltf(GLTF / "tube_two_materials.glb")
+    js = json.loads(json.dumps(src.json))
+    js["skins"].append(dict(js["skins"][0], name="torso"))
+    js["nodes"][1]["skin"] = 1
+    text = json.dumps(js).encode()
+    text += b" " * ((-len(text)) % 4)
+    binary = src.buffers[0] + b"\0" * ((-len(src.buffers[0])) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(binary), 0x004E4942) + binary
+    path.write_bytes(struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body)
+
+
+def test_commands_handle_every_skin(tmp_path, valid):
+    src = tmp_path / "two-skins.glb"
+    _two_skin_tube(src)
+    assert main(["reduce", str(src), "-o", str(tmp_path / "k1.glb"), "-k", "1", "--solve", "k-largest",
+                 "--report", str(tmp_path / "r.json")]) == 0
+    valid(tmp_path / "k1.glb")
+    doc = load_gltf(tmp_path / "k1.glb")
+    for mesh in doc.json["meshes"]:
+        for prim in mesh["primitives"]:
+            W, _ = _skin_rows(doc, prim)
+            assert ((W > 0).sum(axis=1) <= 1).all()              # both skins' meshes reduced
+    assert [s["skin"] for s in json.loads((tmp_path / "r.json").read_text())["per_skin"]] == [0, 1]
+    out = tmp_path / "lod.glb"
+    assert main(["lod", str(src), "-o", str(out)]) == 0
+    valid(out)
+    check_lod_structure(src, out, 2)
+    js = load_gltf(out).json
+    assert [js["nodes"][j]["skin"] for j in js["nodes"][1]["extensions"]["MSFT_lod"]["ids"]] == [1, 1]
+    assert main(["compare", str(src), str(out), "--level", "1", "--frames", "1:31:10", "--json",
+                 "--samples", "2000"]) == 0
