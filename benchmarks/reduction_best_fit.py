@@ -110,6 +110,7 @@ def row(label, asset, reduced, sel_s, solve_s, report=None):
          "solve_s": solve_s, "total_s": (sel_s or 0.0) + (solve_s or 0.0)}
     if report and "position_weight_auto" in report:
         r["position_weight"] = report["position_weight"]
+        r["folds"] = report["position_weight_auto"].get("fold_count")
         r["held_out"] = [{kk: g[kk] for kk in ("position_weight", "position_rms_pct", "normal_rms_rad", "score")}
                          for g in report["position_weight_auto"]["grid"]]
     print(f"  {label:<44} pos {p:.4f}  nrm {n:.4f}  p99 {n99:.4f}  select {sel_s or 0:.3f}s  "

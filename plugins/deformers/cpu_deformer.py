@@ -93,7 +93,7 @@ class CPUBound(DeviceBound):
             self._C[:, 3:] = self._C0 - self._C0.mean(axis=0)
         self._mesh, self._weights_in, self._handles_in = mesh, self.effective, handles
         self._N0 = self._ridge = None          # normal data, packed on the first frame that asks for normals
-        self._W = None                         # scratch of the skeleton normal pass, allocated with the normal data
+        self._W = self._tail = None            # scratch of the skeleton normal pass, allocated with the normal data
         self.positions = self._host_positions = np.empty((m, 3), dtype=np.float32)
         self.normals = self._host_normals = np.empty((m, 3), dtype=np.float32) if normals_mode else None
 
@@ -106,6 +106,7 @@ class CPUBound(DeviceBound):
                 kern = self._kernels
                 nblocks = (self.n_vertices + kern.BLOCK - 1) // kern.BLOCK
                 self._W = np.zeros((max(nblocks, 1), kern.SCRATCH), dtype=np.float32)
+                self._tail = np.zeros((2, kern.SUB, 3), dtype=np.float32)
         return self._N0, self._ridge
 
     def set_pose(self, T: np.ndarray) -> None:
@@ -124,7 +125,7 @@ class CPUBound(DeviceBound):
             out_n = self._host_normals
         if self._C is None:
             kern.blend_skin(self._rest, self._idx, self._wt, self._offset, self._scale, self._H,
-                            self._host_positions, N0, out_n, self._W if normals else None)
+                            self._host_positions, N0, out_n, *((self._W, self._tail) if normals else (None, None)))
         else:
             kern.blend_cage(self._rest, self._idx, self._wt, self._offset, self._scale, self._H, self._C,
                             self._host_positions, N0, ridge, out_n)

@@ -44,9 +44,10 @@ BLOCK = 2048
 SUB = 64
 #: float32 lanes of the explicit vector code of :func:`cofactor_normals` (one AVX ymm register).
 LANES = 8
-#: float32 scratch per block of the skeleton normal pass: 9 blended 3x3 entries, 3 rest-normal and 3 output
-#: components, each a structure-of-arrays row of :data:`SUB` vertices.
-SCRATCH = 15 * SUB
+#: float32 scratch per block of the skeleton normal pass: the 9 blended 3x3 entries, each a
+#: structure-of-arrays row of :data:`SUB` vertices.
+SCRATCH = 9 * SUB
+assert BLOCK % SUB == 0 and SUB % LANES == 0, "only the mesh's last sub-block may be partial"
 #: Floats per handle record (the 12 entries of T_i, padded to 16: one 64-byte cache line).
 HANDLE_STRIDE = 16
 #: fastmath without reassociation (the per-vertex normal arithmetic): with ``reassoc`` LLVM vectorised
@@ -133,32 +134,39 @@ def blend_row(typingctx, idx, wt, hf, v):
 
 
 @intrinsic
-def cofactor_normals(typingctx, W):
-    """Blended-matrix normals of one sub-block, :data:`LANES` vertices per vector instruction.
+def cofactor_normals(typingctx, W, N, O, row0):
+    """Blended-matrix normals of one sub-block of :data:`SUB` vertices, :data:`LANES` per vector instruction.
 
     ``W`` is one (:data:`SCRATCH`,) float32 scratch row in structure-of-arrays order: rows 0-8 hold
-    ``R_00 R_01 R_02 R_10 ... R_22`` of :data:`SUB` vertices, rows 9-11 their rest normals ``n``;
-    rows 12-14 receive ``n' = sign(det R) cof(R) n / |cof(R) n|`` with
+    ``R_00 R_01 R_02 R_10 ... R_22`` of the :data:`SUB` vertices. Their rest normals are
+    ``N[row0 : row0 + SUB]`` and ``O[row0 : row0 + SUB]`` receives
+    ``n' = sign(det R) cof(R) n / |cof(R) n|`` with
     ``cof(R) n = ((r_1 x r_2) . n, (r_2 x r_0) . n, (r_0 x r_1) . n)`` (rows ``r_i`` of ``R``) and
-    ``det R = r_0 . (r_1 x r_2)``. numba has no SIMD types and LLVM did not vectorise this loop
-    written in Python (it does not vectorise across the vertices of the blend), so it is emitted here
-    on ``<8 x float>`` values with fast-math flags: 27 multiplies of the three cross products, one
-    ``sqrt`` and a reciprocal (LLVM emits ``vrsqrtps`` + one Newton step), ``copysign`` for the
-    orientation and ``maxnum(|p|^2, 1e-30)`` for degenerate blends (their normal is 0, as the
-    reference's guarded division).
+    ``det R = r_0 . (r_1 x r_2)``; ``N`` and ``O`` are (., 3) float32, C-contiguous, read and written
+    as :data:`LANES` x 3 floats per step (one wide load / store, de- / re-interleaved by shuffles).
+    numba has no SIMD types and LLVM did not vectorise this loop written in Python, so it is emitted
+    here on ``<8 x float>`` values with fast-math flags: the three cross products, one ``sqrt`` and a
+    reciprocal (LLVM emits ``vrsqrtps`` + one Newton step), ``copysign`` for the orientation and
+    ``maxnum(|p|^2, 1e-30)`` for degenerate blends (their normal is 0, as the reference's guarded
+    division).
     """
-    if not (isinstance(W, types.Array) and W.layout == "C" and W.ndim == 1 and W.dtype == types.float32):
+    arrays = (W, N, O)
+    if not all(isinstance(a, types.Array) and a.layout == "C" and a.dtype == types.float32 for a in arrays):
+        return None
+    if W.ndim != 1 or N.ndim != 2 or O.ndim != 2:
         return None
 
     def codegen(context, builder, sig, args):
-        wa = context.make_array(sig.args[0])(context, builder, args[0])
-        f32, i64 = ir.FloatType(), ir.IntType(64)
+        wa, na, oa = (context.make_array(t)(context, builder, v) for t, v in zip(sig.args[:3], args[:3]))
+        f32, i32, i64 = ir.FloatType(), ir.IntType(32), ir.IntType(64)
         vty = ir.VectorType(f32, LANES)
+        wide = ir.VectorType(f32, 3 * LANES)
         fl = ("fast",)
         mod = builder.module
         v_sqrt = cgutils.get_or_insert_function(mod, ir.FunctionType(vty, [vty]), f"llvm.sqrt.v{LANES}f32")
         v_max = cgutils.get_or_insert_function(mod, ir.FunctionType(vty, [vty, vty]), f"llvm.maxnum.v{LANES}f32")
         v_sign = cgutils.get_or_insert_function(mod, ir.FunctionType(vty, [vty, vty]), f"llvm.copysign.v{LANES}f32")
+        base = builder.mul(args[3], ir.Constant(i64, 3))
         pre = builder.block
         head = builder.function.append_basic_block("cofactor_normals.head")
         body = builder.function.append_basic_block("cofactor_normals.body")
@@ -173,6 +181,9 @@ def cofactor_normals(typingctx, W):
         def row(r):
             p = builder.gep(wa.data, [builder.add(j, ir.Constant(i64, r * SUB))], inbounds=True)
             return builder.bitcast(p, vty.as_pointer())
+
+        def shuffle(a, b, mask):
+            return builder.shuffle_vector(a, b, ir.Constant(ir.VectorType(i32, len(mask)), mask))
 
         def mul(a, b):
             return builder.fmul(a, b, flags=fl)
@@ -191,7 +202,9 @@ def cofactor_normals(typingctx, W):
                     sub(mul(a[0], b[1]), mul(a[1], b[0])))
 
         R = [builder.load(row(r), align=4) for r in range(9)]
-        n = [builder.load(row(9 + c), align=4) for c in range(3)]
+        at = builder.add(base, builder.mul(j, ir.Constant(i64, 3)))
+        xyz = builder.load(builder.bitcast(builder.gep(na.data, [at], inbounds=True), wide.as_pointer()), align=4)
+        n = [shuffle(xyz, ir.Constant(wide, ir.Undefined), [3 * i + c for i in range(LANES)]) for c in range(3)]
         r0, r1, r2 = R[0:3], R[3:6], R[6:9]
         c12, c20, c01 = cross(r1, r2), cross(r2, r0), cross(r0, r1)
         p = (dot(c12, n), dot(c20, n), dot(c01, n))
@@ -199,14 +212,17 @@ def cofactor_normals(typingctx, W):
         l2 = builder.call(v_max, [dot(p, p), ir.Constant(vty, [1e-30] * LANES)])
         s = builder.fdiv(ir.Constant(vty, [1.0] * LANES), builder.call(v_sqrt, [l2]), flags=fl)
         s = builder.call(v_sign, [s, det])
-        for c in range(3):
-            builder.store(mul(s, p[c]), row(12 + c), align=4)
+        ox, oy, oz = (mul(s, pc) for pc in p)
+        xy = shuffle(ox, oy, list(range(2 * LANES)))
+        zz = shuffle(oz, ir.Constant(vty, ir.Undefined), list(range(LANES)) + [LANES] * LANES)
+        inter = shuffle(xy, zz, [c * LANES + i for i in range(LANES) for c in range(3)])
+        builder.store(inter, builder.bitcast(builder.gep(oa.data, [at], inbounds=True), wide.as_pointer()), align=4)
         j.add_incoming(builder.add(j, ir.Constant(i64, LANES)), builder.block)
         builder.branch(head)
         builder.position_at_end(done)
         return context.get_dummy_value()
 
-    return types.none(W), codegen
+    return types.none(W, N, O, types.intp), codegen
 
 
 @njit(inline="always", fastmath=FAST)
@@ -219,15 +235,16 @@ def _weight(wt, v, l, offset, scale):
 
 
 @njit(parallel=True, fastmath=FAST, cache=True)
-def blend_skin(rest, idx, wt, offset, scale, H, out_p, N0, out_n, W):  # pragma: no cover - numba
+def blend_skin(rest, idx, wt, offset, scale, H, out_p, N0, out_n, W, tail):  # pragma: no cover - numba
     """Positions (and blended-matrix normals when ``N0`` is not None) of every vertex.
 
     With normals, each block runs in sub-blocks of :data:`SUB` vertices: the blend loop writes the
-    positions and stores the blended 3x3 ``R`` and the rest normal of each vertex into the block's
-    scratch row ``W[b]`` (structure of arrays); :func:`cofactor_normals` then computes the
-    :data:`SUB` normals with vector instructions, and they are copied out. The scratch is
-    allocated once by the caller; entries of a partial last sub-block past the mesh are computed
-    from stale (finite) scratch values and not copied.
+    positions and stores the blended 3x3 ``R`` of each vertex into the block's scratch row ``W[b]``
+    (structure of arrays); :func:`cofactor_normals` then computes the :data:`SUB` normals with
+    vector instructions straight from ``N0`` into ``out_n``. Only the mesh's last sub-block can be
+    partial (:data:`BLOCK` is a multiple of :data:`SUB`); it goes through ``tail``, whose rows past
+    the mesh hold stale finite values and are not copied out. The scratch is allocated once by the
+    caller.
 
     Parameters
     ----------
@@ -241,6 +258,7 @@ def blend_skin(rest, idx, wt, offset, scale, H, out_p, N0, out_n, W):  # pragma:
     N0 : (m, 3) float32 rest normals, or None
     out_n : (m, 3) float32, written when N0 is not None
     W : (ceil(m / BLOCK), SCRATCH) float32 scratch (finite values), or None when N0 is None
+    tail : (2, SUB, 3) float32 scratch (finite values), or None when N0 is None
     """
     m, k = idx.shape
     Hf = H.ravel()
@@ -279,15 +297,16 @@ def blend_skin(rest, idx, wt, offset, scale, H, out_p, N0, out_n, W):  # pragma:
                     Wb[6 * SUB + j] = a[8]
                     Wb[7 * SUB + j] = a[9]
                     Wb[8 * SUB + j] = a[10]
-                    Wb[9 * SUB + j] = N0[v, 0]
-                    Wb[10 * SUB + j] = N0[v, 1]
-                    Wb[11 * SUB + j] = N0[v, 2]
-                cofactor_normals(Wb)
-                for v in range(s0, s1):
-                    j = v - s0
-                    out_n[v, 0] = Wb[12 * SUB + j]
-                    out_n[v, 1] = Wb[13 * SUB + j]
-                    out_n[v, 2] = Wb[14 * SUB + j]
+                if s1 - s0 == SUB:
+                    cofactor_normals(Wb, N0, out_n, s0)
+                else:                   # the mesh's last, partial sub-block: through the padded tail arrays
+                    for v in range(s0, s1):
+                        for c in range(3):
+                            tail[0, v - s0, c] = N0[v, c]
+                    cofactor_normals(Wb, tail[0], tail[1], 0)
+                    for v in range(s0, s1):
+                        for c in range(3):
+                            out_n[v, c] = tail[1, v - s0, c]
 
 
 @njit(parallel=True, fastmath=FAST, cache=True)

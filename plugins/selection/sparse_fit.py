@@ -44,6 +44,9 @@ from rigslim.numerics.simplex_nnls import _gradient, _inverse, _lawson_hanson
 RIDGE = 1e-12
 #: Bound multipliers above ``-MU_TOL * max_j |b_j|^2`` count as non-negative (KKT holds).
 MU_TOL = 1e-10
+#: Up to this many handles the per-pair 4 x 4 matrices ``M_ab = sum_q (T_a^q)^T T_b^q`` are precomputed
+#: (``16 n^2`` doubles) and ``G_ab = [v;1]^T M_ab [v;1]``; above it ``G = B B^T`` per vertex.
+PAIR_MAX_HANDLES = 256
 
 
 @njit(cache=True)
@@ -263,7 +266,7 @@ def _fit_vertex(G, avals, k, by_error, swaps):  # pragma: no cover - numba
 
 
 @njit(parallel=True, cache=True)
-def _fit_all(V, T, indptr, indices, data, k, by_error, swaps, Gh, shared, fit, member, errors):  # pragma: no cover
+def _fit_all(V, T, indptr, indices, data, k, by_error, swaps, Gh, shared, pair, fit, member, errors):  # pragma: no cover
     m = V.shape[0]
     for v in prange(m):
         lo = indptr[v]
@@ -271,13 +274,32 @@ def _fit_all(V, T, indptr, indices, data, k, by_error, swaps, Gh, shared, fit, m
         if hi == lo:
             continue
         cols = indices[lo:hi]
+        n = hi - lo
+        G = np.empty((n, n))
         if shared:
             # Translation-only handles (cages): the basis does not depend on the vertex.
-            n = hi - lo
-            G = np.empty((n, n))
             for a in range(n):
                 for b in range(n):
-                    G[a, b] = Gh[cols[a], cols[b]]
+                    G[a, b] = Gh[cols[a], cols[b], 0, 0]
+        elif pair:
+            # G_ab = [v;1]^T M_ab [v;1] with M_ab = sum_q (T_a^q)^T T_b^q (4 x 4, precomputed).
+            vt = np.empty(4)
+            vt[0] = V[v, 0]
+            vt[1] = V[v, 1]
+            vt[2] = V[v, 2]
+            vt[3] = 1.0
+            for a in range(n):
+                ha = cols[a]
+                for b in range(a, n):
+                    hb = cols[b]
+                    s = 0.0
+                    for r in range(4):
+                        t = 0.0
+                        for q in range(4):
+                            t += Gh[ha, hb, r, q] * vt[q]
+                        s += vt[r] * t
+                    G[a, b] = s
+                    G[b, a] = s
         else:
             B = _vertex_basis(V[v], T, cols)
             G = B @ B.T
@@ -318,9 +340,15 @@ def sparse_fit(V, T, A, k: int, by: str = "weight", swaps: int = 0):
     member = np.zeros(A.nnz, dtype=bool)
     errors = np.zeros(V.shape[0])
     shared = not np.any(T[..., :3])
-    Gh = np.einsum("pnc,plc->nl", T[..., 3], T[..., 3]) if shared else np.zeros((1, 1))
+    pair = not shared and T.shape[1] <= PAIR_MAX_HANDLES
+    if shared:
+        Gh = np.einsum("pnc,plc->nl", T[..., 3], T[..., 3])[:, :, None, None]
+    elif pair:
+        Gh = np.ascontiguousarray(np.einsum("pacr,pbcs->abrs", T, T))
+    else:
+        Gh = np.zeros((1, 1, 1, 1))
     _fit_all(V, T, A.indptr.astype(np.int64), A.indices.astype(np.int64), np.ascontiguousarray(A.data),
-             int(k), by == "error", int(swaps), Gh, shared, fit, member, errors)
+             int(k), by == "error", int(swaps), Gh, shared, pair, fit, member, errors)
     return fit, member, errors
 
 
