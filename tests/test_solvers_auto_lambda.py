@@ -45,7 +45,7 @@ def test_held_out_errors_match_a_direct_computation():
     lam, search = choose_position_weight(asset, params, [0.1])
     assert lam == 0.1
     p2 = n2 = 0.0
-    for fold, got in zip(search["folds"], search["grid"][0]["folds"]):
+    for fold, got in zip(search["folds"], search["grid"][0]["folds"], strict=False):
         held = fold["held_out_frames"]
         sub = FrameSplit(fold["fit_frames"], held, [])
         reduced, _ = reduce_weights(dataclasses.replace(asset, split=sub), "poisson",

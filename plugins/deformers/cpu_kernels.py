@@ -157,7 +157,7 @@ def cofactor_normals(typingctx, W, N, O, row0):
         return None
 
     def codegen(context, builder, sig, args):
-        wa, na, oa = (context.make_array(t)(context, builder, v) for t, v in zip(sig.args[:3], args[:3]))
+        wa, na, oa = (context.make_array(t)(context, builder, v) for t, v in zip(sig.args[:3], args[:3], strict=False))
         f32, i32, i64 = ir.FloatType(), ir.IntType(32), ir.IntType(64)
         vty = ir.VectorType(f32, LANES)
         wide = ir.VectorType(f32, 3 * LANES)

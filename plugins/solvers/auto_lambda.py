@@ -96,7 +96,7 @@ def choose_position_weight(asset, params, grid=GRID) -> tuple[float, dict]:
         p2 = n2 = secs = 0.0
         per_fold = []
         lam_params = params.model_copy(update={"position_weight": float(lam)})
-        for (fit, held), sub in zip(splits, subs):
+        for (_fit, held), sub in zip(splits, subs, strict=False):
             reduced, rep = reduce_weights(sub, "poisson", lam_params)
             p, n = held_out_errors(asset, reduced, held)
             p2 += len(held) * p * p
