@@ -513,7 +513,7 @@ def sparse_fit(V, T, A, k: int, by: str = "weight", swaps: int = 0):
     if shared:
         Gh = np.einsum("pnc,plc->nl", T[..., 3], T[..., 3])[:, :, None, None]
     elif pair:
-        Gh = np.ascontiguousarray(np.einsum("pacr,pbcs->abrs", T, T))
+        Gh = np.ascontiguousarray(np.einsum("pacr,pbcs->abrs", T, T, optimize=True))
     else:
         Gh = np.zeros((1, 1, 1, 1))
     _fit_all(V, T, A.indptr.astype(np.int64), A.indices.astype(np.int64), np.ascontiguousarray(A.data),
