@@ -435,7 +435,8 @@ def _fit_vertex(G, avals, k, by_error, swaps):  # pragma: no cover - numba
 
 
 @njit(parallel=True, cache=True)
-def _fit_all(V, T, indptr, indices, data, k, by_error, swaps, Gh, shared, pair, fit, member, errors):  # pragma: no cover
+def _fit_all(V, T, indptr, indices, data, k, by_error, swaps, Gh, shared, pair,  # pragma: no cover - numba
+             fit, member, errors):
     m = V.shape[0]
     for v in prange(m):
         lo = indptr[v]
