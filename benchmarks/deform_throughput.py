@@ -383,9 +383,12 @@ def run_quick(levels: int = 3, frames: int = 8, ks=(8, 4), copy_mib: int = 512, 
     except Exception as e:  # noqa: BLE001
         log(f"opengl skipped: {e}")
 
-    for k in ks:
-        reduced = k_largest_weights(W, k_largest(W, k))
-        for backend, deformer in backends.items():
+    # Back end by back end (every k of one before the next): PoCL's and llvmpipe's worker threads stay busy
+    # for a while after their last frame, and would otherwise eat into the next back end's cores.
+    reduced_by_k = {k: k_largest_weights(W, k_largest(W, k)) for k in ks}
+    for backend, deformer in backends.items():
+        for k in ks:
+            reduced = reduced_by_k[k]
             for layout in ("fixed", "compact"):
                 raw = {"layout": layout, **{"opencl": {"device": "cpu"}, "cpu": {"engine": "numba"}}.get(backend, {})}
                 bound = deformer.bind(mesh, reduced, deformer.parse_params(raw), handles=asset.handles)

@@ -299,7 +299,8 @@ def markdown(doc):
                     f"example frames {c['examples']}, {c['test_frames']} test frames)", ""] + table(c["rows"]) + [""]
             for r in c["rows"]:
                 if "held_out" in r:
-                    out.append(f"- {r['method']}: held-out " + "; ".join(
+                    cv = f"{r['folds']}-fold cross-validated" if r.get("folds") else "held-out"
+                    out.append(f"- {r['method']}: {cv} " + "; ".join(
                         f"lambda {g['position_weight']:g}: {g['position_rms_pct']:.4f} % / "
                         f"{g['normal_rms_rad']:.4f} rad"
                         f" (score {g['score']:.3f})" for g in r["held_out"]))

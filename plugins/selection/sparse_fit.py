@@ -266,8 +266,8 @@ def _fit_vertex(G, avals, k, by_error, swaps):  # pragma: no cover - numba
 
 
 @njit(parallel=True, cache=True)
-def _fit_all(V, T, indptr, indices, data, k, by_error, swaps, Gh, shared, pair, fit, member,
-             errors):  # pragma: no cover
+def _fit_all(V, T, indptr, indices, data, k, by_error, swaps, Gh, shared, pair,  # pragma: no cover - numba
+             fit, member, errors):
     m = V.shape[0]
     for v in prange(m):
         lo = indptr[v]
@@ -345,7 +345,7 @@ def sparse_fit(V, T, A, k: int, by: str = "weight", swaps: int = 0):
     if shared:
         Gh = np.einsum("pnc,plc->nl", T[..., 3], T[..., 3])[:, :, None, None]
     elif pair:
-        Gh = np.ascontiguousarray(np.einsum("pacr,pbcs->abrs", T, T))
+        Gh = np.ascontiguousarray(np.einsum("pacr,pbcs->abrs", T, T, optimize=True))
     else:
         Gh = np.zeros((1, 1, 1, 1))
     _fit_all(V, T, A.indptr.astype(np.int64), A.indices.astype(np.int64), np.ascontiguousarray(A.data),
