@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import base64
 import io
-import json
-import subprocess
 import tempfile
 import time
 from pathlib import Path
@@ -73,7 +71,7 @@ def render_glb(path: Path, t: float, *, eye=(3.2, 1.4, 3.2), target=(0.0, 1.0, 0
                timeout: float = 90.0) -> np.ndarray:
     """RGB image (h, w, 3) of a .glb as three.js renders it at clip time t."""
     from PIL import Image
-    from support.report_browser import _CDP, WebSocket
+    from support.report_browser import devtools_page
 
     loader = (THREE / "examples/jsm/loaders/GLTFLoader.js").read_text()
     loader = loader.replace("'../utils/BufferGeometryUtils.js'", "'bgu'")
@@ -81,48 +79,23 @@ def render_glb(path: Path, t: float, *, eye=(3.2, 1.4, 3.2), target=(0.0, 1.0, 0
                    "bgu": _data_url((THREE / "examples/jsm/utils/BufferGeometryUtils.js").read_text()),
                    "glb": base64.b64encode(path.read_bytes()).decode(), "w": size[0], "h": size[1], "t": t,
                    "eye": ", ".join(map(str, eye)), "target": ", ".join(map(str, target))}
-    with tempfile.TemporaryDirectory(prefix="rigslim-three-") as tmp:
+    flags = ["--headless", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-first-run",
+             "--disable-dev-shm-usage", "--disable-background-networking"]
+    with tempfile.TemporaryDirectory(prefix="rigslim-three-") as tmp, \
+            devtools_page(flags=flags, timeout=timeout) as (cdp, session):
         page = Path(tmp) / "page.html"
         page.write_text(html)
-        proc = subprocess.Popen([find_chromium(), "--headless", "--no-sandbox", "--use-angle=swiftshader",
-                                 "--enable-unsafe-swiftshader", "--no-first-run", "--disable-dev-shm-usage",
-                                 "--disable-background-networking", f"--user-data-dir={tmp}/profile",
-                                 "--remote-debugging-port=0", "about:blank"],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        ws = None
-        try:
-            port_file = Path(tmp) / "profile" / "DevToolsActivePort"
-            end = time.monotonic() + timeout
-            while not (port_file.exists() and len(port_file.read_text().split()) >= 2):
-                assert proc.poll() is None and time.monotonic() < end, "chromium did not start"
-                time.sleep(0.05)
-            port, ws_path = port_file.read_text().split()[:2]
-            ws = WebSocket(f"ws://127.0.0.1:{port}{ws_path}", timeout=timeout)
-            cdp = _CDP(ws)
-            target_id = cdp.call("Target.createTarget", {"url": "about:blank"})["targetId"]
-            session = cdp.call("Target.attachToTarget", {"targetId": target_id, "flatten": True})["sessionId"]
-            cdp.call("Page.enable", session=session)
-            cdp.call("Page.navigate", {"url": page.as_uri()}, session=session)
-            value = None
-            while time.monotonic() < end:
-                value = cdp.call("Runtime.evaluate", {"expression": "window.__result", "returnByValue": True},
-                                 session=session)["result"].get("value")
-                if value:
-                    break
-                time.sleep(0.2)
-            assert value and value.startswith("data:image/png"), f"three.js did not render: {str(value)[:300]}"
-        finally:
-            if ws is not None:
-                try:
-                    ws.send(json.dumps({"id": 10 ** 6, "method": "Browser.close"}))
-                except OSError:
-                    pass
-                ws.close()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        cdp.call("Page.enable", session=session)
+        cdp.call("Page.navigate", {"url": page.as_uri()}, session=session)
+        value = None
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            value = cdp.call("Runtime.evaluate", {"expression": "window.__result", "returnByValue": True},
+                             session=session)["result"].get("value")
+            if value:
+                break
+            time.sleep(0.2)
+        assert value and value.startswith("data:image/png"), f"three.js did not render: {str(value)[:300]}"
     png = base64.b64decode(value.split(",", 1)[1])
     return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.float64)
 

@@ -29,6 +29,7 @@ import struct
 import subprocess
 import tempfile
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -211,9 +212,17 @@ def _errors_of(events: list[dict]) -> list[str]:
     return out
 
 
-def check_page(path, *, width: int = 1200, height: int = 900, timeout: float = 60.0,
-               chromium: str | None = None) -> PageCheck:
-    """Load an HTML file in headless Chromium and report errors, images and a screenshot.
+@contextmanager
+def devtools_page(*, flags: list[str] | None = None, timeout: float = 60.0, chromium: str | None = None):
+    """Headless Chromium with a fresh profile; yields ``(cdp, session)`` for one blank page, closes it after.
+
+    Parameters
+    ----------
+    flags : list of str, optional
+        Chromium's command-line flags (default :data:`CHROMIUM_FLAGS`); the
+        profile folder, the DevTools port and the blank first page are added.
+    timeout : float
+        Seconds to wait for Chromium to start.
 
     Raises
     ------
@@ -224,11 +233,10 @@ def check_page(path, *, width: int = 1200, height: int = 900, timeout: float = 6
     if not binary:
         raise BrowserUnavailable("no chromium binary", field="chromium",
                                  fix="run tools/setup-chromium.sh (Debian package 'chromium')")
-    url = Path(path).resolve().as_uri()
     with tempfile.TemporaryDirectory(prefix="rigslim-chromium-") as profile:
         log = open(Path(profile) / "stderr.log", "wb")
-        proc = subprocess.Popen([binary, *CHROMIUM_FLAGS, f"--user-data-dir={profile}",
-                                 "--remote-debugging-port=0", f"--window-size={width},{height}", "about:blank"],
+        proc = subprocess.Popen([binary, *(CHROMIUM_FLAGS if flags is None else flags), f"--user-data-dir={profile}",
+                                 "--remote-debugging-port=0", "about:blank"],
                                 stdout=subprocess.DEVNULL, stderr=log)
         ws = None
         try:
@@ -245,32 +253,7 @@ def check_page(path, *, width: int = 1200, height: int = 900, timeout: float = 6
             cdp = _CDP(ws)
             target = cdp.call("Target.createTarget", {"url": "about:blank"})["targetId"]
             session = cdp.call("Target.attachToTarget", {"targetId": target, "flatten": True})["sessionId"]
-            for domain in ("Runtime", "Log", "Page"):
-                cdp.call(f"{domain}.enable", session=session)
-            cdp.call("Emulation.setDeviceMetricsOverride", {"width": width, "height": height,
-                                                             "deviceScaleFactor": 1, "mobile": False},
-                     session=session)
-            cdp.call("Page.navigate", {"url": url}, session=session)
-            cdp.wait_event("Page.loadEventFired", timeout=timeout)
-            probe = ("JSON.stringify({title: document.title, total: document.images.length,"
-                     " decoded: Array.prototype.filter.call(document.images, function(i){"
-                     " return i.complete && i.naturalWidth > 0; }).length,"
-                     " marker: (function(e){ if (!e) return {}; var o = {};"
-                     " for (var a of e.attributes) o[a.name] = a.value; o.text = e.textContent; return o; })"
-                     "(document.getElementById('rigslim-check'))})")
-            value = json.loads(cdp.call("Runtime.evaluate", {"expression": probe, "returnByValue": True},
-                                        session=session)["result"]["value"])
-            metrics = cdp.call("Page.getLayoutMetrics", session=session)
-            size = metrics.get("cssContentSize") or metrics.get("contentSize")
-            shot = cdp.call("Page.captureScreenshot", {
-                "format": "png", "captureBeyondViewport": True,
-                "clip": {"x": 0, "y": 0, "width": max(width, size["width"]), "height": size["height"], "scale": 1}},
-                session=session)
-            # let late events (errors after load) arrive
-            cdp.call("Runtime.evaluate", {"expression": "1"}, session=session)
-            return PageCheck(console_errors=_errors_of(cdp.events), images_total=int(value["total"]),
-                             images_decoded=int(value["decoded"]), marker=value["marker"],
-                             screenshot=base64.b64decode(shot["data"]), title=value["title"])
+            yield cdp, session
         finally:
             if ws is not None:
                 try:
@@ -284,6 +267,46 @@ def check_page(path, *, width: int = 1200, height: int = 900, timeout: float = 6
                 proc.kill()
                 proc.wait()
             log.close()
+
+
+def check_page(path, *, width: int = 1200, height: int = 900, timeout: float = 60.0,
+               chromium: str | None = None) -> PageCheck:
+    """Load an HTML file in headless Chromium and report errors, images and a screenshot.
+
+    Raises
+    ------
+    BrowserUnavailable
+        When no Chromium is installed (``tools/setup-chromium.sh``) or it does not start.
+    """
+    url = Path(path).resolve().as_uri()
+    with devtools_page(flags=[*CHROMIUM_FLAGS, f"--window-size={width},{height}"], timeout=timeout,
+                       chromium=chromium) as (cdp, session):
+        for domain in ("Runtime", "Log", "Page"):
+            cdp.call(f"{domain}.enable", session=session)
+        cdp.call("Emulation.setDeviceMetricsOverride", {"width": width, "height": height,
+                                                         "deviceScaleFactor": 1, "mobile": False},
+                 session=session)
+        cdp.call("Page.navigate", {"url": url}, session=session)
+        cdp.wait_event("Page.loadEventFired", timeout=timeout)
+        probe = ("JSON.stringify({title: document.title, total: document.images.length,"
+                 " decoded: Array.prototype.filter.call(document.images, function(i){"
+                 " return i.complete && i.naturalWidth > 0; }).length,"
+                 " marker: (function(e){ if (!e) return {}; var o = {};"
+                 " for (var a of e.attributes) o[a.name] = a.value; o.text = e.textContent; return o; })"
+                 "(document.getElementById('rigslim-check'))})")
+        value = json.loads(cdp.call("Runtime.evaluate", {"expression": probe, "returnByValue": True},
+                                    session=session)["result"]["value"])
+        metrics = cdp.call("Page.getLayoutMetrics", session=session)
+        size = metrics.get("cssContentSize") or metrics.get("contentSize")
+        shot = cdp.call("Page.captureScreenshot", {
+            "format": "png", "captureBeyondViewport": True,
+            "clip": {"x": 0, "y": 0, "width": max(width, size["width"]), "height": size["height"], "scale": 1}},
+            session=session)
+        # let late events (errors after load) arrive
+        cdp.call("Runtime.evaluate", {"expression": "1"}, session=session)
+        return PageCheck(console_errors=_errors_of(cdp.events), images_total=int(value["total"]),
+                         images_decoded=int(value["decoded"]), marker=value["marker"],
+                         screenshot=base64.b64decode(shot["data"]), title=value["title"])
 
 
 def main(argv=None) -> int:
