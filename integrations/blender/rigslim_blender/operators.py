@@ -291,8 +291,8 @@ def lod_request(skin: sc.Skin, T: np.ndarray, op) -> dict:
     extra = json.loads(op.more_parameters) if op.more_parameters.strip() else {}
     return {"V": skin.V, "F": skin.F, "L": skin.L, "n_loops": np.int64(n_loops), "loop_values": X,
             "corner_keys": keys.reshape(-1, 3).astype(np.int64), "poses": T, "ratios": np.array(_ratios(op.ratios)),
-            "max_bones": np.int64(op.max_bones), "error_targets": np.zeros(0), "extra_params": np.str_(json.dumps(extra)),
-            **wt.request_weights(skin)}
+            "max_bones": np.int64(op.max_bones), "error_targets": np.zeros(0),
+            "extra_params": np.str_(json.dumps(extra)), **wt.request_weights(skin)}
 
 
 def remove_old_lods(obj, names: set[str]) -> None:

@@ -80,7 +80,8 @@ class DATA_PT_rigslim(bpy.types.Panel):
         col.prop(s, "k")
         col.prop(s, "holdout")
         col.prop(s, "measure")
-        op = col.operator("rigslim.limit_influences", text="Limit Influences (Fit to Animation)", icon="MOD_VERTEX_WEIGHT")
+        op = col.operator("rigslim.limit_influences", text="Limit Influences (Fit to Animation)",
+                          icon="MOD_VERTEX_WEIGHT")
         op.k, op.actions, op.frame_step, op.holdout, op.measure = s.k, s.actions, s.frame_step, s.holdout, s.measure
         last = _last(obj, "rigslim_limit")
         if last and "rms_pct" in last:

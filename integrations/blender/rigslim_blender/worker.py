@@ -86,8 +86,8 @@ def decimator_parameters() -> list[str]:
 def cmd_version() -> int:
     import rigslim
 
-    emit(version=rigslim.__version__, protocol=PROTOCOL, python=sys.executable,
-         reduce_defaults={k: v for k, v in api_defaults(rigslim.reduce_weights).items() if k in ("k", "select", "solve")},
+    reduce_defaults = {k: v for k, v in api_defaults(rigslim.reduce_weights).items() if k in ("k", "select", "solve")}
+    emit(version=rigslim.__version__, protocol=PROTOCOL, python=sys.executable, reduce_defaults=reduce_defaults,
          simplify_method=api_defaults(rigslim.simplify)["method"], decimator_parameters=decimator_parameters())
     return 0
 
