@@ -48,6 +48,10 @@ class DecimationParams(Params):
     max_bones: int | None = Field(default=None, ge=1)
     """At most this many non-zero weights per vertex at every level."""
     keep_boundary: bool = True
+    """Border vertices (on an edge with one face) never leave the border: they collapse only along it,
+    onto a neighbouring border point, and free vertices collapse onto them (false: borders are ordinary)."""
+    border_collapses: bool = True
+    """With ``keep_boundary``: border vertices may collapse along their border (false fixes every one)."""
     attribute_weights: dict[str, float] = Field(default_factory=lambda: dict(ATTRIBUTE_WEIGHTS))
     """For a mesh read from glTF: weight of each vertex attribute's displacement term in the error, by name
     (``TEXCOORD_0``) or family (``TEXCOORD``, ``COLOR``, ``NORMAL``, ``TANGENT``); see :func:`attribute_term`."""
@@ -169,6 +173,7 @@ class ArticulatedDecimator(Decimator):
         model = self.model(Q, W, T, params)
         locked, seams = seam_lock(asset, params.seams_collapse_along) if params.lock_seams else (None, None)
         hier = simplify(mesh.V, mesh.F, W, T, X, model, min_faces=min_faces, keep_boundary=params.keep_boundary,
+                        border_collapses=params.border_collapses,
                         min_normal_cos=params.min_normal_cos, progress=ctx.progress, method=self.name,
                         params=params.model_dump(), backend=params.backend, locked=locked, seams=seams)
         levels = [hier.at_faces(f, target_label(self.name, t, f)) for t, f in zip(params.targets, faces, strict=False)]
