@@ -24,6 +24,8 @@ install-test: $(VENV)/.installed-test
 ## demo: create .venv, install rigslim, reduce the elephant to 4 weights and print the errors
 demo: install
 	$(VENV)/bin/rigslim run examples/elephant-k4.yaml --metrics examples/out/elephant-k4.json
+	@# an LOD chain of a small character: also compiles the decimation kernels once into numba's cache
+	$(VENV)/bin/rigslim lod examples/data/gltf/huesitos.glb -o examples/out/huesitos-lod.glb --ratios 0.5,0.25
 
 ## test-tools: system tools some tests drive (each tools/setup-*.sh installs one, idempotently)
 test-tools:
