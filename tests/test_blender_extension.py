@@ -108,3 +108,12 @@ def test_errors_are_one_line(tube):
     assert "\n" not in missing and "rigslim Python" in missing and "Traceback" not in missing
     bad = tube["errors"]["bad_action"]
     assert "\n" not in bad and "NoSuchAction" in bad and "Bend" in bad
+
+
+def test_generate_lods_max_error(tube):
+    """rigslim's max_error stops levels early: never fewer faces than without it, and the old children go."""
+    free = {lv["name"]: lv["faces"] for lv in tube["lod_record"]["levels"]}
+    bounded = tube["lod_bounded"]["levels"]
+    assert tube["lod_bounded_children"] == [lv["name"] for lv in bounded]
+    assert all(lv["faces"] >= free[lv["name"]] for lv in bounded)
+    assert any(lv["faces"] > free[lv["name"]] for lv in bounded)

@@ -101,8 +101,7 @@ def test_lod_levels_keep_uvs_and_bone_limit(tmp_path):
     uv = np.c_[V[:, 0], V[:, 2] / 4.0][F.ravel()]                      # a continuous UV map: one chart
     keys = np.unique(uv, axis=0, return_inverse=True)[1].reshape(F.shape)
     req = request(V, F, W, T, L=L, n_loops=np.int64(F.size), loop_values=uv, corner_keys=keys.astype(np.int64),
-                  ratios=np.array([0.5, 0.25]), max_bones=np.int64(2), error_targets=np.zeros(0),
-                  extra_params=np.str_("{}"))
+                  ratios=np.array([0.5, 0.25]), max_bones=np.int64(2), extra_params=np.str_("{}"))
     rc, lines, res = run_worker(tmp_path, "lod", req)
     assert rc == 0, lines
     assert int(res["n_levels"]) == 2
@@ -136,7 +135,7 @@ def test_version_reports_defaults_and_decimator_parameters():
     info = runner.check(sys.executable)
     assert info["version"] == rigslim.__version__
     assert info["simplify_method"] == "quartic"
-    assert {"max_bones", "targets", "error_targets"} <= set(info["decimator_parameters"])
+    assert {"max_bones", "targets", "max_error"} <= set(info["decimator_parameters"])
 
 
 def test_find_python(tmp_path, monkeypatch):

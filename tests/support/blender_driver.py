@@ -143,6 +143,7 @@ def main() -> int:
     ap.add_argument("--max-bones", type=int, default=2)
     ap.add_argument("--actions", default="")
     ap.add_argument("--frame-step", type=int, default=1)
+    ap.add_argument("--max-error", type=float, default=0.05, help="for the bounded LOD run, % of the diagonal")
     ap.add_argument("--blend", default=None, help="also save the scene there")
     args = ap.parse_args(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:])
     if args.gltf:
@@ -182,6 +183,10 @@ def main() -> int:
     ext.measure.remove_copy(ref)
     ext.measure.remove_copy(lt)
     select_only(obj)
+    bpy.ops.rigslim.generate_lods(ratios=args.ratios, max_bones=args.max_bones, actions=args.actions,
+                                  frame_step=max(args.frame_step, 2), max_error=args.max_error)
+    result["lod_bounded"] = json.loads(obj["rigslim_lods"])
+    result["lod_bounded_children"] = sorted(c.name for c in obj.children)
     op = bpy.ops.rigslim.generate_lods(ratios=args.ratios, max_bones=args.max_bones, actions=args.actions,
                                        frame_step=max(args.frame_step, 2))
     result["lod_status"] = sorted(op)

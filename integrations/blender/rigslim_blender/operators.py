@@ -273,7 +273,7 @@ def _ratios(text: str) -> list[float]:
     return sorted(set(vals), reverse=True)
 
 
-def lod_request(skin: sc.Skin, T: np.ndarray, op) -> dict:
+def lod_request(skin: sc.Skin, T: np.ndarray, op, extra: dict) -> dict:
     """Mesh, weights, poses, per-loop UVs and per-corner chart keys for the worker's ``lod`` command."""
     mesh = skin.obj.data
     n_loops = len(mesh.loops)
@@ -288,11 +288,9 @@ def lod_request(skin: sc.Skin, T: np.ndarray, op) -> dict:
     corner = np.concatenate([X[skin.L].reshape(-1, X.shape[1]),
                              np.repeat(mat[skin.tri_poly], 3)[:, None].astype(float)], axis=1)
     _, keys = np.unique(corner, axis=0, return_inverse=True)
-    extra = json.loads(op.more_parameters) if op.more_parameters.strip() else {}
     return {"V": skin.V, "F": skin.F, "L": skin.L, "n_loops": np.int64(n_loops), "loop_values": X,
             "corner_keys": keys.reshape(-1, 3).astype(np.int64), "poses": T, "ratios": np.array(_ratios(op.ratios)),
-            "max_bones": np.int64(op.max_bones), "error_targets": np.zeros(0),
-            "extra_params": np.str_(json.dumps(extra)), **wt.request_weights(skin)}
+            "max_bones": np.int64(op.max_bones), "extra_params": np.str_(json.dumps(extra)), **wt.request_weights(skin)}
 
 
 def remove_old_lods(obj, names: set[str]) -> None:
@@ -370,9 +368,10 @@ class RIGSLIM_OT_generate_lods(StepOperator, bpy.types.Operator):
     more_parameters: StringProperty(name="More Parameters", default="",
                                     description="More parameters of rigslim's decimator, as JSON "
                                                 "(e.g. {\"min_normal_cos\": 0.2}); see docs/blender.md")
-    max_error: FloatProperty(name="Max Error", default=0.0, min=0.0,
-                             description="Also add a level with every collapse of error at most this "
-                                         "(the decimator's error_targets; 0: none)")
+    max_error: FloatProperty(name="Max Error %", default=0.0, min=0.0, max=100.0,
+                             description="Stop every level before a collapse would move the surface farther than "
+                                         "this, in % of the mesh's diagonal, over every fitted pose (rigslim's "
+                                         "max_error; a level can then keep more faces than its ratio; 0: off)")
 
     @classmethod
     def poll(cls, context):
@@ -385,6 +384,8 @@ class RIGSLIM_OT_generate_lods(StepOperator, bpy.types.Operator):
             extra = json.loads(self.more_parameters) if self.more_parameters.strip() else {}
         except ValueError as exc:
             raise sc.SkinError(f"more parameters: not JSON ({exc}); write e.g. {{\"min_normal_cos\": 0.2}}") from None
+        if self.max_error > 0:
+            extra["max_error"] = float(self.max_error)
         unknown = sorted(set(extra) - known) if known else []
         if unknown:
             raise sc.SkinError(f"more parameters: {', '.join(unknown)} unknown to rigslim {info.get('version')}'s "
@@ -393,17 +394,15 @@ class RIGSLIM_OT_generate_lods(StepOperator, bpy.types.Operator):
         for j, obj in enumerate(objs):
             if self.checkpoint():
                 break
-            yield from self.lods_one(context, obj, python, j / len(objs), (j + 1) / len(objs))
+            yield from self.lods_one(context, obj, python, extra, j / len(objs), (j + 1) / len(objs))
 
-    def lods_one(self, context, obj, python, lo, hi) -> Iterator[Step]:
+    def lods_one(self, context, obj, python, extra, lo, hi) -> Iterator[Step]:
         span = hi - lo
         skin = sc.read_skin(obj)
         _, examples, _ = action_frames(self, skin, 0)
         with sc.preserved_animation(context.scene, skin.armature):
             T = yield from sample_poses(self, context, skin, examples, lo, lo + 0.2 * span, "sampling poses")
-        request = lod_request(skin, T, self)
-        if self.max_error > 0:
-            request["error_targets"] = np.array([self.max_error])
+        request = lod_request(skin, T, self, extra)
         res = yield from self.run_job(python, "lod", request, lo + 0.2 * span, lo + 0.9 * span)
         n = int(res["n_levels"])
         names = [f"{obj.name}_LOD{i + 1}" for i in range(n)]

@@ -40,8 +40,9 @@ class RigslimSettings(bpy.types.PropertyGroup):
                            description="Fraction of the faces kept by each LOD level")
     max_bones: IntProperty(name="Bone Limit", default=4, min=0, max=32,
                            description="At most this many bones per vertex in every LOD (0: no limit)")
-    max_error: FloatProperty(name="Max Error", default=0.0, min=0.0,
-                             description="Also add a level with every collapse of error at most this (0: none)")
+    max_error: FloatProperty(name="Max Error %", default=0.0, min=0.0, max=100.0,
+                             description="Stop each level before the surface moves farther than this, % of the "
+                                         "diagonal (0: off)")
 
 
 def _last(obj, key: str) -> dict | None:

@@ -202,9 +202,6 @@ def cmd_lod(request: str, result: str) -> int:
     params: dict = {}
     if int(req["max_bones"]) > 0:
         params["max_bones"] = int(req["max_bones"])
-    for name in ("error_targets",):
-        if name in req and len(req[name]):
-            params[name] = [float(x) for x in req[name]]
     extra = json.loads(str(req["extra_params"])) if "extra_params" in req else {}
     params.update(extra)
     method = api_defaults(rigslim.simplify)["method"]
