@@ -144,6 +144,9 @@ def main() -> int:
     ap.add_argument("--actions", default="")
     ap.add_argument("--frame-step", type=int, default=1)
     ap.add_argument("--max-error", type=float, default=0.05, help="for the bounded LOD run, % of the diagonal")
+    ap.add_argument("--select", default="")
+    ap.add_argument("--solve", default="")
+    ap.add_argument("--skip-lods", action="store_true")
     ap.add_argument("--blend", default=None, help="also save the scene there")
     args = ap.parse_args(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:])
     if args.gltf:
@@ -166,6 +169,7 @@ def main() -> int:
     result["errors"]["bad_action"] = expect_error(lambda: bpy.ops.rigslim.limit_influences(k=args.k,
                                                                                            actions="NoSuchAction"))
     result["input_groups"] = group_stats(ext, obj)
+    result["source_triangles"] = sum(len(p.vertices) - 2 for p in obj.data.polygons)
     ref = ext.measure.temporary_copy(obj, "Reference")
     lt = ext.measure.temporary_copy(obj, "LimitTotal")
     select_only(lt)
@@ -173,7 +177,8 @@ def main() -> int:
     bpy.ops.object.vertex_group_normalize_all(group_select_mode="BONE_DEFORM", lock_active=False)
     result["limit_total_groups"] = group_stats(ext, lt)
     select_only(obj)
-    op = bpy.ops.rigslim.limit_influences(k=args.k, actions=args.actions, frame_step=args.frame_step, holdout=4)
+    op = bpy.ops.rigslim.limit_influences(k=args.k, actions=args.actions, frame_step=args.frame_step, holdout=4,
+                                          select=args.select, solve=args.solve)
     result["limit_status"] = sorted(op)
     result["limit"] = json.loads(obj["rigslim_limit"])
     result["groups"] = group_stats(ext, obj)
@@ -182,6 +187,10 @@ def main() -> int:
     result["temporary_objects_left"] = sorted(o.name for o in bpy.data.objects if "rigslim-" in o.name)
     ext.measure.remove_copy(ref)
     ext.measure.remove_copy(lt)
+    if args.skip_lods:
+        with open(args.out, "w") as fh:
+            json.dump(result, fh, indent=1)
+        return 0
     select_only(obj)
     bpy.ops.rigslim.generate_lods(ratios=args.ratios, max_bones=args.max_bones, actions=args.actions,
                                   frame_step=max(args.frame_step, 2), max_error=args.max_error)

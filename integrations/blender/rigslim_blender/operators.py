@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import time
+import traceback
 from collections.abc import Iterator
 
 import bpy
@@ -81,6 +82,13 @@ class StepOperator:
         self.report({"ERROR"}, f"rigslim: {exc}")
         return {"CANCELLED"}
 
+    def _bug(self, exc: Exception) -> set[str]:
+        traceback.print_exc()
+        done = f" ({self.written} object(s) were already changed)" if self.written else " (nothing was changed)"
+        self.report({"ERROR"}, f"rigslim: internal error {type(exc).__name__}: {exc}{done}; the traceback is on "
+                               "the system console, please report it")
+        return {"CANCELLED"}
+
     def execute(self, context):
         self.cancel_requested, self.written = False, 0
         last = ""
@@ -93,6 +101,8 @@ class StepOperator:
                     time.sleep(0.05)
         except (runner.RunnerError, sc.SkinError) as exc:
             return self._fail(exc)
+        except Exception as exc:  # a bug: one line in Blender, the traceback on the console
+            return self._bug(exc)
         return {"FINISHED"}
 
     def invoke(self, context, event):
@@ -135,6 +145,9 @@ class StepOperator:
         except (runner.RunnerError, sc.SkinError) as exc:
             self._end(context)
             return self._fail(exc)
+        except Exception as exc:
+            self._end(context)
+            return self._bug(exc)
         context.window_manager.progress_update(int(100 * fraction))
         _status(context, f"rigslim: {message}  ({int(100 * fraction)} %, Esc to cancel)")
         return {"RUNNING_MODAL"}
@@ -203,6 +216,10 @@ class RIGSLIM_OT_limit_influences(StepOperator, bpy.types.Operator):
                                      "against Limit Total (0 or 1: fit every frame, measure none)")
     measure: BoolProperty(name="Compare with Limit Total", default=True,
                           description="Measure rigslim's and Blender's Limit Total error on the held-out frames")
+    select: StringProperty(name="Selection", default="",
+                           description="rigslim influence selection plugin (empty: the library's default)")
+    solve: StringProperty(name="Solver", default="",
+                          description="rigslim weight solver plugin (empty: the library's default)")
 
     @classmethod
     def poll(cls, context):
@@ -227,7 +244,8 @@ class RIGSLIM_OT_limit_influences(StepOperator, bpy.types.Operator):
         _, examples, test = action_frames(self, skin, self.holdout)
         with sc.preserved_animation(context.scene, skin.armature):
             T = yield from sample_poses(self, context, skin, examples, lo, lo + 0.2 * span, "sampling poses")
-            request = {"V": skin.V, "F": skin.F, "k": np.int64(self.k), "poses": T, **wt.request_weights(skin)}
+            request = {"V": skin.V, "F": skin.F, "k": np.int64(self.k), "poses": T, "select": np.str_(self.select),
+                       "solve": np.str_(self.solve), **wt.request_weights(skin)}
             res = yield from self.run_job(python, "reduce", request, lo + 0.2 * span, lo + 0.8 * span)
             idx, val = wt.blender_rows(skin, res["indices"], res["values"])
             held = measure.HeldOut(skin, self.k) if (self.measure and test) else None
@@ -285,7 +303,7 @@ def lod_request(skin: sc.Skin, T: np.ndarray, op, extra: dict) -> dict:
     X = np.hstack(layers) if layers else np.zeros((n_loops, 0))
     mat = np.empty(len(mesh.polygons), np.int64)
     mesh.polygons.foreach_get("material_index", mat)
-    corner = np.concatenate([X[skin.L].reshape(-1, X.shape[1]),
+    corner = np.concatenate([X[skin.L].reshape(3 * len(skin.L), X.shape[1]),
                              np.repeat(mat[skin.tri_poly], 3)[:, None].astype(float)], axis=1)
     _, keys = np.unique(corner, axis=0, return_inverse=True)
     return {"V": skin.V, "F": skin.F, "L": skin.L, "n_loops": np.int64(n_loops), "loop_values": X,
