@@ -60,7 +60,7 @@ def gltf_character(path: str):
 def measure_independently(ext, obj, ref, lt, test) -> dict:
     sc = ext.scene
     D = float(np.linalg.norm(np.ptp(sc.read_skin(ref).V, axis=0)))
-    out = {"rigslim": [], "limit_total": [], "rigslim_max": [], "limit_total_max": []}
+    out: dict[str, list[float]] = {"rigslim": [], "limit_total": [], "rigslim_max": [], "limit_total_max": []}
     skin = sc.read_skin(ref)
     with sc.preserved_animation(bpy.context.scene, skin.armature):
         for action, frame in test:

@@ -1,3 +1,5 @@
+# mypy: disable-error-code="valid-type"
+# (bpy properties are declared as annotations that call bpy.props: Blender's idiom)
 """The two operators: Limit Influences (fit to animation) and Generate Skinned LODs.
 
 Each operator's work is one generator of steps (:meth:`StepOperator.steps`) that yields
@@ -12,7 +14,8 @@ from __future__ import annotations
 import json
 import time
 import traceback
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
+from typing import Any
 
 import bpy
 import numpy as np
@@ -23,12 +26,18 @@ from . import scene as sc
 from . import weights as wt
 
 Step = tuple[float, str, bool]
+#: A step generator whose ``yield from`` gives a value (a worker result, sampled poses).
+Steps = Generator[Step, None, Any]
 
 _CHECKED: dict[str, dict] = {}
 
 
 class Cancelled(Exception):
-    pass
+    """Esc before anything was written: the operator ends with nothing changed."""
+
+
+class Stop(Exception):
+    """Esc after some objects were written: skip the rest, keep what is done (one undo step)."""
 
 
 def addon_prefs(context) -> object | None:
@@ -62,6 +71,7 @@ class StepOperator:
     """Runs :meth:`steps` to completion (``execute``) or one step per timer tick (``invoke``/``modal``)."""
 
     bl_options = {"REGISTER", "UNDO"}
+    report: Any                      # bpy.types.Operator.report (the operator classes mix this in first)
     _timer = None
     _gen: Iterator[Step] | None = None
     cancel_requested = False
@@ -109,7 +119,8 @@ class StepOperator:
         if bpy.app.background or context.window is None:
             return self.execute(context)
         self.cancel_requested, self.written = False, 0
-        self._gen = self.steps(context)
+        # bpy.context, not the invoke's context: that one is only valid during this call
+        self._gen = self.steps(bpy.context)
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.05, window=context.window)
         wm.progress_begin(0, 100)
@@ -157,14 +168,14 @@ class StepOperator:
             self._gen.close()
         self._end(context)
 
-    def run_job(self, python: str, command: str, request: dict, lo: float, hi: float) -> Iterator[Step]:
+    def run_job(self, python: str, command: str, request: dict, lo: float, hi: float) -> Steps:
         """Run the worker, yielding its progress mapped onto [lo, hi]; returns its result (``yield from``)."""
         job = runner.Job(python, command, request).start()
         try:
             while not job.poll():
                 if self.cancel_requested:
                     job.cancel()
-                    raise Cancelled()
+                    raise Cancelled() if not self.written else Stop()
                 yield lo + (hi - lo) * job.fraction, f"{job.message} ({job.elapsed():.0f} s)", True
         except GeneratorExit:
             job.cancel()
@@ -173,13 +184,13 @@ class StepOperator:
 
 
 def sample_poses(op: StepOperator, context, skin: sc.Skin, frames, lo: float, hi: float,
-                 label: str) -> Iterator[Step]:
+                 label: str) -> Steps:
     """Bone transforms of ``frames`` (``(action, frame)`` pairs) through the depsgraph; returns (p, n', 3, 4)."""
     scene = context.scene
     out = []
     for i, (action, frame) in enumerate(frames):
         if op.checkpoint():
-            break
+            raise Stop()
         sc.go_to(scene, skin.armature, action, frame)
         out.append(sc.bone_transforms(skin, context.evaluated_depsgraph_get()))
         yield lo + (hi - lo) * (i + 1) / len(frames), f"{label}: {action.name} frame {frame}", False
@@ -232,11 +243,14 @@ class RIGSLIM_OT_limit_influences(StepOperator, bpy.types.Operator):
             if self.checkpoint():
                 break
             lo, hi = j / len(objs), (j + 1) / len(objs)
-            yield from self.limit_one(context, obj, python, info, lo, hi)
+            try:
+                yield from self.limit_one(context, obj, python, info, lo, hi)
+            except Stop:
+                break
         if self.cancel_requested:
             self.report({"WARNING"}, f"rigslim: cancelled after {self.written} of {len(objs)} objects")
 
-    def limit_one(self, context, obj, python, info, lo, hi) -> Iterator[Step]:
+    def limit_one(self, context, obj, python, info, lo, hi) -> Steps:
         span = hi - lo
         skin = sc.read_skin(obj)
         for w in skin.warnings:
@@ -256,6 +270,7 @@ class RIGSLIM_OT_limit_influences(StepOperator, bpy.types.Operator):
                     if self.checkpoint():
                         break
                     sc.go_to(context.scene, skin.armature, action, frame)
+                    assert held is not None
                     held.measure_frame(context.evaluated_depsgraph_get())
                     yield lo + span * (0.8 + 0.2 * (i + 1) / len(test)), f"measuring: {action.name} {frame}", False
             finally:
@@ -362,7 +377,7 @@ def build_lod(skin: sc.Skin, res: dict, i: int, name: str) -> bpy.types.Object:
     mod_src = sc.armature_modifier(src)
     mod = ob.modifiers.new("Armature", "ARMATURE")
     mod.object = skin.armature
-    mod.use_deform_preserve_volume = mod_src.use_deform_preserve_volume
+    mod.use_deform_preserve_volume = bool(getattr(mod_src, "use_deform_preserve_volume", False))
     return ob
 
 
@@ -412,9 +427,12 @@ class RIGSLIM_OT_generate_lods(StepOperator, bpy.types.Operator):
         for j, obj in enumerate(objs):
             if self.checkpoint():
                 break
-            yield from self.lods_one(context, obj, python, extra, j / len(objs), (j + 1) / len(objs))
+            try:
+                yield from self.lods_one(context, obj, python, extra, j / len(objs), (j + 1) / len(objs))
+            except Stop:
+                break
 
-    def lods_one(self, context, obj, python, extra, lo, hi) -> Iterator[Step]:
+    def lods_one(self, context, obj, python, extra, lo, hi) -> Steps:
         span = hi - lo
         skin = sc.read_skin(obj)
         _, examples, _ = action_frames(self, skin, 0)

@@ -30,6 +30,7 @@ import json
 import os
 import sys
 import time
+from typing import Any
 
 import numpy as np
 
@@ -220,7 +221,7 @@ def cmd_lod(request: str, result: str) -> int:
     F, L = np.asarray(req["F"], np.int64), np.asarray(req["L"], np.int64)
     X = np.asarray(req["loop_values"], np.float64).reshape(int(req["n_loops"]), -1)
     charts = face_charts(F, np.asarray(req["corner_keys"], np.int64))
-    arrays: dict[str, np.ndarray] = {"n_levels": np.int64(len(out.levels)), "seconds": np.float64(seconds),
+    arrays: dict[str, Any] = {"n_levels": np.int64(len(out.levels)), "seconds": np.float64(seconds),
                                      "method": np.str_(method)}
     for i, level in enumerate(out.levels):
         faces, source, values = level_corners(out.hierarchy, level, F, L, charts, X)
