@@ -1,6 +1,6 @@
 """The Blender extension on the bundled characters: held-out error against Blender's Limit Total, LODs, renders.
 
-    .venv/bin/python benchmarks/blender_extension.py [--k 2] [--characters tube,huesitos,...]
+    .venv/bin/python benchmarks/blender_extension.py [--k 2] [--characters tube,huesitos,...] [--suite]
 
 Needs .venv-blender (tools/setup-blender.sh). For every character it builds the extension zip, then
 runs tests/support/blender_driver.py in Blender (the bpy module): the zip installed as a user
@@ -129,7 +129,18 @@ def main() -> int:
     ap.add_argument("--k", type=int, default=2)
     ap.add_argument("--characters", default=",".join(CHARACTERS))
     ap.add_argument("--no-renders", action="store_true")
+    ap.add_argument("--suite", action="store_true", help="also every character of examples/data/gltf/suite/suite.json")
+    ap.add_argument("--suite-dir", default=str(GLTF / "suite"), help="folder of suite.json (default: %(default)s)")
+    ap.add_argument("--output", default="blender_extension", help="name of the docs/results files")
+    ap.add_argument("--renders-only", action="store_true",
+                    help="keep the figures of docs/results/OUTPUT.json, render the named characters again")
     args = ap.parse_args()
+    names = [n for n in args.characters.split(",") if n]
+    if args.suite:
+        suite = json.loads((Path(args.suite_dir) / "suite.json").read_text())
+        for ch in suite["characters"]:
+            CHARACTERS[ch["name"]] = Path(args.suite_dir) / Path(ch["file"]).name
+            names.append(ch["name"])
     if not BLENDER_PY.exists():
         print(f"{BLENDER_PY} missing: run tools/setup-blender.sh", file=sys.stderr)
         return 2
@@ -138,7 +149,14 @@ def main() -> int:
                    capture_output=True)
     zip_path = next(dist.glob("rigslim-*.zip"))
     rows, figures = [], {}
-    for name in args.characters.split(","):
+    results = ROOT / "docs" / "results"
+    if args.renders_only:
+        old = json.loads((results / f"{args.output}.json").read_text())
+        rows, figures = old["rows"], old["figures"]
+        for name in names:
+            figures[name] = renders(zip_path, name, old["k"])
+        names = []
+    for name in names:
         full = driver(zip_path, name, args.k, "", True)
         best = driver(zip_path, name, args.k, "best-fit", False)
         rows.append({"name": name, "blender": full["blender"], "object": full["object"],
@@ -151,12 +169,11 @@ def main() -> int:
               f"best-fit {best['limit']['rms_pct']:.4g} %  LODs {[lv['faces'] for lv in full['lods']]}", flush=True)
         if name in RENDERED and not args.no_renders:
             figures[name] = renders(zip_path, name, args.k)
-    results = ROOT / "docs" / "results"
     results.mkdir(parents=True, exist_ok=True)
-    (results / "blender_extension.json").write_text(json.dumps({"k": args.k, "rows": rows, "figures": figures},
+    (results / f"{args.output}.json").write_text(json.dumps({"k": args.k, "rows": rows, "figures": figures},
                                                                indent=1))
-    (results / "blender_extension.md").write_text(markdown(rows, figures, args.k))
-    print((results / "blender_extension.md").read_text())
+    (results / f"{args.output}.md").write_text(markdown(rows, figures, args.k))
+    print((results / f"{args.output}.md").read_text())
     return 0
 
 

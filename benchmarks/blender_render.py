@@ -69,6 +69,7 @@ def setup_render(scene, objs, res=(520, 520)) -> None:
         scene.collection.objects.link(cam)
         scene.camera = cam
     cam.data.lens = 50
+    cam.data.clip_start, cam.data.clip_end = size * 1e-3, size * 10
     direction = mathutils.Vector((1.0, -1.3, 0.45)).normalized()
     cam.location = centre + direction * size * 1.55
     cam.rotation_euler = (centre - cam.location).to_track_quat("-Z", "Y").to_euler()

@@ -50,7 +50,8 @@ def gltf_character(path: str):
               and any(m.type == "ARMATURE" for m in o.modifiers)]
     if not meshes:
         raise SystemExit(f"{path}: no skinned mesh after import")
-    obj = max(meshes, key=lambda o: len(o.data.vertices))
+    # the mesh with the most vertices blended by two or more bones (where limiting can change something)
+    obj = max(meshes, key=lambda o: (sum(len(v.groups) > 1 for v in o.data.vertices), len(o.data.vertices)))
     arm = next(m.object for m in obj.modifiers if m.type == "ARMATURE")
     for a in bpy.data.actions:
         a.use_fake_user = True
