@@ -504,11 +504,54 @@ def skinning_transforms(anim_query, joints: list[str], parents: np.ndarray, bind
     return out
 
 
+# --------------------------------------------------------------------------- levels of detail
+
+
+def select_lod(stage, lod: int, path: Path) -> None:
+    """Select variant ``LOD<lod>`` of every ``LOD`` variant set (in the session layer: the file is untouched)."""
+    Usd = pxr_modules()[0]
+    found = []
+    with Usd.EditContext(stage, stage.GetSessionLayer()):
+        for prim in list(stage.Traverse()):
+            vsets = prim.GetVariantSets()
+            if vsets.HasVariantSet("LOD"):
+                names = vsets.GetVariantSet("LOD").GetVariantNames()
+                found += names
+                if f"LOD{lod}" not in names:
+                    raise InputError(f"{prim.GetPath()} has no variant LOD{lod} (it has {', '.join(names)})",
+                                     source=path, field="lod", fix="choose one of its LOD variants")
+                vsets.GetVariantSet("LOD").SetVariantSelection(f"LOD{lod}")
+    if not found and not any(_lod_roots(stage)):
+        raise InputError("the file has no levels of detail (no LOD variant set, no UsdLod root)", source=path,
+                         field="lod", fix="leave 'lod' out")
+
+
+def _lod_roots(stage):
+    from pxr import UsdLod
+
+    return [p for p in stage.Traverse() if p.HasAPI(UsdLod.RootAPI)]
+
+
+def unselected_lod_items(stage, lod: int | None) -> list:
+    """Paths of the ``UsdLod`` items not selected (``lod``, else each root's ``lod:default:index``)."""
+    try:
+        from pxr import UsdLod
+    except ImportError:     # usd-core before 26.x has no UsdLod schema
+        return []
+    out = []
+    for root in _lod_roots(stage):
+        items = list(root.GetChildren())
+        pick = lod if lod is not None else UsdLod.RootAPI(root).GetLodDefaultIndexAttr().Get()
+        pick = min(max(int(pick or 0), 0), len(items) - 1) if items else 0
+        out += [c.GetPath() for i, c in enumerate(items) if i != pick]
+    return out
+
+
 # --------------------------------------------------------------------------- reader
 
 
 def read_usd_skin(path, *, skeleton=None, mesh=None, animation=None, fps: float = 30.0, times=None,
-                  normalize: bool = True) -> UsdSkin:
+                  normalize: bool = True, lod: int | None = None) -> UsdSkin:
     """Read a UsdSkel character: merged meshes, joints as handles, weights and sampled poses.
 
     Parameters
@@ -531,6 +574,10 @@ def read_usd_skin(path, *, skeleton=None, mesh=None, animation=None, fps: float 
     normalize : bool
         Divide each point's weights by their sum (UsdSkel itself does not normalise); otherwise
         rows must sum to 1 within 1e-6.
+    lod : int, optional
+        Read level ``lod`` of a file with levels of detail: variant ``LOD<lod>`` of every ``LOD``
+        variant set, and item ``lod`` of every ``UsdLod`` root (default: the authored selection and
+        each root's ``lod:default:index``; the other items are never merged in).
 
     Returns
     -------
@@ -541,6 +588,9 @@ def read_usd_skin(path, *, skeleton=None, mesh=None, animation=None, fps: float 
     path = Path(path)
     stage = open_stage(path)
     Usd, UsdGeom, UsdSkel, _, _, _ = pxr_modules()
+    if lod is not None:
+        select_lod(stage, int(lod), path)
+    hidden = unselected_lod_items(stage, lod)
     cache, bindings = skel_bindings(stage, path)
     binding = _choose_binding(bindings, skeleton, mesh, path)
     skel_prim = binding.GetSkeleton().GetPrim()
@@ -555,7 +605,7 @@ def read_usd_skin(path, *, skeleton=None, mesh=None, animation=None, fps: float 
     start = face_start = 0
     for q in binding.GetSkinningTargets():
         prim = q.GetPrim()
-        if mesh is not None and not _matches(prim, mesh):
+        if (mesh is not None and not _matches(prim, mesh)) or any(prim.GetPath().HasPrefix(h) for h in hidden):
             continue
         if not prim.IsA(UsdGeom.Mesh):
             notes.append(f"{prim.GetPath()} ({prim.GetTypeName()}) is skinned but not a Mesh: left out")
@@ -592,3 +642,23 @@ def read_usd_skin(path, *, skeleton=None, mesh=None, animation=None, fps: float 
             root = str(r.GetPath())
     return UsdSkin(path, stage, root, where, joints, parts, mesh_obj, handles, weights, poses, bind, anim_path,
                    float(fps), codes, notes)
+
+
+def usd_skin_of_stage(stage, mesh: Mesh, handles: Handles, weights, poses, path) -> UsdSkin:
+    """The :class:`UsdSkin` of a stage :func:`rigslim.io.usd.export.build_stage` just made from these inputs.
+
+    Lets :func:`rigslim.io.usd.write.write_usd` add levels to an exported character: its one mesh is
+    ``mesh`` itself (triangles in order, geomBindTransform the identity).
+    """
+    _, UsdGeom, UsdSkel, _, _, _ = pxr_modules()
+    root = stage.GetDefaultPrim()
+    skel = next(p for p in stage.Traverse() if p.IsA(UsdSkel.Skeleton))
+    geom = next(p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
+    t = mesh.n_faces
+    part = MeshPart(str(geom.GetPath()), 0, mesh.n_vertices, 0, np.arange(t, dtype=np.int64),
+                    np.arange(3 * t, dtype=np.int64).reshape(t, 3), np.eye(4), 0)
+    joints = [str(j) for j in UsdSkel.Skeleton(skel).GetJointsAttr().Get()]
+    bind = to_columns(UsdSkel.Skeleton(skel).GetBindTransformsAttr().Get())
+    frames = len(poses) if poses is not None else 1
+    return UsdSkin(Path(path), stage, str(root.GetPath()), str(skel.GetPath()), joints, [part], mesh, handles,
+                   weights, poses, bind, None, 30.0, np.arange(frames, dtype=np.float64))
