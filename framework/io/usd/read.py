@@ -171,6 +171,12 @@ def skel_bindings(stage, path: Path) -> list[tuple[object, object]]:
                 raise InputError(f"mesh {prim.GetPath()} has joint influences but no SkelRoot above it",
                                  source=path, field=str(prim.GetPath()),
                                  fix="put the mesh and its Skeleton under a SkelRoot prim")
+            blocker = _untyped_ancestor(prim, UsdGeom)
+            if blocker is not None:
+                raise InputError(f"mesh {prim.GetPath()} is below {blocker.GetPath()}, which is not Imageable "
+                                 f"('{blocker.GetTypeName() or 'def'}' without a type): UsdSkel skips it",
+                                 source=path, field=str(blocker.GetPath()),
+                                 fix=f"give {blocker.GetPath()} a type (def Xform or Scope)")
             raise InputError(f"mesh {prim.GetPath()} has joint influences but is bound to no Skeleton",
                              source=path, field=f"{prim.GetPath()}.skel:skeleton",
                              fix="bind it with the skel:skeleton relationship (UsdSkelBindingAPI)")
@@ -178,6 +184,18 @@ def skel_bindings(stage, path: Path) -> list[tuple[object, object]]:
         raise InputError("the file has no skinned mesh (no Mesh under a SkelRoot bound to a Skeleton)",
                          source=path, field="SkelRoot", fix="give a UsdSkel character")
     return cache, bindings
+
+
+def _untyped_ancestor(prim, UsdGeom):
+    """The first ancestor below the SkelRoot that is not Imageable (UsdSkel does not look below it), or None."""
+    p = prim.GetParent()
+    while p and not p.IsPseudoRoot():
+        if p.GetTypeName() == "SkelRoot":
+            return None
+        if not p.IsA(UsdGeom.Imageable):
+            return p
+        p = p.GetParent()
+    return None
 
 
 def _choose_binding(bindings, skeleton, mesh, path: Path):
