@@ -402,11 +402,10 @@ def _influences(query, prim, m: int, joint_index: dict[str, int], skel_joints: l
     rigid = interp == "constant"
     expected = k if rigid else m * k
     if interp not in ("vertex", "constant") or len(ji) != expected:
-        hint = f" (elementSize {len(ji) // m} would fit)" if not rigid and m and len(ji) % m == 0 else ""
-        raise InputError(f"{len(ji)} influences with elementSize {k} and interpolation '{interp}' do not match "
-                         f"{m} points ({expected} expected){hint}", source=path,
+        hint = f"; elementSize {len(ji) // m} would fit" if not rigid and m and len(ji) % m == 0 else ""
+        raise InputError(f"{len(ji)} values, elementSize {k}, '{interp}': not {m} points{hint}", source=path,
                          field=f"{where}.{JOINT_INDICES}:elementSize",
-                         fix="author elementSize = influences per point, interpolation 'vertex' (or 'constant')")
+                         fix="author elementSize = influences per point, interpolation vertex or constant")
     if not np.isfinite(jw).all():
         bad = int(np.flatnonzero(~np.isfinite(jw))[0])
         raise InputError(f"jointWeights contain NaN or inf (point {bad // k if not rigid else 0})", source=path,
@@ -505,8 +504,9 @@ def skinning_transforms(anim_query, joints: list[str], parents: np.ndarray, bind
         L = rest.copy()
         if anim_query:
             t = Usd.TimeCode.Default() if np.isnan(tc) else Usd.TimeCode(float(tc))
-            A = anim_query.ComputeJointLocalTransforms(t)
-            if A is None or len(A) != len(anim_joints):
+            with diagnostics() as found:
+                A = anim_query.ComputeJointLocalTransforms(t)
+            if found or A is None or len(A) != len(anim_joints):
                 raise InputError(f"the animation's translations/rotations/scales do not hold one value per joint "
                                  f"({len(anim_joints)}) at time {tc:g}", source=path, field="animation",
                                  fix="author translations, rotations and scales for every joint the animation lists")

@@ -73,6 +73,9 @@ def write_usd(path, source, reduced=None, *, levels=None, hierarchy=None, lod: s
     Usd = pxr_modules()[0]
     if lod not in LOD_LAYOUTS:
         raise StepError(f"unknown LOD layout '{lod}'", field="lod", fix="use variant or prims")
+    if Path(path).resolve() == Path(source.path).resolve():
+        raise StepError(f"the output {Path(path).name} is the USD input itself", field="write",
+                        fix="write to another file: rigslim never overwrites its inputs")
     if reduced is not None and reduced.n_vertices != source.mesh.n_vertices:
         raise StepError(f"{reduced.n_vertices} reduced rows for {source.mesh.n_vertices} vertices", field="reduced",
                         fix="reduce the mesh the USD reader made")
