@@ -179,4 +179,6 @@ def test_compiled_loop_reports_progress_in_chunks(piece):
     hier = piece.hierarchy
     assert seen[1:] == list(range(total))            # every chunk ran, one step each
     assert hier.n_collapses > 256                     # so the second chunk collapsed too
-    assert hier.faces_after(hier.n_collapses) == piece.mesh.n_faces - 2 * hier.n_collapses
+    steps = -np.diff(np.r_[piece.mesh.n_faces, hier.n_faces])
+    assert set(steps.tolist()) <= {1, 2} and 1 in steps     # two faces, or one along the piece's border
+    assert hier.faces_after(hier.n_collapses) <= 100

@@ -5,7 +5,20 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rigslim.plugins.decimation.setup import collapsible_edges, degenerate_area, seam_arrays
+from rigslim.plugins.decimation.setup import (
+    BEST,
+    BORDER,
+    FREE,
+    KEEP_A,
+    KEEP_B,
+    NONE,
+    SEAM,
+    collapsible_edges,
+    degenerate_area,
+    placement,
+    placements,
+    seam_arrays,
+)
 
 
 def grid(n: int = 4):
@@ -33,17 +46,49 @@ def test_every_edge_is_collapsible_without_fixed_vertices():
     assert setup.boundary.shape == (2 * len(V),) and not setup.boundary.any()
 
 
-def test_boundary_and_locked_vertices_fix_their_edges():
+def test_border_vertices_slide_along_the_border_and_free_vertices_collapse_onto_them():
     V, F = grid()
     m = len(V)
     on_border = (V[:, 0] == 0) | (V[:, 0] == 4) | (V[:, 1] == 0) | (V[:, 1] == 4)
     setup = collapsible_edges(F, m, keep_boundary=True)
     np.testing.assert_array_equal(setup.boundary[:m], on_border)
-    assert not on_border[setup.edges].any()
+    np.testing.assert_array_equal(setup.along[:m], np.where(on_border, BORDER, 0))
+    edges = {tuple(e) for e in setup.edges.tolist()}
+    E = unique_edges(F)
+    n_faces = {tuple(e): int(((F == e[0]).any(axis=1) & (F == e[1]).any(axis=1)).sum()) for e in E.tolist()}
+    for e in E.tolist():
+        both = on_border[e[0]] and on_border[e[1]]
+        # two border ends: only along the border (one face); otherwise every edge may collapse
+        assert (tuple(e) in edges) == (not both or n_faces[tuple(e)] == 1), e
+    fixed = setup.boundary
+    place = placements(fixed[E[:, 0]], fixed[E[:, 1]], setup.along[E[:, 0]], setup.along[E[:, 1]])
+    np.testing.assert_array_equal(place[~on_border[E[:, 0]] & on_border[E[:, 1]]], KEEP_B)
+    assert (place[on_border[E[:, 0]] & on_border[E[:, 1]]] == BEST).all()
+    assert (place[~on_border[E[:, 0]] & ~on_border[E[:, 1]]] == FREE).all()
+
+
+def test_fixed_borders_and_locked_vertices_take_half_edge_collapses_only():
+    V, F = grid()
+    m = len(V)
+    setup = collapsible_edges(F, m, keep_boundary=True, border_collapses=False)
+    fixed = setup.boundary[:m]
+    assert not setup.along.any()
+    assert not (fixed[setup.edges[:, 0]] & fixed[setup.edges[:, 1]]).any()      # two fixed ends: never
     locked = np.zeros(m, bool)
     locked[12] = True                                    # the centre
     setup = collapsible_edges(F, m, keep_boundary=True, locked=locked)
-    assert setup.boundary[12] and not (setup.edges == 12).any()
+    at12 = setup.edges[(setup.edges == 12).any(axis=1)]
+    assert setup.boundary[12] and len(at12) == 6         # its six edges: half-edge collapses onto it
+    for a, b in at12.tolist():
+        assert placement(bool(setup.boundary[a]), bool(setup.boundary[b]), 0, 0) == (KEEP_A if a == 12 else KEEP_B)
+    for fa in (False, True):                             # the scalar rule and the array rule agree
+        for fb in (False, True):
+            for ca in (0, SEAM, BORDER):
+                for cb in (0, SEAM, BORDER):
+                    got = placements(np.array([fa]), np.array([fb]), np.array([ca]), np.array([cb]))[0]
+                    assert got == placement(fa, fb, ca, cb)
+    assert placement(True, True, 0, 0) == NONE and placement(True, True, SEAM, BORDER) == NONE
+    assert placement(True, True, SEAM, 0) == KEEP_B and placement(True, True, 0, BORDER) == KEEP_A
 
 
 def test_a_seam_edge_between_two_charts_stays_collapsible():
@@ -56,7 +101,12 @@ def test_a_seam_edge_between_two_charts_stays_collapsible():
     setup = collapsible_edges(F, m, keep_boundary=False, locked=locked, seams=(along, charts))
     edges = {tuple(e) for e in setup.edges.tolist()}
     assert (3, 4) in edges and (4, 5) in edges           # along the seam, between the two charts
-    assert not any(x in (3, 4, 5) and y not in (3, 4, 5) for x, y in edges)
+    seam = {3, 4, 5}
+    # off the seam: half-edge collapses of the free vertices onto the seam, never a seam-to-seam chord
+    for x, y in edges:
+        if x in seam and y in seam:
+            assert (x, y) in {(3, 4), (4, 5)}
+    assert (0, 3) in edges and (1, 4) in edges
     a, c = seam_arrays(None, m, len(F))
     assert not a.any() and not c.any()
 

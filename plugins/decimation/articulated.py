@@ -18,6 +18,7 @@ from pydantic import Field
 from rigslim.asset import Asset
 from rigslim.errors import StepError
 from rigslim.plugin import Decimation, Decimator, Params, StepContext
+from rigslim.plugins.decimation.levels import choose_levels, collapse_distances, parse_max_error, target_name
 
 
 class AdaptiveTarget(Params):
@@ -48,6 +49,10 @@ class DecimationParams(Params):
     max_bones: int | None = Field(default=None, ge=1)
     """At most this many non-zero weights per vertex at every level."""
     keep_boundary: bool = True
+    """Border vertices (on an edge with one face) never leave the border: they collapse only along it,
+    onto a neighbouring border point, and free vertices collapse onto them (false: borders are ordinary)."""
+    border_collapses: bool = True
+    """With ``keep_boundary``: border vertices may collapse along their border (false fixes every one)."""
     attribute_weights: dict[str, float] = Field(default_factory=lambda: dict(ATTRIBUTE_WEIGHTS))
     """For a mesh read from glTF: weight of each vertex attribute's displacement term in the error, by name
     (``TEXCOORD_0``) or family (``TEXCOORD``, ``COLOR``, ``NORMAL``, ``TANGENT``); see :func:`attribute_term`."""
@@ -57,6 +62,12 @@ class DecimationParams(Params):
     seams_collapse_along: bool = True
     """With ``lock_seams``: seam vertices may still collapse with each other along their seam (both
     sides keep their own attributes; :func:`rigslim.io.gltf_lod.seam_structure`); false keeps every seam vertex."""
+    max_error: float | str | None = None
+    """Error bound of every level (:mod:`rigslim.plugins.decimation.levels`): a number or ``"E%"`` is % of
+    the bounding-box diagonal of the first test pose, ``"Em"`` metres (world units); ``none`` (default) turns
+    it off.
+    A level whose next collapse would move the surface farther than this (meshoptimizer's normalised
+    quadric error, over every example pose) stops there, short of its target."""
     min_normal_cos: float = Field(default=0.0, ge=-1.0, le=1.0)
     """Refuse collapses that turn a surviving face's normal by more than arccos(this), in any pose."""
     area_weighted: bool = True
@@ -76,7 +87,28 @@ def target_faces(targets, n_faces: int) -> list[int]:
 
 
 def target_label(method: str, t: float, faces: int) -> str:
-    return f"{method}-{t * 100:g}pct" if t < 1 else f"{method}-{faces}f"
+    return target_name(method, t, faces)
+
+
+def error_bound(asset, max_error) -> float | None:
+    """``max_error`` in the units of the positions: % of the first test pose's bounding-box diagonal, or metres."""
+    from rigslim.blend import linear_blend
+
+    parsed = parse_max_error(max_error)
+    if parsed is None:
+        return None
+    value, unit = parsed
+    if unit == "m":
+        return value
+    T = asset.test_poses().T
+    X = linear_blend(asset.mesh.V, asset.weights, T[0]) if len(T) else asset.mesh.V
+    return value / 100.0 * float(np.linalg.norm(X.max(axis=0) - X.min(axis=0)))
+
+
+def target_record(c, bound: float | None) -> dict:
+    """The report's record of one face target: what was asked, what was reached, and why it stopped."""
+    return {"target": c.target, "target_faces": c.target_faces, "faces": c.faces, "label": c.label,
+            "error": c.error, "max_error": bound, "stopped": c.stopped, "same_as": c.same_as}
 
 
 def limited_weights(A, max_bones: int | None) -> np.ndarray:
@@ -169,9 +201,13 @@ class ArticulatedDecimator(Decimator):
         model = self.model(Q, W, T, params)
         locked, seams = seam_lock(asset, params.seams_collapse_along) if params.lock_seams else (None, None)
         hier = simplify(mesh.V, mesh.F, W, T, X, model, min_faces=min_faces, keep_boundary=params.keep_boundary,
+                        border_collapses=params.border_collapses,
                         min_normal_cos=params.min_normal_cos, progress=ctx.progress, method=self.name,
                         params=params.model_dump(), backend=params.backend, locked=locked, seams=seams)
-        levels = [hier.at_faces(f, target_label(self.name, t, f)) for t, f in zip(params.targets, faces, strict=False)]
+        bound = error_bound(asset, params.max_error)
+        distances = collapse_distances(hier, Q[:, :len(asset.example_poses().T)])
+        choices = choose_levels(hier, list(params.targets), faces, distances, bound, self.name)
+        levels = [hier.prefix(c.collapses, c.label) for c in choices if c.same_as is None]
         levels += [hier.at_error(e, f"{self.name}-err{e:g}") for e in params.error_targets]
         levels += [hier.adaptive(a.budget(mesh.V), a.label or f"{self.name}-adaptive{i + 1}")
                    for i, a in enumerate(params.adaptive_targets)]
@@ -179,6 +215,14 @@ class ArticulatedDecimator(Decimator):
         if locked is not None:
             ctx.report["locked_seam_vertices"] = int(locked.sum())
             ctx.report["seam_vertices_collapsing_along"] = int(seams[0].sum()) if seams is not None else 0
+        ctx.report["targets"] = [target_record(c, bound) for c in choices]
+        for c in choices:
+            if c.stopped == "max_error" and c.same_as is None:
+                ctx.log(f"level {c.label} stopped at {c.faces} faces (target {c.target_faces}): the next collapse "
+                        f"exceeds max_error {params.max_error}")
+            elif c.same_as is not None:
+                ctx.log(f"target {c.target:g} ({c.target_faces} faces) ends at the same {c.faces} faces as "
+                        f"level {c.same_as}: no level of its own")
         ctx.report.update({
             "collapses": hier.n_collapses, "input_faces": mesh.n_faces,
             "final_faces": hier.faces_after(hier.n_collapses), "example_poses": len(asset.example_poses().T),

@@ -24,7 +24,22 @@ import logging
 import numpy as np
 
 from rigslim.hierarchy import ProgressiveHierarchy
-from rigslim.plugins.decimation.setup import BLOCKED, CLEAN, DEAD, DIRTY, collapsible_edges, degenerate_area
+from rigslim.plugins.decimation.setup import (
+    BEST,
+    BLOCKED,
+    BORDER,
+    CLEAN,
+    DEAD,
+    DIRTY,
+    FREE,
+    KEEP_B,
+    NONE,
+    collapsible_edges,
+    degenerate_area,
+    placement,
+    placements,
+    zero_cost,
+)
 from rigslim.weights import ReducedWeights
 
 log = logging.getLogger(__name__)
@@ -66,6 +81,10 @@ class EdgeCostModel:
 
     def costs(self, state: SimplifyState, ea: np.ndarray, eb: np.ndarray):
         """Return ``v (B, 3), w (B, n), E (B,)`` for the edges (ea, eb)."""
+        raise NotImplementedError
+
+    def anchored(self, state: SimplifyState, ea: np.ndarray, eb: np.ndarray, keep: np.ndarray) -> np.ndarray:
+        """(B,) costs of half-edge collapses of (ea, eb) onto ``keep`` (its position and weights stay)."""
         raise NotImplementedError
 
     def merge(self, state: SimplifyState, a: int, b: int, c: int) -> None:
@@ -127,7 +146,8 @@ class _EdgeTable:
 
 def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_boundary: bool = True,
              min_normal_cos: float = 0.0, progress=None, method: str = "", params: dict | None = None,
-             batch: int = 2048, backend: str = "numpy", locked=None, seams=None) -> ProgressiveHierarchy:
+             batch: int = 2048, backend: str = "numpy", locked=None, seams=None,
+             border_collapses: bool = True) -> ProgressiveHierarchy:
     """Greedy edge collapses down to ``min_faces``, recorded as a progressive hierarchy.
 
     Parameters
@@ -144,7 +164,10 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     min_faces : int
         Stop when at most this many faces are left (or nothing can collapse).
     keep_boundary : bool
-        Never move a boundary vertex.
+        Border vertices stay on the border: free vertices collapse onto them and they collapse only
+        along the border onto a neighbouring border vertex (:func:`rigslim.plugins.decimation.setup.placement`).
+    border_collapses : bool
+        False: no border vertex moves at all.
     min_normal_cos : float
         A collapse is refused if a surviving face's normal turns by more than
         ``arccos(min_normal_cos)`` in the rest pose or any example pose.
@@ -175,6 +198,7 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     progress = progress or (lambda it, total=None, description="": it)
     if backend == "numba":
         return _simplify_compiled(V, F, W, T, X, model, min_faces=min_faces, keep_boundary=keep_boundary,
+                                  border_collapses=border_collapses,
                                   min_normal_cos=min_normal_cos, progress=progress, method=method, params=params,
                                   locked=locked, seams=seams)
     if backend != "numpy":
@@ -188,15 +212,21 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         vf[x].add(i)
         vf[y].add(i)
         vf[z].add(i)
-    setup = collapsible_edges(Fm, m, keep_boundary=keep_boundary, locked=locked, seams=seams)
+    setup = collapsible_edges(Fm, m, keep_boundary=keep_boundary, locked=locked, seams=seams,
+                              border_collapses=border_collapses)
     boundary, along, charts = setup.boundary, setup.along, setup.charts
+    zero = zero_cost(V, Fm, len(T))
 
-    def seam_edge(x: int, y: int) -> bool:
-        fs = vf[x] & vf[y]
-        if len(fs) != 2:
+    def collapsible(x: int, y: int) -> bool:
+        """:func:`rigslim.plugins.decimation.setup.placement` allows it and a fixed-fixed edge is on the curve."""
+        if placement(bool(boundary[x]), bool(boundary[y]), int(along[x]), int(along[y])) == NONE:
             return False
-        f1, f2 = fs
-        return bool(charts[f1] != charts[f2])
+        if not (boundary[x] and boundary[y]):
+            return True
+        fs = vf[x] & vf[y]
+        if max(along[x], along[y]) == BORDER:
+            return len(fs) == 1
+        return len(fs) == 2 and bool(charts[min(fs)] != charts[max(fs)])
 
     edges = setup.edges
 
@@ -206,8 +236,21 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     def evaluate(eids: np.ndarray) -> None:
         for sl in batched(len(eids), batch):
             e = eids[sl]
-            v, w, E = model.costs(st, table.a[e], table.b[e])
-            table.v[e], table.w[e], table.cost[e] = v, w, E
+            ea, eb = table.a[e], table.b[e]
+            place = placements(boundary[ea], boundary[eb], along[ea], along[eb])
+            free = place == FREE               # placed by the cost model
+            if free.any():
+                v, w, E = model.costs(st, ea[free], eb[free])
+                table.v[e[free]], table.w[e[free]], table.cost[e[free]] = v, w, E
+            if not free.all():                 # half-edge collapses onto a fixed end, or the cheaper end
+                ef, pa, pb, pl = e[~free], ea[~free], eb[~free], place[~free]
+                Ea = np.maximum(model.anchored(st, pa, pb, pa), 0.0)
+                Eb = np.maximum(model.anchored(st, pa, pb, pb), 0.0)
+                take_b = (pl == KEEP_B) | ((pl == BEST) & (Eb < Ea) & ~(Ea < zero))
+                keep = np.where(take_b, pb, pa)
+                table.v[ef], table.w[ef] = st.V[keep], st.W[keep]
+                table.cost[ef] = np.where(take_b, Eb, Ea)
+            table.cost[e] = np.where(table.cost[e] < zero, 0.0, table.cost[e])
             table.state[e] = CLEAN
             table.stamp[e] += 1
 
@@ -232,13 +275,14 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         a, b = int(table.a[e]), int(table.b[e])
         fa, fb = vf[a], vf[b]
         fab = fa & fb
-        if len(fab) != 2:
+        border = len(fab) == 1 and boundary[a] and boundary[b]     # a collapse along a border
+        if len(fab) != 2 and not border:
             return False
         Na, Nb = neighbours(a), neighbours(b)
-        if len((Na & Nb) - {a, b}) != 2:        # link condition
+        if len((Na & Nb) - {a, b}) != len(fab):        # link condition
             return False
         union = (Na | Nb) - {a, b}
-        if len(union) < 3 or n_faces - 2 < 4:
+        if len(union) < 3 or n_faces - len(fab) < 4:
             return False
         rem = list((fa | fb) - fab)
         v, w = table.v[e], table.w[e]
@@ -259,8 +303,12 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         c = m + len(collapses)
         st.V[c], st.W[c], st.pos[c] = v, w, pc
         model.merge(st, a, b, c)
-        if along[a] and along[b]:              # a collapse along a seam: the new vertex is a seam vertex
-            boundary[c] = along[c] = True
+        # along its curve c stays on it; onto a corner or a fixed end it takes that end's class
+        if boundary[a] and boundary[b]:
+            along[c] = along[a] if along[a] == along[b] else 0
+        elif boundary[a] or boundary[b]:
+            along[c] = along[a] if boundary[a] else along[b]
+        boundary[c] = boundary[a] or boundary[b]
         for f in fab:
             f_alive[f] = False
             for x in Fm[f].tolist():
@@ -271,7 +319,7 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
             row[(row == a) | (row == b)] = c
         vf[c] = set(rem)
         vf[a] = vf[b] = None
-        n_faces -= 2
+        n_faces -= len(fab)
         cost_ab = float(table.cost[e])
         table.kill(e)
         for x in sorted(union):            # a fixed order: edge slots (tie-breaks) do not depend on set order
@@ -283,7 +331,7 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
                     old.append(float(table.cost[eo]))
                     dirty.discard(eo)
                     table.kill(eo)
-            if (boundary[x] or boundary[c]) and not (along[x] and along[c] and seam_edge(x, c)):
+            if not collapsible(x, c):
                 continue
             en = table.add(x, c)
             table.cost[en] = max(old + [cost_ab])
@@ -300,11 +348,10 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         nfaces.append(n_faces)
         return True
 
-    total = max(0, (n_faces - min_faces + 1) // 2)
-    for _ in progress(range(total), total=total, description=f"{method} collapses"):
+    def step() -> bool:
+        """One greedy collapse; False when none is left or the target is reached."""
         if n_faces <= min_faces:
-            break
-        done = False
+            return False
         while heap:
             cost, stamp, e = heapq.heappop(heap)
             if stamp != table.stamp[e] or table.state[e] in (DEAD, BLOCKED):
@@ -317,13 +364,21 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
                     heapq.heappush(heap, (float(table.cost[d]), int(table.stamp[d]), d))
                 continue
             if try_collapse(e):
-                done = True
-                break
+                return True
             table.state[e] = BLOCKED
             blocked_at.setdefault(int(table.a[e]), set()).add(e)
             blocked_at.setdefault(int(table.b[e]), set()).add(e)
-        if not done:
+        return False
+
+    # a collapse removes two faces (one along a border): the bar counts two-face collapses, the rest follow
+    total = max(0, (n_faces - min_faces + 1) // 2)
+    going = True
+    for _ in progress(range(total), total=total, description=f"{method} collapses"):
+        going = step()
+        if not going:
             break
+    while going and step():
+        pass
 
     return _hierarchy(st.V, st.W, F, collapses, errors, nfaces, method, params)
 
@@ -346,13 +401,14 @@ def _hierarchy(Vall, Wall, F, collapses, errors, nfaces, method, params) -> Prog
 
 
 def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_normal_cos, progress, method,
-                       params, locked=None, seams=None) -> ProgressiveHierarchy:
+                       params, locked=None, seams=None, border_collapses=True) -> ProgressiveHierarchy:
     """:func:`simplify` with the compiled loop (:func:`rigslim.plugins.decimation.compiled.collapse_chunk`)."""
     from rigslim.plugins.decimation import compiled as cc
     from rigslim.plugins.decimation import edge_queue as eq
     from rigslim.plugins.decimation.edge_costs import edge_costs
 
     kind, Qv, ip, fp = model.compiled_spec()
+    fp = np.append(fp, zero_cost(V, np.asarray(F, np.int64), len(T)))
     st = SimplifyState(V, F, W, T, X)
     m = st.m
     N = 2 * m
@@ -366,7 +422,8 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     vf_cnt[:m] = np.bincount(corners, minlength=m)
     vf_start = np.zeros(N, dtype=np.int64)
     vf_start[1:m] = np.cumsum(vf_cnt[:m])[:-1]
-    setup = collapsible_edges(Fm, m, keep_boundary=keep_boundary, locked=locked, seams=seams)
+    setup = collapsible_edges(Fm, m, keep_boundary=keep_boundary, locked=locked, seams=seams,
+                              border_collapses=border_collapses)
     edges = setup.edges
     n_edges = len(edges)
     cap = n_edges + 16
@@ -378,7 +435,10 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     hk, hv = np.full(hsize, -1, np.int64), np.zeros(hsize, np.int64)
     eq.init_table(edges, N, ea, eb, estamp, hk, hv)
     if n_edges:
-        v, w, E = edge_costs(kind, edges[:, 0].copy(), edges[:, 1].copy(), st.V, st.W, Qv, st.T, ip, fp)
+        b0 = setup.boundary
+        place = placements(b0[edges[:, 0]], b0[edges[:, 1]], setup.along[edges[:, 0]], setup.along[edges[:, 1]])
+        v, w, E = edge_costs(kind, edges[:, 0].copy(), edges[:, 1].copy(), st.V, st.W, Qv, st.T, ip, fp,
+                             place=place)
         ecost[:n_edges], ev[:n_edges], ew[:n_edges] = E, v, w
     estate[:n_edges] = CLEAN
     estamp[:n_edges] += 1
@@ -400,10 +460,15 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     total = max(0, (f - min_faces + 1) // 2)
     chunk = max(256, -(-total // 100))
     n_chunks = -(-total // chunk)
+    finished = False
     for _ in progress(range(n_chunks), total=n_chunks, description=f"{method} collapses"):
-        if cc.collapse_chunk(chunk, min_faces, float(min_normal_cos), tiny, cost_model, mesh, verts, table, queue,
-                             record, scratch):
+        finished = cc.collapse_chunk(chunk, min_faces, float(min_normal_cos), tiny, cost_model, mesh, verts, table,
+                                     queue, record, scratch)
+        if finished:
             break
+    while not finished:         # collapses along a border remove one face: a few more chunks may be left
+        finished = cc.collapse_chunk(chunk, min_faces, float(min_normal_cos), tiny, cost_model, mesh, verts, table,
+                                     queue, record, scratch)
     k = int(cnt[eq.C_COLLAPSES])
     stats = {"pops": int(cnt[eq.C_POPS]), "attempts": int(cnt[eq.C_TRIES]),
              "evaluations": n_edges + int(cnt[eq.C_EVALS])}

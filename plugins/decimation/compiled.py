@@ -33,7 +33,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from rigslim.plugins.decimation.edge_costs import edge_cost
+from rigslim.plugins.decimation.edge_costs import collapse_cost
 from rigslim.plugins.decimation.edge_queue import (
     C_COLLAPSES,
     C_DIRTY,
@@ -50,7 +50,19 @@ from rigslim.plugins.decimation.edge_queue import (
     pop,
     push,
 )
-from rigslim.plugins.decimation.setup import BLOCKED, CLEAN, DEAD, DIRTY
+from rigslim.plugins.decimation.setup import (
+    BEST,
+    BLOCKED,
+    BORDER,
+    CLEAN,
+    DEAD,
+    DIRTY,
+    FREE,
+    KEEP_A,
+    KEEP_B,
+    NONE,
+    SEAM,
+)
 
 __all__ = ["CostModel", "LoopEdges", "LoopMesh", "LoopQueue", "LoopRecord", "LoopVertices", "Scratch",
            "apply_collapse", "collapse_chunk", "evaluate_dirty", "folds", "link_ok", "new_scratch", "requeue"]
@@ -127,8 +139,54 @@ def _seam_edge(x, y, F, vf_start, vf_cnt, pool, charts):
 
 
 @njit(cache=True)
-def evaluate_dirty(cm, vx, ed, qu, cnt):
-    """Give every dirty edge its true cost and queue it again (one entry per edge)."""
+def placement(fixed_a, fixed_b, along_a, along_b):
+    """:func:`rigslim.plugins.decimation.setup.placement` (the same rule, compiled)."""
+    if not fixed_a and not fixed_b:
+        return FREE
+    if not fixed_b:
+        return KEEP_A
+    if not fixed_a:
+        return KEEP_B
+    if along_a == SEAM and along_b == SEAM:
+        return FREE
+    if along_a == BORDER and along_b == BORDER:
+        return BEST
+    if along_a != 0 and along_b == 0:
+        return KEEP_B
+    if along_a == 0 and along_b != 0:
+        return KEEP_A
+    return NONE
+
+
+@njit(cache=True)
+def _collapsible(x, y, boundary, along, F, vf_start, vf_cnt, pool, charts):
+    """Whether edge (x, y) may collapse: :func:`placement` allows it and, with two fixed ends, it lies on
+    their curve (a seam edge for seam vertices, a border edge, with one face, for border vertices)."""
+    if placement(boundary[x], boundary[y], along[x], along[y]) == NONE:
+        return False
+    if not (boundary[x] and boundary[y]):
+        return True
+    n = 0
+    f1 = -1
+    f2 = -1
+    s0 = vf_start[y]
+    for i in range(vf_cnt[y]):
+        f = pool[s0 + i]
+        if F[f, 0] == x or F[f, 1] == x or F[f, 2] == x:
+            if n == 0:
+                f1 = f
+            else:
+                f2 = f
+            n += 1
+    if max(along[x], along[y]) == BORDER:
+        return n == 1
+    return n == 2 and charts[f1] != charts[f2]
+
+
+@njit(cache=True)
+def evaluate_dirty(cm, vx, ed, qu, cnt, fixed, along):
+    """Give every dirty edge its true cost (:func:`collapse_cost` with the edge's :func:`placement`) and
+    queue it again (one entry per edge)."""
     dirty, in_dirty = ed.dirty, ed.in_dirty
     nd = cnt[C_DIRTY]
     cnt[C_DIRTY] = 0
@@ -142,8 +200,9 @@ def evaluate_dirty(cm, vx, ed, qu, cnt):
     cnt[C_EVALS] += nt
     for i in range(nt):
         d = dirty[i]
-        ed.ecost[d] = edge_cost(cm.method, ed.ea[d], ed.eb[d], vx.V, vx.W, vx.Qv, cm.T, cm.ip, cm.fp, ed.ev[d],
-                                ed.ew[d])
+        ed.ecost[d] = collapse_cost(cm.method, ed.ea[d], ed.eb[d], placement(fixed[ed.ea[d]], fixed[ed.eb[d]],
+                                    along[ed.ea[d]], along[ed.eb[d]]), vx.V, vx.W, vx.Qv, cm.T, cm.ip, cm.fp,
+                                    ed.ev[d], ed.ew[d])
         ed.estate[d] = CLEAN
         ed.estamp[d] += 1
         push(qu.hc, qu.hs, qu.he, cnt, ed.ecost[d], ed.estamp[d], d, ed.estamp, ed.estate)
@@ -153,10 +212,11 @@ def evaluate_dirty(cm, vx, ed, qu, cnt):
 def link_ok(a, b, mesh, cnt, s):
     """Faces around edge (a, b) and the link condition.
 
-    Fills ``s.fab`` (the two faces of the edge), ``s.rem`` (the faces that survive, around a or b) and
-    ``s.uni`` (the union of the neighbours of a and b, without them). Returns ``(ok, nrem, nu)``: ok when
-    the edge has two faces, a and b have exactly two common neighbours, the union has three or more
-    vertices and at least four faces would be left.
+    Fills ``s.fab`` (the faces of the edge), ``s.rem`` (the faces that survive, around a or b) and
+    ``s.uni`` (the union of the neighbours of a and b, without them). Returns ``(ok, nrem, nu, nfab)``: ok
+    when the edge has two faces and a and b have exactly two common neighbours (or, for a collapse along
+    a border, both ends fixed: one face and one common neighbour), the union has three or more vertices
+    and at least four faces would be left.
     """
     F, vf_start, vf_cnt, pool, mark = mesh.F, mesh.vf_start, mesh.vf_cnt, mesh.pool, mesh.mark
     fab, rem, uni, Na, Nb = s.fab, s.rem, s.uni, s.Na, s.Nb
@@ -170,8 +230,9 @@ def link_ok(a, b, mesh, cnt, s):
         else:
             rem[nrem] = f
             nrem += 1
-    if nfab != 2:
-        return False, nrem, nu
+    border = nfab == 1 and mesh.boundary[a] and mesh.boundary[b]
+    if nfab != 2 and not border:
+        return False, nrem, nu, nfab
     for i in range(vf_start[b], vf_start[b] + vf_cnt[b]):
         f = pool[i]
         if not (F[f, 0] == a or F[f, 1] == a or F[f, 2] == a):
@@ -199,7 +260,7 @@ def link_ok(a, b, mesh, cnt, s):
         else:
             uni[nu] = y
             nu += 1
-    return common == 2 and nu >= 3 and cnt[C_FACES] - 2 >= 4, nrem, nu
+    return common == (1 if border else 2) and nu >= 3 and cnt[C_FACES] - nfab >= 4, nrem, nu, nfab
 
 
 @njit(cache=True)
@@ -246,12 +307,13 @@ def folds(a, b, v, w, nrem, mesh, vx, cm, s, tiny, min_normal_cos):
 
 
 @njit(cache=True)
-def apply_collapse(e, a, b, nrem, mesh, vx, ed, cnt, s):
+def apply_collapse(e, a, b, nrem, nfab, mesh, vx, ed, cnt, s):
     """Collapse edge e = (a, b) into a new vertex c; returns ``(c, cost of e)``.
 
     The new vertex takes the edge's position, weights and poses (``s.pc``) and the sum of the quadrics;
     the edge's two faces go, the surviving faces (``s.rem``) point at c, and c's face list is appended
-    to the pool (compacted when full). A collapse along a seam makes c a seam vertex.
+    to the pool (compacted when full). A collapse along a seam makes c a seam vertex; a half-edge
+    collapse onto a fixed end makes c fixed, of that end's class.
     """
     F, vf_start, vf_cnt, pool = mesh.F, mesh.vf_start, mesh.vf_cnt, mesh.pool
     boundary, along, fab, rem = mesh.boundary, mesh.along, s.fab, s.rem
@@ -262,10 +324,13 @@ def apply_collapse(e, a, b, nrem, mesh, vx, ed, cnt, s):
     vx.W[c] = ed.ew[e]
     vx.pos[c] = s.pc
     vx.Qv[c] = vx.Qv[a] + vx.Qv[b]
-    if along[a] and along[b]:             # a collapse along a seam: the new vertex is a seam vertex
-        boundary[c] = True
-        along[c] = True
-    for i in range(2):
+    # along its curve c stays on it; onto a corner or a fixed end it takes that end's class
+    if boundary[a] and boundary[b]:
+        along[c] = along[a] if along[a] == along[b] else 0
+    elif boundary[a] or boundary[b]:
+        along[c] = along[a] if boundary[a] else along[b]
+    boundary[c] = boundary[a] or boundary[b]
+    for i in range(nfab):
         f = fab[i]
         for t in range(3):
             x = F[f, t]
@@ -294,7 +359,7 @@ def apply_collapse(e, a, b, nrem, mesh, vx, ed, cnt, s):
     for i in range(nrem):
         pool[cnt[C_POOL] + i] = rem[i]
     cnt[C_POOL] += nrem
-    cnt[C_FACES] -= 2
+    cnt[C_FACES] -= nfab
     cost_ab = ed.ecost[e]
     edge_kill(e, N, ed.ea, ed.eb, ed.estate, ed.free, cnt, ed.hk, ed.hv, ed.in_dirty)
     return c, cost_ab
@@ -305,7 +370,7 @@ def requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s):
     """Replace the edges (a, x) and (b, x) by (c, x) for every neighbour x, in increasing order of x.
 
     Each new edge is queued with the lower bound ``max(cost(a, x), cost(b, x), cost(a, b))`` and marked
-    dirty (unless c or x is fixed and the edge is no seam edge); edges at x that a guard blocked earlier
+    dirty (unless both c and x are fixed and the edge is no seam edge); edges at x that a guard blocked earlier
     are queued again.
     """
     F, vf_start, vf_cnt, pool, mark = mesh.F, mesh.vf_start, mesh.vf_cnt, mesh.pool, mesh.mark
@@ -329,8 +394,7 @@ def requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s):
             if eo >= 0:
                 lb = max(lb, ecost[eo])
                 edge_kill(eo, N, ea, eb, estate, free, cnt, hk, hv, in_dirty)
-        if (boundary[x] or boundary[c]) and not (along[x] and along[c]
-                                                 and _seam_edge(x, c, F, vf_start, vf_cnt, pool, charts)):
+        if not _collapsible(x, c, boundary, along, F, vf_start, vf_cnt, pool, charts):
             continue
         en = edge_add(x, c, N, ea, eb, estamp, free, cnt, hk, hv)
         ecost[en] = lb
@@ -383,17 +447,17 @@ def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, cm, mesh, vx, ed,
             if stamp != ed.estamp[e] or state == DEAD or state == BLOCKED:
                 continue
             if state == DIRTY:               # evaluate every dirty edge, queue their true costs
-                evaluate_dirty(cm, vx, ed, qu, cnt)
+                evaluate_dirty(cm, vx, ed, qu, cnt, mesh.boundary, mesh.along)
                 continue
             cnt[C_TRIES] += 1
             a, b = ed.ea[e], ed.eb[e]
-            ok, nrem, nu = link_ok(a, b, mesh, cnt, s)
+            ok, nrem, nu, nfab = link_ok(a, b, mesh, cnt, s)
             if ok:                           # fold-over guard in the rest pose and every example pose
                 ok = not folds(a, b, ed.ev[e], ed.ew[e], nrem, mesh, vx, cm, s, tiny, min_normal_cos)
             if not ok:
                 ed.estate[e] = BLOCKED
                 continue
-            c, cost_ab = apply_collapse(e, a, b, nrem, mesh, vx, ed, cnt, s)
+            c, cost_ab = apply_collapse(e, a, b, nrem, nfab, mesh, vx, ed, cnt, s)
             requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s)
             i = cnt[C_COLLAPSES]
             rec.col[i, 0], rec.col[i, 1] = a, b

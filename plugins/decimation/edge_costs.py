@@ -48,13 +48,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from rigslim.plugins.decimation.setup import DECORO, MOHR_GLEICHER, QUARTIC
+from rigslim.plugins.decimation.setup import BEST, DECORO, KEEP_A, KEEP_B, MOHR_GLEICHER, QUARTIC
 
 #: Floating-point flags of the hot loops: reassociation (vectorised sums) and fused multiply-adds;
 #: no finite-math assumptions, so infinities and NaN keep their meaning.
 FAST = {"reassoc", "contract", "nsz"}
 
-__all__ = ["DECORO", "FAST", "MOHR_GLEICHER", "QUARTIC", "edge_cost", "edge_costs"]
+__all__ = ["DECORO", "FAST", "MOHR_GLEICHER", "QUARTIC", "anchored_cost", "collapse_cost", "edge_cost", "edge_costs"]
 
 
 @njit(cache=True, fastmath=FAST)
@@ -545,33 +545,81 @@ def edge_cost(method, ia, ib, V, W, Qv, T, ip, fp, v_out, w_out):
     return E
 
 
+@njit(cache=True)
+def anchored_cost(method, ia, ib, keep, V, W, Qv, T, v_out, w_out):
+    """Cost of a half-edge collapse of (ia, ib) onto ``keep`` (one of them): its position and weights stay.
+
+    ``E(v_keep, w_keep)`` under the edge's summed quadrics (``QUARTIC``, ``MOHR_GLEICHER``: every pose;
+    ``DECORO``: the rest-frame quadric).
+    """
+    Qe = Qv[ia] + Qv[ib]
+    v_out[:] = V[keep]
+    w_out[:] = W[keep]
+    if method == DECORO:
+        return max(_qform(Qe[0], V[keep, 0], V[keep, 1], V[keep, 2]), 0.0)
+    return max(_endpoint_error(Qe, T, W[keep], V[keep]), 0.0)
+
+
+@njit(cache=True)
+def collapse_cost(method, ia, ib, place, V, W, Qv, T, ip, fp, v_out, w_out):
+    """The cost of collapsing (ia, ib) with a :func:`rigslim.plugins.decimation.setup.placement`.
+
+    ``FREE``: :func:`edge_cost`; ``KEEP_A`` / ``KEEP_B``: :func:`anchored_cost` onto that end; ``BEST``:
+    the cheaper of the two (ties: a). Costs below ``fp[2]`` (round-off,
+    :func:`rigslim.plugins.decimation.setup.zero_cost`) are 0, so that both backends order them alike.
+    """
+    if place == KEEP_A:
+        E = anchored_cost(method, ia, ib, ia, V, W, Qv, T, v_out, w_out)
+    elif place == KEEP_B:
+        E = anchored_cost(method, ia, ib, ib, V, W, Qv, T, v_out, w_out)
+    elif place == BEST:
+        E = anchored_cost(method, ia, ib, ia, V, W, Qv, T, v_out, w_out)
+        Qe = Qv[ia] + Qv[ib]
+        Eb = max(_qform(Qe[0], V[ib, 0], V[ib, 1], V[ib, 2]), 0.0) if method == DECORO else \
+            max(_endpoint_error(Qe, T, W[ib], V[ib]), 0.0)
+        if Eb < E and not (E < fp[2]):
+            v_out[:] = V[ib]
+            w_out[:] = W[ib]
+            E = Eb
+    else:
+        E = edge_cost(method, ia, ib, V, W, Qv, T, ip, fp, v_out, w_out)
+    return 0.0 if E < fp[2] else E
+
+
 @njit(cache=True, nogil=True)
-def _edge_costs_into(method, ea, eb, V, W, Qv, T, ip, fp, v, w, E):
-    """:func:`edge_cost` of the edges ``(ea[i], eb[i])`` into v (B, 3), w (B, n), E (B,); releases the GIL."""
+def _edge_costs_into(method, ea, eb, place, V, W, Qv, T, ip, fp, v, w, E):
+    """:func:`collapse_cost` of the edges ``(ea[i], eb[i])`` into v (B, 3), w (B, n), E (B,); releases the GIL."""
     for i in range(len(ea)):
-        E[i] = edge_cost(method, ea[i], eb[i], V, W, Qv, T, ip, fp, v[i], w[i])
+        E[i] = collapse_cost(method, ea[i], eb[i], place[i], V, W, Qv, T, ip, fp, v[i], w[i])
 
 
-def edge_costs(method, ea, eb, V, W, Qv, T, ip, fp, threads: int | None = None):
-    """:func:`edge_cost` of many edges: returns v (B, 3), w (B, n), E (B,).
+def edge_costs(method, ea, eb, V, W, Qv, T, ip, fp, threads: int | None = None, place=None):
+    """:func:`collapse_cost` of many edges: returns v (B, 3), w (B, n), E (B,).
 
-    Large batches are split over ``threads`` Python threads (default: the
-    CPU count), which run the compiled loop without the GIL.
+    ``place`` (B,) int64: each edge's :func:`rigslim.plugins.decimation.setup.placement` (default
+    ``FREE``). Large batches are split over ``threads`` Python threads (default: the CPU count), which run
+    the compiled loop without the GIL.
     """
     import os
     from concurrent.futures import ThreadPoolExecutor
 
     ea = np.ascontiguousarray(ea, dtype=np.int64)
     eb = np.ascontiguousarray(eb, dtype=np.int64)
+    place = np.zeros(len(ea), np.int64) if place is None else np.ascontiguousarray(place, dtype=np.int64)
+    if len(fp) < 3:                 # no round-off threshold given: none
+        fp = np.append(fp, 0.0)
     B, n = len(ea), W.shape[1]
     v, w, E = np.empty((B, 3)), np.empty((B, n)), np.empty(B)
     threads = threads or os.cpu_count() or 1
     if threads == 1 or B < 4096:
-        _edge_costs_into(method, ea, eb, V, W, Qv, T, ip, fp, v, w, E)
+        _edge_costs_into(method, ea, eb, place, V, W, Qv, T, ip, fp, v, w, E)
         return v, w, E
-    parts = np.array_split(np.arange(B), 8 * threads)      # small parts balance uneven costs
+    parts = [p for p in np.array_split(np.arange(B), 8 * threads) if len(p)]   # small parts balance uneven costs
+
+    def part(p):
+        sl = slice(p[0], p[-1] + 1)
+        _edge_costs_into(method, ea[sl], eb[sl], place[sl], V, W, Qv, T, ip, fp, v[sl], w[sl], E[sl])
+
     with ThreadPoolExecutor(threads) as pool:
-        list(pool.map(lambda p: _edge_costs_into(method, ea[p[0]:p[-1] + 1], eb[p[0]:p[-1] + 1], V, W, Qv, T, ip,
-                                                 fp, v[p[0]:p[-1] + 1], w[p[0]:p[-1] + 1], E[p[0]:p[-1] + 1]),
-                      [p for p in parts if len(p)]))
+        list(pool.map(part, parts))
     return v, w, E

@@ -112,6 +112,9 @@ class QuarticModel(EdgeCostModel):
                 v_out[better], w_out[better], E_out[better] = st.V[e][better], st.W[e][better], E_end[better]
         return v_out, w_out, E_out
 
+    def anchored(self, st, ea, eb, keep):
+        return endpoint_errors(st, self.Q[ea] + self.Q[eb], keep)
+
     def merge(self, st, a, b, c):
         self.Q[c] = self.Q[a] + self.Q[b]
 
@@ -189,6 +192,9 @@ class DeCoroModel(EdgeCostModel):
             w, _ = bone_limit(w, w != 0, self.max_bones)
         E = quartic_error(Qe, ident, np.ones((B, 1)), v)
         return v, w, np.maximum(E, 0.0)
+
+    def anchored(self, st, ea, eb, keep):
+        return quadric_error(self.Q[ea] + self.Q[eb], st.V[keep])
 
     def merge(self, st, a, b, c):
         self.Q[c] = self.Q[a] + self.Q[b]
