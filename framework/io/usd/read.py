@@ -678,5 +678,5 @@ def usd_skin_of_stage(stage, mesh: Mesh, handles: Handles, weights, poses, path)
     joints = [str(j) for j in UsdSkel.Skeleton(skel).GetJointsAttr().Get()]
     bind = to_columns(UsdSkel.Skeleton(skel).GetBindTransformsAttr().Get())
     frames = len(poses) if poses is not None else 1
-    return UsdSkin(Path(path), stage, str(root.GetPath()), str(skel.GetPath()), joints, [part], mesh, handles,
+    return UsdSkin(Path(f"{path} (in memory)"), stage, str(root.GetPath()), str(skel.GetPath()), joints, [part], mesh, handles,
                    weights, poses, bind, None, 30.0, np.arange(frames, dtype=np.float64))
