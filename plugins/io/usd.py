@@ -101,6 +101,7 @@ class UsdWriter(Writer):
         from rigslim.io.usd.write import save_stage, write_usd
 
         asset.require("mesh", "handles", step="write: usd")
+        assert asset.mesh is not None and asset.handles is not None
         weights = asset.reduced if asset.reduced is not None else asset.weights
         if weights is None:
             asset.require("weights", step="write: usd")

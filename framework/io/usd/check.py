@@ -12,6 +12,7 @@ old ComplianceChecker as well where the installed usd-core still has it.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from rigslim.io.usd.stage import diagnostics, open_stage, pxr_modules
 
@@ -41,7 +42,7 @@ def check_usd(path, *, levels: bool = True, warnings: bool = False) -> list[str]
     context = UsdValidation.ValidationContext(registry.GetOrLoadAllValidators())
     wanted = {UsdValidation.ValidationErrorType.Error} | (
         {UsdValidation.ValidationErrorType.Warn} if warnings else set())
-    selections = [None]
+    selections: list[tuple[Any, str] | None] = [None]
     if levels:
         selections += [(prim.GetPath(), name) for prim in stage.Traverse()
                        if prim.GetVariantSets().HasVariantSet("LOD")

@@ -27,10 +27,14 @@ the largest ``beta``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from rigslim.errors import StepError
+
+if TYPE_CHECKING:
+    from rigslim.io.usd.read import MeshPart
 
 
 @dataclass(eq=False)
@@ -53,7 +57,7 @@ class LevelPart:
         Rows of the level (``level.mesh`` / ``level.weights``) holding the vertices.
     """
 
-    part: object
+    part: MeshPart
     V: np.ndarray
     faces: np.ndarray
     source: np.ndarray

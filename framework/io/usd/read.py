@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -140,7 +141,7 @@ class UsdSkin:
 # --------------------------------------------------------------------------- bindings
 
 
-def skel_bindings(stage, path: Path) -> list[tuple[object, object]]:
+def skel_bindings(stage, path: Path) -> tuple[Any, list[Any]]:
     """``(UsdSkel.Cache, [UsdSkel.Binding, ...])`` of every ``SkelRoot`` of the stage, in traversal order.
 
     Raises one line when a mesh carries joint influences that UsdSkel would
@@ -156,7 +157,7 @@ def skel_bindings(stage, path: Path) -> list[tuple[object, object]]:
         if prim.IsA(UsdSkel.Root):
             roots.append(prim)
             it.PruneChildren()
-    targets = set()
+    targets: set[str] = set()
     with diagnostics():
         for prim in roots:
             root = UsdSkel.Root(prim)
@@ -410,14 +411,14 @@ def _influences(query, prim, m: int, joint_index: dict[str, int], skel_joints: l
         bad = int(np.flatnonzero(~np.isfinite(jw))[0])
         raise InputError(f"jointWeights contain NaN or inf (point {bad // k if not rigid else 0})", source=path,
                          field=f"{where}.{JOINT_WEIGHTS}", fix="re-export the skin weights")
-    order = query.GetJointOrder()
-    if order is not None:
-        order = [str(j) for j in order]
-        missing = [j for j in order if j not in joint_index]
-        if missing:
-            raise InputError(f"skel:joints names {len(missing)} joints the skeleton lacks ('{brief(missing[0])}')",
+    authored = query.GetJointOrder()
+    if authored is not None:
+        order = [str(j) for j in authored]
+        unknown = [j for j in order if j not in joint_index]
+        if unknown:
+            raise InputError(f"skel:joints names {len(unknown)} joints the skeleton lacks ('{brief(unknown[0])}')",
                              source=path, field=f"{where}.skel:joints",
-                             fix=closest(missing[0], skel_joints) if skel_joints else "list the skeleton's joints")
+                             fix=closest(unknown[0], skel_joints) if skel_joints else "list the skeleton's joints")
         mapping = np.array([joint_index[j] for j in order], np.int64)
     else:
         mapping = np.arange(len(skel_joints), dtype=np.int64)
@@ -678,5 +679,5 @@ def usd_skin_of_stage(stage, mesh: Mesh, handles: Handles, weights, poses, path)
     joints = [str(j) for j in UsdSkel.Skeleton(skel).GetJointsAttr().Get()]
     bind = to_columns(UsdSkel.Skeleton(skel).GetBindTransformsAttr().Get())
     frames = len(poses) if poses is not None else 1
-    return UsdSkin(Path(f"{path} (in memory)"), stage, str(root.GetPath()), str(skel.GetPath()), joints, [part], mesh, handles,
-                   weights, poses, bind, None, 30.0, np.arange(frames, dtype=np.float64))
+    return UsdSkin(Path(f"{path} (in memory)"), stage, str(root.GetPath()), str(skel.GetPath()), joints, [part],
+                   mesh, handles, weights, poses, bind, None, 30.0, np.arange(frames, dtype=np.float64))

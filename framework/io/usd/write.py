@@ -84,7 +84,7 @@ def write_usd(path, source, reduced=None, *, levels=None, hierarchy=None, lod: s
     stage = Usd.Stage.Open(layer)
     stats: dict = {"element_size": None, "levels": 0, "lod": None, "meshes": len(source.parts)}
     if reduced is not None:
-        clamp = {}
+        clamp: dict = {}
         for part in source.parts:
             rows = slice(part.start, part.start + part.count)
             prim = stage.GetPrimAtPath(part.path)
@@ -298,9 +298,9 @@ def _carry(lp, X: np.ndarray, interp: str, tri_points: np.ndarray, n_points: int
 
 def _set_array(attr, Y: np.ndarray) -> None:
     cls = attr.GetTypeName().type.pythonClass
-    dtype = np.float32 if "Vec3h" not in cls.__name__ and "Half" not in cls.__name__ else np.float16
-    if "Double" in cls.__name__ or "Vec2d" in cls.__name__ or "Vec3d" in cls.__name__:
-        dtype = np.float64
+    base = cls.__name__.removesuffix("Array")        # Vec2f, Vec3h, Float, Double, Half...
+    dtype: type = np.float64 if base == "Double" or base.endswith("d") else (
+        np.float16 if base == "Half" or base.endswith("h") else np.float32)
     if np.issubdtype(Y.dtype, np.integer) or np.issubdtype(Y.dtype, np.bool_):
         attr.Set(cls.FromNumpy(np.ascontiguousarray(Y)))
         return
