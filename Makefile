@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY      = $(VENV)/bin/python
 PIP     = $(PY) -m pip
 
-.PHONY: demo test lint install install-test test-tools clean
+.PHONY: demo test lint install install-test test-tools clean blender-extension
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -40,5 +40,9 @@ lint: install-test
 	$(VENV)/bin/ruff check .
 	bash tools/mypy-contract.sh
 
+## blender-extension: the installable Blender extension, dist/rigslim-VERSION.zip (docs/blender.md)
+blender-extension:
+	$(PYTHON) integrations/blender/build.py --output dist
+
 clean:
-	rm -rf $(VENV) examples/out build *.egg-info
+	rm -rf $(VENV) .venv-blender examples/out build dist *.egg-info
