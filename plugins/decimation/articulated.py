@@ -186,36 +186,66 @@ class ArticulatedDecimator(Decimator):
         raise NotImplementedError
 
     def decimate(self, asset: Asset, params: DecimationParams, ctx: StepContext) -> Decimation:
-        from rigslim.plugins.decimation.collapse import simplify
+        """Quadrics of the example poses, the collapse loop, the levels; each phase timed in the report."""
+        asset.require("mesh", "weights", "poses", "split", step=f"decimate: {self.name}")
+        clock = PhaseClock()
+        faces = target_faces(params.targets, asset.mesh.n_faces)
+        min_faces = params.min_faces if params.min_faces is not None else (min(faces) if faces else 70)
+        with clock("quadrics"):
+            Q, W, T, X, model = self.setup(asset, params)
+        with clock("seams"):
+            locked, seams = seam_lock(asset, params.seams_collapse_along) if params.lock_seams else (None, None)
+        with clock("collapses"):
+            hier = self.collapse(asset, params, W, T, X, model, min_faces, locked, seams, ctx)
+        with clock("levels"):
+            bound = error_bound(asset, params.max_error)
+            distances = collapse_distances(hier, Q[:, :len(asset.example_poses().T)])
+            choices = choose_levels(hier, list(params.targets), faces, distances, bound, self.name)
+            levels = self.levels(asset, params, hier, choices)
+        self.report(asset, params, ctx, hier, levels, choices, bound, locked, seams, len(T))
+        ctx.report["seconds"] = clock.seconds
+        if hier.faces_after(hier.n_collapses) > min_faces:
+            ctx.log(f"stopped at {hier.faces_after(hier.n_collapses)} faces: no valid collapse is left")
+        return Decimation(levels, hier)
+
+    def setup(self, asset: Asset, params: DecimationParams):
+        """Per-pose quadrics (and the attribute term), bone-limited weights, the edge cost model."""
         from rigslim.plugins.decimation.quadrics import per_pose_quadrics
 
-        step = f"decimate: {self.name}"
-        asset.require("mesh", "weights", "poses", "split", step=step)
         mesh = asset.mesh
         T = asset.example_poses().T
-        faces = target_faces(params.targets, mesh.n_faces)
-        min_faces = params.min_faces if params.min_faces is not None else (min(faces) if faces else 70)
         Q, X = per_pose_quadrics(mesh.V, mesh.F, asset.weights, T, params.area_weighted)
         Q, T, X = attribute_term(asset, params.attribute_weights, Q, T, X)
         W = limited_weights(asset.weights, params.max_bones)
-        model = self.model(Q, W, T, params)
-        locked, seams = seam_lock(asset, params.seams_collapse_along) if params.lock_seams else (None, None)
-        hier = simplify(mesh.V, mesh.F, W, T, X, model, min_faces=min_faces, keep_boundary=params.keep_boundary,
-                        border_collapses=params.border_collapses,
-                        min_normal_cos=params.min_normal_cos, progress=ctx.progress, method=self.name,
-                        params=params.model_dump(), backend=params.backend, locked=locked, seams=seams)
-        bound = error_bound(asset, params.max_error)
-        distances = collapse_distances(hier, Q[:, :len(asset.example_poses().T)])
-        choices = choose_levels(hier, list(params.targets), faces, distances, bound, self.name)
+        return Q, W, T, X, self.model(Q, W, T, params)
+
+    def collapse(self, asset, params, W, T, X, model, min_faces, locked, seams, ctx):
+        """The greedy collapse loop (:func:`rigslim.plugins.decimation.collapse.simplify`)."""
+        from rigslim.plugins.decimation.collapse import simplify
+
+        mesh = asset.mesh
+        return simplify(mesh.V, mesh.F, W, T, X, model, min_faces=min_faces, keep_boundary=params.keep_boundary,
+                        border_collapses=params.border_collapses, min_normal_cos=params.min_normal_cos,
+                        progress=ctx.progress, method=self.name, params=params.model_dump(), backend=params.backend,
+                        locked=locked, seams=seams)
+
+    def levels(self, asset, params, hier, choices) -> list:
+        """The face-target levels (:func:`choose_levels`), error-target and adaptive levels, finest first."""
         levels = [hier.prefix(c.collapses, c.label) for c in choices if c.same_as is None]
         levels += [hier.at_error(e, f"{self.name}-err{e:g}") for e in params.error_targets]
-        levels += [hier.adaptive(a.budget(mesh.V), a.label or f"{self.name}-adaptive{i + 1}")
+        levels += [hier.adaptive(a.budget(asset.mesh.V), a.label or f"{self.name}-adaptive{i + 1}")
                    for i, a in enumerate(params.adaptive_targets)]
         levels.sort(key=lambda lv: -lv.n_faces)
+        return levels
+
+    def report(self, asset, params, ctx, hier, levels, choices, bound, locked, seams, n_poses) -> None:
+        """The step report: seams, targets (what was asked and reached), the loop's counts, the levels."""
         if locked is not None:
             ctx.report["locked_seam_vertices"] = int(locked.sum())
             ctx.report["seam_vertices_collapsing_along"] = int(seams[0].sum()) if seams is not None else 0
         ctx.report["targets"] = [target_record(c, bound) for c in choices]
+        if getattr(hier, "loop_stats", None):
+            ctx.report["loop"] = hier.loop_stats
         for c in choices:
             if c.stopped == "max_error" and c.same_as is None:
                 ctx.log(f"level {c.label} stopped at {c.faces} faces (target {c.target_faces}): the next collapse "
@@ -224,15 +254,33 @@ class ArticulatedDecimator(Decimator):
                 ctx.log(f"target {c.target:g} ({c.target_faces} faces) ends at the same {c.faces} faces as "
                         f"level {c.same_as}: no level of its own")
         ctx.report.update({
-            "collapses": hier.n_collapses, "input_faces": mesh.n_faces,
+            "collapses": hier.n_collapses, "input_faces": asset.mesh.n_faces,
             "final_faces": hier.faces_after(hier.n_collapses), "example_poses": len(asset.example_poses().T),
-            "attribute_term": len(T) > len(asset.example_poses().T),
+            "attribute_term": n_poses > len(asset.example_poses().T),
             "levels": [{"label": lv.label, "faces": lv.n_faces, "vertices": lv.n_vertices,
                         "max_bones": int(lv.weights.influence_counts().max()), "error": lv.error}
                        for lv in levels]})
-        if hier.faces_after(hier.n_collapses) > min_faces:
-            ctx.log(f"stopped at {hier.faces_after(hier.n_collapses)} faces: no valid collapse is left")
-        return Decimation(levels, hier)
+
+
+class PhaseClock:
+    """Wall seconds of named phases: ``with clock("name"): ...``, then ``clock.seconds``."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = {}
+
+    def __call__(self, name: str):
+        from contextlib import contextmanager
+        from time import perf_counter
+
+        @contextmanager
+        def phase():
+            t0 = perf_counter()
+            try:
+                yield
+            finally:
+                self.seconds[name] = self.seconds.get(name, 0.0) + perf_counter() - t0
+
+        return phase()
 
 
 class QuarticParams(DecimationParams):
