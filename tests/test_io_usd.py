@@ -44,8 +44,8 @@ def assimp_characters() -> list[Path]:
     out = []
     for name in ("BCN_Epileptic", "Testwuson"):
         dst = folder / f"{name}.glb"
-        if (models / f"{name}.X").exists() and subprocess.run(
-                ["assimp", "export", str(models / f"{name}.X"), str(dst), "-fglb2"], capture_output=True).returncode == 0:
+        cmd = ["assimp", "export", str(models / f"{name}.X"), str(dst), "-fglb2"]
+        if (models / f"{name}.X").exists() and subprocess.run(cmd, capture_output=True).returncode == 0:
             out.append(dst)
     return out
 
