@@ -131,7 +131,7 @@ def bench(gltf: Path, tmp: Path) -> dict:
 def markdown(doc: dict) -> str:
     lines = ["# USD / UsdSkel round trip", "",
              f"Measured {doc['date']} on {doc['machine']['cpu']} ({doc['machine']['nproc']} cores, load "
-             f"{doc['load']}); usd-core {doc['usd_core']}. `benchmarks/usd_roundtrip.py`.", "",
+             f"{doc['load']:.1f} on 2 cores: times are loaded-machine times); usd-core {doc['usd_core']}. `benchmarks/usd_roundtrip.py`.", "",
              "Errors: largest posed-point difference over every vertex and frame, as a fraction of the posed "
              "bounding-box diagonal. `gltf_vs_usd`: rigslim posing the glTF vs rigslim posing its USD export; "
              "`usd_vs_usdskel`: rigslim vs UsdSkel's ComputeSkinnedPoints on the same file; `levels`: the same "
@@ -172,7 +172,7 @@ def main(argv=None):
                   f"{row['usd_vs_usdskel']:.2e}, levels {row['level_vs_usdskel']:.2e}, faces {row['lod_faces']}, "
                   f"checks {len(row['export_check']) + len(row['lod_check'])}", file=sys.stderr)
     doc = {"date": time.strftime("%Y-%m-%d"), "machine": machine(), "load": os.getloadavg()[0],
-           "usd_core": ".".join(map(str, Usd.GetVersion())), "characters": rows}
+           "usd_core": ".".join(map(str, Usd.GetVersion()[1:])), "characters": rows}
     text = markdown(doc)
     print(text)
     write_results(OUT, doc, text)
