@@ -131,7 +131,8 @@ def bench(gltf: Path, tmp: Path) -> dict:
 def markdown(doc: dict) -> str:
     lines = ["# USD / UsdSkel round trip", "",
              f"Measured {doc['date']} on {doc['machine']['cpu']} ({doc['machine']['nproc']} cores, load "
-             f"{doc['load']:.1f} on 2 cores: times are loaded-machine times); usd-core {doc['usd_core']}. `benchmarks/usd_roundtrip.py`.", "",
+             f"{doc['load']:.1f}: times are loaded-machine times); usd-core {doc['usd_core']}."
+             " `benchmarks/usd_roundtrip.py`.", "",
              "Errors: largest posed-point difference over every vertex and frame, as a fraction of the posed "
              "bounding-box diagonal. `gltf_vs_usd`: rigslim posing the glTF vs rigslim posing its USD export; "
              "`usd_vs_usdskel`: rigslim vs UsdSkel's ComputeSkinnedPoints on the same file; `levels`: the same "
