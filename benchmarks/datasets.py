@@ -39,14 +39,14 @@ def elephant(levels: int = 0, examples: str = EXAMPLES, test: str = TEST):
 
     Returns
     -------
-    rigslim.asset.Asset
+    rigslim.model.asset.Asset
         mesh, skeleton handles, weights (csr, rows sum to 1), all 457 poses and
         the split (example frames ``0:457:45``, test frames ``5:457:7`` minus 180).
     """
-    from rigslim.asset import Asset
     from rigslim.io import read_dmat, read_mesh, read_stacked_animation, read_tgf
-    from rigslim.poses import FrameSplit
-    from rigslim.weights import validate_weights
+    from rigslim.model.asset import Asset
+    from rigslim.model.poses import FrameSplit
+    from rigslim.model.weights import validate_weights
 
     mesh = read_mesh(DATA / "elephant.obj")
     handles = read_tgf(DATA / "elephant.tgf")
@@ -63,7 +63,7 @@ def subdivide(mesh, W, levels: int):
     """Midpoint-subdivide a mesh ``levels`` times, interpolating the weights linearly."""
     import igl
 
-    from rigslim.mesh import Mesh
+    from rigslim.model.mesh import Mesh
 
     V, F = mesh.V, mesh.F
     Wd = sp.csr_matrix(W).toarray()

@@ -43,7 +43,7 @@ OUT = ROOT / "docs" / "results"
 RATIOS = (0.5, 0.25)
 REPEATS = 3
 RIGSLIM = ([str(Path(sys.executable).with_name("rigslim"))] if Path(sys.executable).with_name("rigslim").exists()
-           else [sys.executable, "-m", "rigslim.cli"])
+           else [sys.executable, "-m", "rigslim.commands.cli"])
 
 
 def characters() -> list[Path]:
@@ -87,7 +87,7 @@ def compare(ref: Path, cand: Path, frames: str, level: int, samples: int) -> dic
 
 
 def bench(path: Path, tmp: Path, gltfpack: list[str] | None, samples: int) -> dict:
-    from rigslim.gltf_commands import _poses, clip_frames
+    from rigslim.commands.gltf_common import _poses, clip_frames
 
     frames, clip, duration = clip_frames(path, None, 30.0)
     test = _poses(frames)["test"]

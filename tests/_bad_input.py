@@ -31,7 +31,7 @@ def snapshot(folder: Path) -> dict[str, bytes]:
 
 def run_cli(args, capfd):
     """``rigslim ARGS`` in this process; returns (exit status, stderr lines)."""
-    from rigslim.cli import main
+    from rigslim.commands.cli import main
 
     capfd.readouterr()
     code = main([str(a) for a in args])
@@ -46,8 +46,8 @@ def _limit():  # pragma: no cover - runs in the child
 def run_cli_subprocess(args, *, timeout: float = 120.0, cwd=None):
     """``rigslim ARGS`` in a child under a memory limit and a timeout (hangs and blow-ups fail)."""
     env = dict(os.environ, PYTHONWARNINGS="default")
-    proc = subprocess.run([sys.executable, "-m", "rigslim.cli", *map(str, args)], capture_output=True, text=True,
-                          timeout=timeout, preexec_fn=_limit, cwd=cwd, env=env)
+    proc = subprocess.run([sys.executable, "-m", "rigslim.commands.cli", *map(str, args)], capture_output=True,
+                          text=True, timeout=timeout, preexec_fn=_limit, cwd=cwd, env=env)
     return proc.returncode, [line for line in proc.stderr.splitlines() if line.strip()]
 
 

@@ -43,11 +43,11 @@ def run_case(kind: str, suffix: str, payload: bytes, folder: Path):
     path = folder / f"case{suffix}"
     path.write_bytes(payload)
     if kind == "yaml":
-        from rigslim.pipeline import load_pipeline
+        from rigslim.runtime.document import load_pipeline
 
         load_pipeline(path)
     elif kind == "gltf":
-        from rigslim.io.gltf import read_gltf_skin
+        from rigslim.io.gltf.skin import read_gltf_skin
 
         skin = read_gltf_skin(path, weld=True)
         skin.mesh.edges  # noqa: B018 - the derived data a pipeline builds first
@@ -78,7 +78,7 @@ def run_case(kind: str, suffix: str, payload: bytes, folder: Path):
 def main() -> int:
     _limit()
     from rigslim.errors import RigslimError
-    from rigslim.host import get_host
+    from rigslim.plugin.host import get_host
 
     get_host()  # load the plugins once
     stdin, stdout = sys.stdin.buffer, sys.stdout.buffer

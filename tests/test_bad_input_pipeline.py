@@ -287,15 +287,15 @@ def test_no_runtime_warning_before_an_error(project, capfd):
 def test_warnings_are_dropped_when_an_error_follows(project, capfd, monkeypatch):
     import warnings
 
-    import rigslim.pipeline
+    import rigslim.runtime.run
 
-    real = rigslim.pipeline.load_pipeline
+    real = rigslim.runtime.run.load_pipeline
 
     def noisy(*args, **kwargs):
         warnings.warn("overflow encountered in square", RuntimeWarning, stacklevel=2)
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(rigslim.pipeline, "load_pipeline", noisy)
+    monkeypatch.setattr(rigslim.runtime.run, "load_pipeline", noisy)
     steps = "  - generate: bone-heat\n  - select: k-largest\n    k: true\n"
     _bad(project, capfd, _pipeline(project, steps=steps), "pipeline.yaml", "steps[2].k")
 

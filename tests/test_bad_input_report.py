@@ -26,7 +26,7 @@ steps:
 @pytest.fixture(scope="module")
 def metrics(tmp_path_factory):
     """A real metrics document (a small glTF run) and its folder."""
-    from rigslim.cli import main
+    from rigslim.commands.cli import main
 
     folder = tmp_path_factory.mktemp("report")
     (folder / "model.gltf").write_bytes((DATA / "gltf" / "simple_skin.gltf").read_bytes())

@@ -1,7 +1,7 @@
 """``rigslim batch`` on a real Dask cluster (no mocks).
 
 One LocalCluster of 2 worker processes is started for the module (the same
-set-up ``rigslim batch`` makes, :func:`rigslim.batch.local_cluster`) and the
+set-up ``rigslim batch`` makes, :func:`rigslim.batch.run.local_cluster`) and the
 batches reach it with ``--scheduler``; one test starts the command's own
 local cluster. The assets are the bundled small glTF characters (62 to 130
 vertices) so that every batch takes seconds.
@@ -20,8 +20,8 @@ import pytest
 pytest.importorskip("distributed")
 pyarrow = pytest.importorskip("pyarrow")
 
-from rigslim.batch import local_cluster  # noqa: E402
-from rigslim.cli import main  # noqa: E402
+from rigslim.batch.run import local_cluster  # noqa: E402
+from rigslim.commands.cli import main  # noqa: E402
 
 GLTF = Path(__file__).resolve().parents[1] / "examples" / "data" / "gltf"
 
@@ -317,7 +317,7 @@ def test_command_starts_its_own_local_cluster(library, tmp_path, capsys):
 # --- assets, names, templating (no cluster) ------------------------------------------------------
 
 def test_names_are_stems_and_shared_stems_get_a_stable_suffix(tmp_path):
-    from rigslim.batch_assets import collect_assets
+    from rigslim.batch.assets import collect_assets
 
     for d in ("a", "b"):
         (tmp_path / d).mkdir()
@@ -334,7 +334,7 @@ def test_names_are_stems_and_shared_stems_get_a_stable_suffix(tmp_path):
 
 
 def test_asset_pipeline_substitutes_resolves_and_overrides(tmp_path):
-    from rigslim.batch_assets import AssetJob, apply_overrides, asset_pipeline, override_targets
+    from rigslim.batch.assets import AssetJob, apply_overrides, asset_pipeline, override_targets
 
     template = {"name": "{name}", "inputs": {"mesh": "{input}", "skeleton": "rig/{name}.tgf",
                                               "weights": {"path": "w.dmat", "normalize": True}},
@@ -355,7 +355,7 @@ def test_asset_pipeline_substitutes_resolves_and_overrides(tmp_path):
 
 
 def test_manifest_errors_are_one_line(tmp_path):
-    from rigslim.batch_assets import collect_assets
+    from rigslim.batch.assets import collect_assets
     from rigslim.errors import InputError
 
     cases = {"no-asset.csv": ("name,k\nx,1\n", "no 'asset' column"),
@@ -371,9 +371,10 @@ def test_manifest_errors_are_one_line(tmp_path):
 def test_simplification_levels_give_hausdorff_columns_per_level(tmp_path):
     """A LOD template: Hausdorff (metro) at each level becomes its own summary column, in every format."""
     pytest.importorskip("pymeshlab")
-    from rigslim.batch import BatchOptions, BatchResult, write_summary
-    from rigslim.batch_assets import collect_assets, load_template
-    from rigslim.batch_task import run_asset
+    from rigslim.batch.assets import collect_assets, load_template
+    from rigslim.batch.options import BatchOptions, BatchResult
+    from rigslim.batch.summary import write_summary
+    from rigslim.batch.task import run_asset
 
     template = tmp_path / "lod.yaml"
     template.write_text(TEMPLATE.replace("""  - select: k-largest

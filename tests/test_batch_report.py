@@ -15,10 +15,11 @@ import pytest
 
 pytest.importorskip("pyarrow")
 
-from rigslim.batch import BatchOptions, BatchResult, write_summary  # noqa: E402
-from rigslim.batch_assets import collect_assets, load_template  # noqa: E402
-from rigslim.batch_task import run_asset  # noqa: E402
-from rigslim.cli import main  # noqa: E402
+from rigslim.batch.assets import collect_assets, load_template  # noqa: E402
+from rigslim.batch.options import BatchOptions, BatchResult
+from rigslim.batch.summary import write_summary  # noqa: E402
+from rigslim.batch.task import run_asset  # noqa: E402
+from rigslim.commands.cli import main  # noqa: E402
 from rigslim.report.batch import build_batch_report, read_summary  # noqa: E402
 
 GLTF = Path(__file__).resolve().parents[1] / "examples" / "data" / "gltf"

@@ -1,8 +1,8 @@
 import numpy as np
 import scipy.sparse as sp
 
-from rigslim.blend import basis_positions, blended_matrices, linear_blend
-from rigslim.handles import cage_transforms
+from rigslim.model.handles import cage_transforms
+from rigslim.numerics.blend import basis_positions, blended_matrices, linear_blend
 from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.k_largest import k_largest_weights
 

@@ -2,7 +2,7 @@ import json
 import subprocess
 import sys
 
-from rigslim.cli import main
+from rigslim.commands.cli import main
 
 
 def test_plugins_json(capsys):
@@ -15,12 +15,12 @@ def test_plugins_json(capsys):
 
 
 def test_console_script_runs():
-    out = subprocess.run([sys.executable, "-m", "rigslim.cli", "plugins"], capture_output=True, text=True)
+    out = subprocess.run([sys.executable, "-m", "rigslim.commands.cli", "plugins"], capture_output=True, text=True)
     assert out.returncode == 0 and "k-largest" in out.stdout
 
 
 def test_import_is_light():
-    code = ("import sys, rigslim, rigslim.host; rigslim.host.get_host().registry; "
+    code = ("import sys, rigslim, rigslim.plugin.host; rigslim.plugin.host.get_host().registry; "
             "heavy = [m for m in ('pyopencl', 'OpenGL', 'pymeshlab', 'pygltflib', 'matplotlib') if m in sys.modules]; "
             "print(heavy)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from rigslim.asset import Asset
-from rigslim.blend import linear_blend
-from rigslim.host import get_host
-from rigslim.mesh import Mesh
+from rigslim.model.asset import Asset
+from rigslim.model.mesh import Mesh
+from rigslim.numerics.blend import linear_blend
 from rigslim.plugin import StepContext
+from rigslim.plugin.host import get_host
 from rigslim.plugins.decimation.collapse import SimplifyState
 from rigslim.plugins.decimation.models import DeCoroModel, MohrGleicherModel, QuarticModel
 from rigslim.plugins.decimation.quadrics import per_pose_quadrics

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from rigslim.mesh import Mesh
+from rigslim.model.mesh import Mesh
 from rigslim.plugins.decimation.quadrics import (
     alternate,
     bone_limit,

@@ -15,16 +15,16 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from rigslim.device.opencl import OpenCLUnavailable
 from rigslim.errors import StepError
-from rigslim.handles import Handles, cage_transforms
-from rigslim.mesh import Mesh
-from rigslim.opencl import OpenCLUnavailable
+from rigslim.model.handles import Handles, cage_transforms
+from rigslim.model.mesh import Mesh
+from rigslim.model.weights import ReducedWeights
 from rigslim.plugins.deformers.cpu_deformer import CPUDeformer
 from rigslim.plugins.deformers.cpu_kernels import BLOCK, LANES, SUB, half_tables
 from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
 from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.k_largest import k_largest_weights
-from rigslim.weights import ReducedWeights
 
 POSITION_TOL = 1e-5      # fraction of the bounding-box diagonal
 NORMAL_TOL = 1e-4        # radians
@@ -254,7 +254,7 @@ steps:
 
 
 def test_yaml_deform_and_normals_steps_use_cpu(write_pipeline, tmp_path, capsys):
-    from rigslim.cli import main
+    from rigslim.commands.cli import main
 
     results = {}
     for label, extra in (("numpy", "  - normals: blended-matrix"),

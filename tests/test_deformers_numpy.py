@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from rigslim.blend import linear_blend, per_vertex_normals
 from rigslim.errors import InputError, StepError
+from rigslim.model.weights import ReducedWeights
+from rigslim.numerics.blend import linear_blend, per_vertex_normals
 from rigslim.numerics.blended_normals import blended_matrix_normals
 from rigslim.plugins.deformers.base import fixed_k_arrays, handle_data, pack_weights, resolve_normals
 from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
 from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.k_largest import k_largest_weights
-from rigslim.weights import ReducedWeights
 
 
 def test_callable_positions_and_normals(elephant):
@@ -85,7 +85,7 @@ def test_handle_records_hold_transform_rows_and_handle_positions(rng):
 
 def test_sparse_input_rows_of_any_width(rng):
     """A hand-made sparse matrix with empty-ish rows (one weight) and wide rows."""
-    from rigslim.mesh import Mesh
+    from rigslim.model.mesh import Mesh
 
     m, n = 30, 7
     W = sp.random(m, n, density=0.4, random_state=1, format="csr") + sp.eye(m, n, format="csr")

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from rigslim.handles import Handles, cage_transforms
-from rigslim.mesh import Mesh
-from rigslim.opencl import OpenCLUnavailable, get_runtime
+from rigslim.device.opencl import OpenCLUnavailable, get_runtime
+from rigslim.model.handles import Handles, cage_transforms
+from rigslim.model.mesh import Mesh
 from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
 from rigslim.plugins.deformers.opencl_deformer import OpenCLDeformer
 from rigslim.plugins.selection.k_largest import k_largest
@@ -191,7 +191,7 @@ steps:
 
 
 def test_yaml_deform_and_normals_steps_use_opencl(write_pipeline, tmp_path, capsys):
-    from rigslim.cli import main
+    from rigslim.commands.cli import main
 
     results = {}
     for label, extra in (("numpy", "  - normals: blended-matrix"),

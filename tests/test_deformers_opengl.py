@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from test_deformers_opencl import angles, cage_poses, idw_weights, jittered_box_cage, reduce_to
 
-from rigslim.egl import EGLUnavailable, shared_context
+from rigslim.device.egl import EGLUnavailable, shared_context
 from rigslim.errors import StepError
 from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
 from rigslim.plugins.deformers.opengl_deformer import OpenGLDeformer
@@ -122,7 +122,7 @@ def test_normal_estimators_on_the_opengl_backend(elephant, skeleton, cage):
 def test_yaml_deform_opengl(write_pipeline, tmp_path, capsys):
     from test_deformers_opencl import PIPELINE
 
-    from rigslim.cli import main
+    from rigslim.commands.cli import main
 
     results = {}
     for label, extra in (("numpy", ""), ("opengl", "  - deform: opengl\n  - normals: blended-matrix\n"

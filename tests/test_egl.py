@@ -1,10 +1,10 @@
-"""Headless EGL contexts (rigslim.egl): display fallbacks, version, info, errors."""
+"""Headless EGL contexts (rigslim.device.egl): display fallbacks, version, info, errors."""
 
 from __future__ import annotations
 
 import pytest
 
-from rigslim.egl import EGLUnavailable, create_context, shared_context
+from rigslim.device.egl import EGLUnavailable, create_context, shared_context
 
 pytestmark = pytest.mark.opengl
 

@@ -69,7 +69,7 @@ def test_bones_off_the_vertices_are_an_error():
 
 
 def test_bbw_pipeline_on_a_medit_mesh(tmp_path):
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     V, T = tet_bar()
     write_medit(tmp_path / "bar.mesh", V, T)
@@ -83,7 +83,7 @@ def test_bbw_pipeline_on_a_medit_mesh(tmp_path):
 
 
 def test_bbw_needs_a_volume(write_pipeline):
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     path = write_pipeline("inputs:\n  mesh: data/elephant.obj\n  skeleton: data/elephant.tgf\n"
                           "steps:\n  - generate: bbw\n")

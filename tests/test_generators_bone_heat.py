@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from rigslim.errors import StepError
-from rigslim.mesh import Mesh
+from rigslim.model.mesh import Mesh
 from rigslim.plugins.generators.bone_heat import bone_heat_weights, nearest_visible_bones, point_segment_distances
 
 
@@ -108,7 +108,7 @@ def test_visibility_blocks_bones_behind_the_surface():
 
 
 def test_bone_heat_step_needs_a_skeleton(write_pipeline, tmp_path):
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     (tmp_path / "tet.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
     path = write_pipeline("""
@@ -123,7 +123,7 @@ steps:
 
 
 def test_cheb_pipeline_runs(write_pipeline):
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     path = write_pipeline("""
 inputs:

@@ -7,9 +7,9 @@ import pytest
 import scipy.sparse as sp
 
 from rigslim.errors import StepError
-from rigslim.mesh import Mesh
+from rigslim.model.mesh import Mesh
+from rigslim.model.poses import Poses
 from rigslim.plugins.generators.cage import build_cage, enclosure, skinned_cage_poses, transfer_weights
-from rigslim.poses import Poses
 
 
 def test_build_cage_encloses_the_elephant(elephant):
@@ -70,7 +70,7 @@ def test_skinned_cage_poses_follow_rigid_motion():
 ])
 def test_cage_poses_options(write_pipeline, extra, message):
     """Skeleton poses cannot drive a cage unless skinned; from-skeleton makes cage poses."""
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     path = write_pipeline("""
 inputs:
@@ -94,7 +94,7 @@ steps:
 
 
 def test_from_skeleton_needs_a_skeleton(write_pipeline, tmp_path):
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     # a regular tetrahedron far around the elephant, as a user cage
     V = 1000.0 * np.array([[1, 1, 1], [-1, -1, 1], [-1, 1, -1], [1, -1, -1]])

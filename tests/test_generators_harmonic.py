@@ -92,7 +92,7 @@ def test_conjugate_gradient_against_a_dense_solve(rng):
 
 
 def test_harmonic_pipeline_with_an_automatic_cage(write_pipeline):
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     path = write_pipeline("""
 inputs:

@@ -115,7 +115,7 @@ def test_smooth_across_a_face():
 @pytest.mark.opencl
 def test_numpy_and_opencl_agree(rng):
     pytest.importorskip("pyopencl")
-    from rigslim.opencl import OpenCLUnavailable
+    from rigslim.device.opencl import OpenCLUnavailable
 
     V, F = star_cage()
     X, N = face_points(V, F, rng, 50)
@@ -142,7 +142,7 @@ poses: {examples: "0:457:45", test: "5:457:40"}
 def test_elephant_cage_pipeline_from_skeleton_motion(write_pipeline, tmp_path):
     """mesh + skeleton weights + animation -> automatic cage -> MVC -> reduce -> evaluate."""
     from rigslim.io import read_mesh
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     path = write_pipeline(ELEPHANT_INPUTS + """
 steps:
@@ -165,7 +165,7 @@ steps:
     assert read_mesh(tmp_path / "cage.obj").n_vertices == asset.handles.n
     # frame 0 is the elephant's rest pose: the skinned cage is the rest cage and MVC reproduces the mesh
     assert np.allclose(asset.poses.T[0, :, :, 3], asset.handles.cage.V)
-    from rigslim.blend import linear_blend
+    from rigslim.numerics.blend import linear_blend
 
     # (the pipeline drops input weights below 1e-8 as round-off, hence not 1e-10)
     err = np.abs(linear_blend(asset.mesh.V, asset.weights, asset.poses.T[0]) - asset.mesh.V).max()
@@ -177,10 +177,10 @@ steps:
 @pytest.mark.opencl
 def test_user_cage_file_and_opencl_backend(write_pipeline, tmp_path):
     pytest.importorskip("pyopencl")
+    from rigslim.device.opencl import OpenCLUnavailable, get_runtime
     from rigslim.io import read_mesh
-    from rigslim.opencl import OpenCLUnavailable, get_runtime
-    from rigslim.pipeline import run_pipeline
     from rigslim.plugins.generators.cage import build_cage
+    from rigslim.runtime.run import run_pipeline
 
     try:
         get_runtime("cpu")
@@ -207,7 +207,7 @@ steps:
 
 def test_mean_value_without_a_cage_is_a_step_error(write_pipeline):
     from rigslim.errors import StepError
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     path = write_pipeline(ELEPHANT_INPUTS + """
 steps:

@@ -1,4 +1,4 @@
-"""The one-command glTF front ends: rigslim reduce, lod, compare, inspect (rigslim.gltf_commands)."""
+"""The one-command glTF front ends: rigslim reduce, lod, compare, inspect (rigslim.commands)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 from support.gltf_validator import validate_gltf, validation_errors, validator_available
 
-from rigslim.cli import main
-from rigslim.io.gltf import load_gltf, read_accessor, skinning_sets
+from rigslim.commands.cli import main
+from rigslim.io.gltf.document import load_gltf, read_accessor
+from rigslim.io.gltf.skin import skinning_sets
 
 GLTF = Path(__file__).resolve().parents[1] / "examples" / "data" / "gltf"
 #: Every skinned glTF character bundled in examples/data/gltf (assimp conversions, Khronos samples, the tube).

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from rigslim.cli import main
+from rigslim.commands.cli import main
 
 GLTF = Path(__file__).resolve().parents[1] / "examples" / "data" / "gltf"
 

@@ -1,4 +1,4 @@
-"""Per-primitive glTF levels of detail (rigslim.io.gltf_lod): seams, attributes along collapses, backends."""
+"""Per-primitive glTF levels of detail (rigslim.io.gltf.lod): seams, attributes along collapses, backends."""
 
 from __future__ import annotations
 
@@ -7,16 +7,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rigslim.io.gltf import read_gltf_skin
-from rigslim.io.gltf_lod import (
+from rigslim.io.gltf.lod import (
     collapse_parameters,
     hierarchy_attributes,
     input_weights_normalized,
     level_primitives,
     level_representatives,
-    primitive_data,
-    seam_vertices,
 )
+from rigslim.io.gltf.primitives import primitive_data
+from rigslim.io.gltf.seams import seam_vertices
+from rigslim.io.gltf.skin import read_gltf_skin
 
 GLTF = Path(__file__).resolve().parents[1] / "examples" / "data" / "gltf"
 TUBE = GLTF / "tube_two_materials.glb"
@@ -28,10 +28,10 @@ def tube():
 
 
 def _decimate(skin, backend="numba", lock=True, targets=(0.5, 0.25), **extra):
-    from rigslim.asset import Asset
-    from rigslim.host import get_host
+    from rigslim.model.asset import Asset
+    from rigslim.model.poses import FrameSplit
     from rigslim.plugin import StepContext
-    from rigslim.poses import FrameSplit
+    from rigslim.plugin.host import get_host
 
     asset = Asset(mesh=skin.mesh, handles=skin.handles, weights=skin.weights, poses=skin.poses,
                   split=FrameSplit.from_specs(f"0:{len(skin.poses)}:2", f"1:{len(skin.poses)}:2", len(skin.poses)))
@@ -97,7 +97,7 @@ def test_locked_vertices_never_move(tube):
 
 def test_seams_collapse_only_along_themselves(tube):
     """Seam vertices merge only along their seam (or onto a corner along it); corners never move; more faces go."""
-    from rigslim.io.gltf_lod import seam_structure
+    from rigslim.io.gltf.seams import seam_structure
 
     locked, along, charts = seam_structure(tube)
     assert along.sum() > 0 and (along <= locked).all()
@@ -122,8 +122,8 @@ def test_backends_agree_with_locked_vertices(elephant, monkeypatch, seamed):
     import scipy.sparse as sp
 
     import rigslim.plugins.decimation.articulated as articulated
-    from rigslim.asset import Asset
-    from rigslim.mesh import Mesh
+    from rigslim.model.asset import Asset
+    from rigslim.model.mesh import Mesh
 
     V, F = elephant.mesh.V, elephant.mesh.F                 # the 900 faces nearest the busiest vertex
     W = elephant.weights.toarray()
@@ -138,7 +138,7 @@ def test_backends_agree_with_locked_vertices(elephant, monkeypatch, seamed):
     locked = np.random.default_rng(3).random(piece.mesh.n_vertices) < 0.2
     seams = None
     if seamed:          # two charts split by a plane through the piece: a seam curve across it
-        from rigslim.io.gltf_lod import seams_along
+        from rigslim.io.gltf.seams import seams_along
 
         Vp, Fp = piece.mesh.V, piece.mesh.F
         cen = Vp[Fp].mean(axis=1)
@@ -149,8 +149,8 @@ def test_backends_agree_with_locked_vertices(elephant, monkeypatch, seamed):
         seams = (seams_along(Fp, charts, locked), charts)
         assert seams[0].sum() > 10
     monkeypatch.setattr(articulated, "seam_lock", lambda asset, along=True: (locked, seams))
-    from rigslim.host import get_host
     from rigslim.plugin import StepContext
+    from rigslim.plugin.host import get_host
 
     plugin = get_host().get("articulated-decimation", "quartic")
     hs = []
@@ -222,7 +222,7 @@ def test_closest_point_barycentric_matches_libigl():
     """Every Voronoi region (vertices, edges, face) against igl.point_mesh_squared_distance, one triangle each."""
     import igl
 
-    from rigslim.io.gltf_lod import closest_point_barycentric
+    from rigslim.io.gltf.lod import closest_point_barycentric
 
     rng = np.random.default_rng(5)
     T = rng.normal(size=(300, 3, 3))
@@ -253,7 +253,7 @@ def test_transfers_against_the_tube_parametrisation(tube, transfer, tol_v, tol_u
 
 def test_attribute_quadrics_measure_displacement_along_the_uv_field(tube):
     """Zero at every vertex's own position; grows with the UV change when the vertex slides along the tube."""
-    from rigslim.io.gltf_lod import attribute_quadrics
+    from rigslim.io.gltf.seams import attribute_quadrics
 
     Q = attribute_quadrics(tube, {"TEXCOORD": 1.0})
     V = tube.mesh.V
@@ -273,10 +273,10 @@ def test_attribute_quadrics_measure_displacement_along_the_uv_field(tube):
 
 def test_attribute_term_is_one_more_pose(tube):
     """With weights, the decimator appends the term (report ``attribute_term``) and every level stays valid."""
-    from rigslim.asset import Asset
-    from rigslim.host import get_host
+    from rigslim.model.asset import Asset
+    from rigslim.model.poses import FrameSplit
     from rigslim.plugin import StepContext
-    from rigslim.poses import FrameSplit
+    from rigslim.plugin.host import get_host
 
     n = len(tube.poses)
     asset = Asset(mesh=tube.mesh, handles=tube.handles, weights=tube.weights, poses=tube.poses,

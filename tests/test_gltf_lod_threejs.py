@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from support.report_browser import find_chromium
 
-from rigslim.cli import main
+from rigslim.commands.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 THREE = ROOT / "tools" / "node" / "node_modules" / "three"

@@ -1,4 +1,4 @@
-"""ProgressiveHierarchy and SimplifiedLevel (rigslim.hierarchy) on a hand-made merge tree."""
+"""ProgressiveHierarchy and SimplifiedLevel (rigslim.model.hierarchy) on a hand-made merge tree."""
 
 from __future__ import annotations
 
@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from rigslim.errors import InputError
-from rigslim.hierarchy import ProgressiveHierarchy
-from rigslim.weights import ReducedWeights
+from rigslim.io.hierarchy import read_hierarchy, write_hierarchy
+from rigslim.model.hierarchy import ProgressiveHierarchy
+from rigslim.model.weights import ReducedWeights
 
 
 @pytest.fixture
@@ -56,8 +57,8 @@ def test_adaptive_needs_both_children_and_the_budget(fan):
 
 
 def test_save_load_round_trip(fan, tmp_path):
-    fan.save(tmp_path / "h.npz")
-    back = ProgressiveHierarchy.load(tmp_path / "h.npz")
+    write_hierarchy(tmp_path / "h.npz", fan)
+    back = read_hierarchy(tmp_path / "h.npz")
     assert back.params == {"max_bones": 2} and back.method == "test"
     for t in range(3):
         a, b = fan.prefix(t), back.prefix(t)
@@ -68,10 +69,10 @@ def test_save_load_round_trip(fan, tmp_path):
 def test_load_rejects_other_files(tmp_path):
     np.savez(tmp_path / "x.npz", a=np.zeros(3))
     with pytest.raises(InputError, match="not a rigslim progressive hierarchy"):
-        ProgressiveHierarchy.load(tmp_path / "x.npz")
+        read_hierarchy(tmp_path / "x.npz")
     (tmp_path / "y.npz").write_text("junk")
     with pytest.raises(InputError):
-        ProgressiveHierarchy.load(tmp_path / "y.npz")
+        read_hierarchy(tmp_path / "y.npz")
 
 
 def test_inconsistent_sizes_are_rejected(fan):

@@ -2,8 +2,8 @@ import pytest
 
 from rigslim import hookimpl
 from rigslim.errors import PluginNotFoundError
-from rigslim.host import PluginHost, get_host
 from rigslim.plugin import STAGE_HOOKS, InfluenceSelector
+from rigslim.plugin.host import PluginHost, get_host
 
 
 def test_builtins_come_from_entry_points():

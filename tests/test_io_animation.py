@@ -1,10 +1,10 @@
 import numpy as np
 import pytest
 
-from rigslim.blend import linear_blend
 from rigslim.errors import InputError
 from rigslim.io import read_dmat, read_mesh, read_stacked_animation
 from rigslim.io.animation import stacked_to_transforms, transforms_to_stacked
+from rigslim.numerics.blend import linear_blend
 
 
 def test_stacked_round_trip(rng):

@@ -11,10 +11,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rigslim.blend import linear_blend
 from rigslim.errors import InputError, RigslimError
-from rigslim.io.gltf import load_gltf, read_accessor, read_gltf_skin, sample_sampler
+from rigslim.io.gltf.document import load_gltf, read_accessor
+from rigslim.io.gltf.scene import sample_sampler
+from rigslim.io.gltf.skin import read_gltf_skin
 from rigslim.io.transforms import quaternion_matrix, slerp, trs_matrix
+from rigslim.numerics.blend import linear_blend
 
 GLTF = Path(__file__).resolve().parents[1] / "examples" / "data" / "gltf"
 
@@ -391,7 +393,7 @@ def test_threejs_matches_step_cubicspline_matrix_nodes(threejs, tmp_path):
     first reduced to one set (k = 3) by the writer; the animation, nodes and
     inverse bind matrices are the synthetic ones.
     """
-    from rigslim.io.gltf_write import fixed_width_weights, write_gltf
+    from rigslim.io.gltf.write import fixed_width_weights, write_gltf
 
     src = read_gltf_skin(_synthetic(tmp_path, glb=True), animation="Walk", fps=8)
     out = tmp_path / "one-set.glb"
@@ -402,7 +404,7 @@ def test_threejs_matches_step_cubicspline_matrix_nodes(threejs, tmp_path):
 
 
 def test_world_matrices_deep_chain_and_cycles():
-    from rigslim.io.gltf import world_matrices
+    from rigslim.io.gltf.scene import world_matrices
 
     n = 3000                                           # deeper than Python's recursion limit
     parent = np.arange(-1, n - 1)

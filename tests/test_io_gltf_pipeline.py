@@ -9,8 +9,8 @@ import pytest
 from support.gltf_validator import validate_gltf, validation_errors, validator_available
 
 from rigslim.errors import RigslimError
-from rigslim.io.gltf import read_gltf_skin, skinning_sets
-from rigslim.pipeline import run_pipeline
+from rigslim.io.gltf.skin import read_gltf_skin, skinning_sets
+from rigslim.runtime.run import run_pipeline
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -41,7 +41,7 @@ def test_example_gltf_reduce(write_pipeline, valid):
     metrics = result.evaluations[0]["metrics"]
     assert metrics["max_influences"] == 2 and metrics["input_max_influences"] == 4
     # the file's weights are written as normalized unsigned bytes that sum to 255 per vertex
-    from rigslim.io.gltf import load_gltf, read_accessor
+    from rigslim.io.gltf.document import load_gltf, read_accessor
 
     doc = load_gltf(out)
     attrs = doc.json["meshes"][0]["primitives"][0]["attributes"]
@@ -122,7 +122,7 @@ steps:
     out = path.parent / "out" / "lod.glb"
     valid(out)
     levels = result.asset.levels
-    from rigslim.io.gltf import load_gltf
+    from rigslim.io.gltf.document import load_gltf
 
     doc = load_gltf(out)
     names = [m.get("name") for m in doc.json["meshes"][1:]]

@@ -15,13 +15,14 @@ import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 from support.gltf_validator import validate_gltf, validation_errors, validator_available
 
-from rigslim.blend import linear_blend
 from rigslim.errors import InputError, StepError
-from rigslim.io.gltf import load_gltf, read_accessor, read_gltf_skin, skinning_sets
-from rigslim.io.gltf_write import export_skinned, quantize_weights, skinning_sets_arrays, write_gltf
+from rigslim.io.gltf.document import load_gltf, read_accessor
+from rigslim.io.gltf.skin import read_gltf_skin, skinning_sets
+from rigslim.io.gltf.write import export_skinned, quantize_weights, skinning_sets_arrays, write_gltf
 from rigslim.io.transforms import matrix_quaternion
-from rigslim.poses import Poses
-from rigslim.weights import ReducedWeights
+from rigslim.model.poses import Poses
+from rigslim.model.weights import ReducedWeights
+from rigslim.numerics.blend import linear_blend
 
 GLTF = Path(__file__).resolve().parents[1] / "examples" / "data" / "gltf"
 
@@ -207,7 +208,7 @@ def test_merged_meshes_are_split_back(tmp_path, valid):
     skinned = next(i for i, n in enumerate(js["nodes"]) if "skin" in n)
     js["nodes"].append({"name": "copy", "mesh": 1, "skin": js["nodes"][skinned]["skin"]})
     js["scenes"][js.get("scene", 0)]["nodes"].append(len(js["nodes"]) - 1)
-    from rigslim.io.gltf_write import _write_document
+    from rigslim.io.gltf.write import _write_document
 
     two = tmp_path / "two.glb"
     _write_document(two, js, doc.buffers[0])
@@ -240,7 +241,7 @@ def test_writer_rejects_mismatched_weights(tmp_path):
 
 
 def _levels(src):
-    from rigslim.hierarchy import SimplifiedLevel
+    from rigslim.model.hierarchy import SimplifiedLevel
 
     mesh = src.mesh
     half = type(mesh)(mesh.V, mesh.F[: len(mesh.F) // 2], source="half")
@@ -280,7 +281,7 @@ def test_levels_as_meshes_of_their_own(tmp_path, valid, lod):
 @pytest.fixture(scope="module")
 def elephant_small():
     from rigslim.io import read_dmat, read_mesh, read_stacked_animation, read_tgf
-    from rigslim.weights import validate_weights
+    from rigslim.model.weights import validate_weights
 
     data = Path(__file__).resolve().parents[1] / "examples" / "data"
     mesh = read_mesh(data / "elephant.obj")
@@ -340,7 +341,7 @@ def test_external_image_is_embedded_when_written_elsewhere(tmp_path, valid):
     src_dir = tmp_path / "src"
     src_dir.mkdir()
     (src_dir / "skin tex.png").write_bytes(_png_1x1())
-    from rigslim.io.gltf_write import _write_document
+    from rigslim.io.gltf.write import _write_document
 
     _write_document(src_dir / "textured.glb", js, doc.buffers[0])
     src = read_gltf_skin(src_dir / "textured.glb")
@@ -373,7 +374,7 @@ def test_welded_reduction_is_written_on_every_file_vertex(tmp_path, valid):
 
 
 def test_clamp_negative_weights(tmp_path, valid):
-    from rigslim.io.gltf_write import clamp_negative_weights
+    from rigslim.io.gltf.write import clamp_negative_weights
 
     W, stats = clamp_negative_weights(np.array([[1.2, -0.2, 0.0], [0.5, 0.5, 0.0]]))
     np.testing.assert_allclose(W, [[1.0, 0.0, 0.0], [0.5, 0.5, 0.0]])
@@ -415,8 +416,8 @@ def test_threejs_plays_the_exported_elephant_like_libigl(tmp_path, valid, elepha
 
 @pytest.mark.parametrize("lod", [False, True])
 def test_export_with_levels(tmp_path, valid, elephant_small, lod):
-    from rigslim.hierarchy import SimplifiedLevel
-    from rigslim.mesh import Mesh
+    from rigslim.model.hierarchy import SimplifiedLevel
+    from rigslim.model.mesh import Mesh
 
     mesh, handles, W, P = elephant_small
     reduced = _k_largest(W, 4)

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from rigslim.errors import InputError
-from rigslim.mesh import Mesh
+from rigslim.model.mesh import Mesh
 
 TET_V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
 TET_F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])

@@ -1,10 +1,10 @@
-"""Metrics document schema versions (rigslim.metrics_document): version 2 written, version 1 still read."""
+"""Metrics document schema versions (rigslim.runtime.metrics_document): version 2 written, version 1 still read."""
 
 from __future__ import annotations
 
 import copy
 
-from rigslim.metrics_document import SCHEMA_VERSION, flat_metrics, merge_levels, upgrade
+from rigslim.runtime.metrics_document import SCHEMA_VERSION, flat_metrics, merge_levels, upgrade
 
 AGG = {"mean": 0.2, "max": 0.3, "per_frame": [0.1, 0.3, 0.2]}
 
@@ -42,7 +42,7 @@ def test_merge_levels_joins_records_by_name_in_first_seen_order():
 
 
 def test_pipeline_writes_version_2(write_pipeline):
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     path = write_pipeline("""
 inputs: {mesh: data/elephant.obj, skeleton: data/elephant.tgf, weights: data/elephant-weights.dmat,

@@ -16,7 +16,7 @@ STEPS
 
 
 def test_reduced_weights(write_pipeline):
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     steps = "  - select: k-largest\n    k: 3\n  - solve: k-largest"
     metrics = run_pipeline(write_pipeline(PIPELINE.replace("STEPS", steps))).evaluations[0]["metrics"]
@@ -27,7 +27,7 @@ def test_reduced_weights(write_pipeline):
 
 def test_decimate_only_run_counts_every_level(write_pipeline):
     """Was an AttributeError traceback: a decimate-only run has no reduced weights, only levels."""
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     steps = "  - decimate: quartic\n    targets: [0.2, 0.05]\n    max_bones: 2"
     result = run_pipeline(write_pipeline(PIPELINE.replace("STEPS", steps)))

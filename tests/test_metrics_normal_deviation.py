@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from rigslim.blend import per_vertex_normals
-from rigslim.mesh import Mesh
+from rigslim.model.mesh import Mesh
+from rigslim.numerics.blend import per_vertex_normals
 from rigslim.numerics.normal_error import normal_angles, normal_statistics
 from rigslim.plugins.metrics.normal_deviation import NormalDeviation
 

@@ -9,6 +9,7 @@ import pytest
 
 pytest.importorskip("pymeshlab")
 
+from rigslim.io.hierarchy import read_hierarchy
 from rigslim.numerics.surface_distance import metro_distance  # noqa: E402
 
 
@@ -72,9 +73,8 @@ HIERARCHY_STEP = """
 
 @pytest.mark.parametrize("method", ["quartic", "mohr-gleicher", "decoro-rusinkiewicz", "static-qslim"])
 def test_simplification_from_yaml(write_pipeline, tmp_path, method):
-    from rigslim.hierarchy import ProgressiveHierarchy
     from rigslim.io import read_dmat, read_mesh
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     text = PIPELINE.replace("METHOD", method) + ("" if method == "static-qslim" else HIERARCHY_STEP)
     result = run_pipeline(write_pipeline(text), metrics_path=tmp_path / "m.json")
@@ -94,7 +94,7 @@ def test_simplification_from_yaml(write_pipeline, tmp_path, method):
     assert levels[coarse]["faces"] <= 600
     assert set(levels[coarse]) == {"name", "faces", "hausdorff_rms_pct", "hausdorff_max_pct"}
     if method != "static-qslim":
-        hier = ProgressiveHierarchy.load(tmp_path / "out" / "h.npz")
+        hier = read_hierarchy(tmp_path / "out" / "h.npz")
         assert hier.prefix(hier.n_collapses).n_faces == levels[coarse]["faces"]
     index = json.loads((tmp_path / "out" / "levels" / "levels.json").read_text())["levels"]
     assert [lv["label"] for lv in index] == [fine, coarse]
@@ -108,7 +108,7 @@ def test_simplification_from_yaml(write_pipeline, tmp_path, method):
 
 
 def test_metro_also_measures_a_weight_reduction(write_pipeline, tmp_path):
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     path = write_pipeline("""
 inputs:
@@ -130,7 +130,7 @@ steps:
 
 def test_writers_without_results_are_step_errors(write_pipeline):
     from rigslim.errors import StepError
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     path = write_pipeline("""
 inputs:

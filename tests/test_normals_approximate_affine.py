@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from rigslim.blend import linear_blend, per_vertex_normals
 from rigslim.errors import StepError
-from rigslim.handles import Handles, cage_transforms
-from rigslim.mesh import Mesh
+from rigslim.model.handles import Handles, cage_transforms
+from rigslim.model.mesh import Mesh
 from rigslim.numerics.affine_normals import affine_fit_rest, approximate_affine_normals
+from rigslim.numerics.blend import linear_blend, per_vertex_normals
 from rigslim.numerics.normal_error import normal_rms_angle
 from rigslim.plugins.normals.approximate_affine import ApproximateAffineNormals
 from rigslim.plugins.selection.k_largest import k_largest
@@ -193,7 +193,7 @@ steps:
 def test_mean_value_cage_pipeline_real_deformation(write_pipeline):
     """The elephant's motion carried by an automatic 60-vertex cage with mean value coordinates:
     approximate-affine normals against normals recomputed from the deformed mesh."""
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     result = run_pipeline(write_pipeline(MVC_PIPELINE))
     asset = result.asset

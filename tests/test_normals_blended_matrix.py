@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from rigslim.blend import blended_matrices, per_vertex_normals
 from rigslim.errors import StepError
-from rigslim.handles import Handles
-from rigslim.mesh import Mesh
+from rigslim.model.handles import Handles
+from rigslim.model.mesh import Mesh
+from rigslim.numerics.blend import blended_matrices, per_vertex_normals
 from rigslim.numerics.blended_normals import blended_matrix_normals, cofactor_apply
 from rigslim.numerics.normal_error import normal_rms_angle
 from rigslim.plugins.normals.blended_matrix import BlendedMatrixNormals
@@ -66,7 +66,7 @@ def test_reflection_keeps_inverse_transpose_direction(rng):
 
 def test_plugin_close_to_recomputed_on_elephant(elephant):
     """Skinning normals against normals recomputed from the deformed mesh (report the RMS angle)."""
-    from rigslim.blend import linear_blend
+    from rigslim.numerics.blend import linear_blend
 
     est = BlendedMatrixNormals()
     mesh, W = elephant.mesh, elephant.weights

@@ -1,4 +1,4 @@
-"""rigslim.numba_threads: numba gets a new-enough TBB or none, and no threading-layer warning."""
+"""rigslim.device.numba_threads: numba gets a new-enough TBB or none, and no threading-layer warning."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import os
 import subprocess
 import sys
 
-from rigslim import numba_threads
+from rigslim.device import numba_threads
 
 PARALLEL_LOOP = """
 import warnings
@@ -22,7 +22,7 @@ def total(a):
     return s
 
 assert total(np.ones(1000)) == 1000.0
-print(numba.threading_layer(), "|", rigslim.numba_threads.configure())
+print(numba.threading_layer(), "|", rigslim.device.numba_threads.configure())
 """
 
 
@@ -61,7 +61,7 @@ def test_a_users_choice_is_left_alone(monkeypatch):
 def test_fallback_priority_is_valid_for_numba():
     """numba accepts the fallback order (it wants a permutation of all three layers) and runs a parallel loop."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_THREADING_LAYER")}
-    code = ("import rigslim.numba_threads as t, os\n"
+    code = ("import rigslim.device.numba_threads as t, os\n"
             "os.environ['NUMBA_THREADING_LAYER_PRIORITY'] = 'omp workqueue tbb'\n" + PARALLEL_LOOP)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]

@@ -6,9 +6,9 @@ import igl
 import numpy as np
 import pytest
 
-from rigslim.blend import linear_blend, per_vertex_normals
 from rigslim.errors import InputError
 from rigslim.numerics.area_weighted_normals import VertexNormalOperator, area_weighted_normals, operator_for
+from rigslim.numerics.blend import linear_blend, per_vertex_normals
 
 
 def igl_normals(V, F):

@@ -83,7 +83,7 @@ def test_start_must_be_given_with_bounds(rng):
 @pytest.mark.opencl
 def test_opencl_kernel_matches_numpy(rng, k, q, nonneg):
     pytest.importorskip("pyopencl")
-    from rigslim.opencl import OpenCLUnavailable, get_runtime
+    from rigslim.device.opencl import OpenCLUnavailable, get_runtime
     from rigslim.plugins.solvers.opencl_qp import solve_small_qps_opencl
 
     try:

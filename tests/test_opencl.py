@@ -1,4 +1,4 @@
-"""rigslim.opencl: device choice by a compile probe, the one-line error, and a working CPU device in CI.
+"""rigslim.device.opencl: device choice by a compile probe, the one-line error, and a working CPU device in CI.
 
 The probe-selection logic is driven with a fake probe that fails the way PyPI's
 PoCL 3.0 (LLVM 14) fails on CPUs newer than its LLVM ("unknown target CPU
@@ -20,8 +20,8 @@ pytest.importorskip("pyopencl")
 
 import pyopencl as cl  # noqa: E402
 
-from rigslim import opencl  # noqa: E402
-from rigslim.opencl import OpenCLUnavailable  # noqa: E402
+from rigslim.device import opencl  # noqa: E402
+from rigslim.device.opencl import OpenCLUnavailable  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 ZEN5_FAILURE = ("clBuildProgram failed: BUILD_PROGRAM_FAILURE - clBuildProgram failed: BUILD_PROGRAM_FAILURE\n\n"
@@ -126,7 +126,7 @@ def test_exclude_env_hides_platforms(monkeypatch):
 
 def test_fallback_when_the_pypi_pocl_is_excluded():
     """The PyPI PoCL hidden as if it could not build: Debian's PoCL is chosen if installed, else one clear line."""
-    code = ("from rigslim.opencl import get_runtime, OpenCLUnavailable\n"
+    code = ("from rigslim.device.opencl import get_runtime, OpenCLUnavailable\n"
             "try:\n    r = get_runtime('cpu'); print('OK', r.device.platform.version)\n"
             "except OpenCLUnavailable as e:\n    print('ERR', e.one_line())\n")
     env = dict(os.environ, RIGSLIM_OPENCL_EXCLUDE="PoCL 3.0-rc2", RIGSLIM_OPENCL_DEVICE="")

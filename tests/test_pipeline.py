@@ -6,9 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rigslim.cli import main
+from rigslim.commands.cli import main
 from rigslim.io import read_reduced_npz
-from rigslim.pipeline import load_pipeline
+from rigslim.runtime.document import load_pipeline
 
 ROOT = Path(__file__).resolve().parents[1]
 ELEPHANT = """

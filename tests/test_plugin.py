@@ -1,4 +1,5 @@
-"""The plugin contract (rigslim.plugin, rigslim.hookspecs): one definition per stage, documented, kept by plugins."""
+"""The plugin contract (rigslim.plugin, rigslim.plugin.hookspecs): one definition per stage, documented, kept by
+plugins."""
 
 from __future__ import annotations
 
@@ -9,9 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from rigslim import hookspecs
-from rigslim.host import get_host
-from rigslim.plugin import STAGE_HOOKS, STAGES, STEP_STAGES, Plugin
+from rigslim.plugin import STAGE_HOOKS, STAGES, STEP_STAGES, Plugin, hookspecs
+from rigslim.plugin.host import get_host
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -91,7 +91,7 @@ def test_no_plugin_package_imports_another_and_the_core_imports_none():
                     offenders.append(f"{path.relative_to(root)} -> rigslim.plugins.{other}")
     for path in (root / "framework").rglob("*.py"):
         text = path.read_text()
-        if path.name != "plugin.py" and re.search(r"^\s*(from|import) rigslim\.plugins", text, re.M):
+        if path.name != "contract.py" and re.search(r"^\s*(from|import) rigslim\.plugins", text, re.M):
             offenders.append(f"{path.relative_to(root)} imports a plugin package")
         if re.search(r"^\s*(from|import) support\b", text, re.M):
             offenders.append(f"{path.relative_to(root)} imports a test helper")

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from rigslim.errors import InputError
-from rigslim.poses import FrameSplit, Poses, parse_frames
+from rigslim.model.poses import FrameSplit, Poses, parse_frames
 
 
 def test_slice_spec_matches_python():

@@ -5,11 +5,11 @@ import json
 import numpy as np
 import pytest
 
-from rigslim.cli import main
+from rigslim.commands.cli import main
 from rigslim.errors import InputError, PipelineError
 from rigslim.io import read_dmat
 from rigslim.io.dmat import write_dmat
-from rigslim.pipeline import run_pipeline
+from rigslim.runtime.run import run_pipeline
 
 HEAD = """
 inputs:

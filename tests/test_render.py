@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rigslim.errors import InputError
-from rigslim.render import Camera, lambert, render_mesh, render_numpy
+from rigslim.report.render import Camera, lambert, render_mesh, render_numpy
 
 
 def _icosphere(subdivisions: int = 2):
@@ -36,8 +36,8 @@ def _icosphere(subdivisions: int = 2):
 
 
 def _gl_or_skip():
-    from rigslim.egl import EGLUnavailable
-    from rigslim.render import gl_renderer
+    from rigslim.device.egl import EGLUnavailable
+    from rigslim.report.render import gl_renderer
 
     try:
         return gl_renderer()
@@ -125,7 +125,7 @@ def test_opengl_matches_numpy_reference(projection):
 @pytest.mark.opengl
 def test_opengl_silhouette_matches_projected_elephant(elephant):
     gl = _gl_or_skip()
-    from rigslim.blend import linear_blend
+    from rigslim.numerics.blend import linear_blend
 
     frame = elephant.split.test[3]
     X = linear_blend(elephant.mesh.V, elephant.weights, elephant.poses.T[frame])

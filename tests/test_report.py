@@ -10,7 +10,7 @@ import re
 import numpy as np
 import pytest
 
-from rigslim.cli import main
+from rigslim.commands.cli import main
 from rigslim.errors import InputError
 from rigslim.report import build_report, heat_colors, load_document, normal_deviation_degrees, render_rows, summarize
 
@@ -46,7 +46,7 @@ steps:
 @pytest.fixture(scope="module")
 def run(tmp_path_factory, data_dir):
     """The two-k elephant pipeline with a report step, run once; (folder, run result)."""
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     folder = tmp_path_factory.mktemp("report")
     (folder / "data").symlink_to(data_dir, target_is_directory=True)
@@ -154,8 +154,8 @@ def test_normal_deviation_and_heat_colors():
 
 def test_reduced_equal_to_full_gives_a_zero_heat_map(elephant):
     """Reduced weights that are the input weights: no normal deviation anywhere."""
+    from rigslim.model.weights import ReducedWeights
     from rigslim.report import RenderData
-    from rigslim.weights import ReducedWeights
 
     W = elephant.weights.tocsr()
     k = int(np.diff(W.indptr).max())
@@ -216,7 +216,7 @@ def test_cli_report_errors(tmp_path, capsys):
 
 def test_report_step_needs_an_evaluation(write_pipeline):
     from rigslim.errors import RigslimError
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     path = write_pipeline("""
 inputs:
@@ -235,7 +235,7 @@ steps:
 
 def test_report_step_rejects_unknown_parameters(write_pipeline):
     from rigslim.errors import RigslimError
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     path = write_pipeline("""
 inputs:
@@ -307,7 +307,7 @@ def test_simplified_level_renders_like_the_same_reduced_weights(run, elephant):
     """A 'level' that is the full mesh with reduced weights draws exactly as those reduced weights do."""
     from dataclasses import replace
 
-    from rigslim.hierarchy import SimplifiedLevel
+    from rigslim.model.hierarchy import SimplifiedLevel
     from rigslim.report import RenderData
 
     folder, result = run
@@ -342,8 +342,8 @@ def test_report_without_readable_inputs_keeps_table_and_plots(run, tmp_path):
 @pytest.mark.parametrize("estimator", ["recomputed", "blended-matrix"])
 def test_heat_map_is_the_measured_normal_deviation(write_pipeline, estimator):
     """The RMS of the rendered per-vertex angles is the run's normal_rms_rad for that frame."""
-    from rigslim.pipeline import run_pipeline
     from rigslim.report import RenderData, load_render_data
+    from rigslim.runtime.run import run_pipeline
 
     path = write_pipeline(f"""
 inputs:

@@ -18,7 +18,7 @@ def report_html(tmp_path_factory, data_dir):
     """The report of the bundled example pipeline (examples/elephant-k4.yaml), small renders."""
     import shutil
 
-    from rigslim.cli import main
+    from rigslim.commands.cli import main
 
     folder = tmp_path_factory.mktemp("browser")
     (folder / "data").symlink_to(data_dir, target_is_directory=True)

@@ -8,8 +8,8 @@ import pytest
 import scipy.sparse as sp
 from support.synthetic import cage_asset, tube_asset
 
-from rigslim.asset import Asset
-from rigslim.mesh import Mesh
+from rigslim.model.asset import Asset
+from rigslim.model.mesh import Mesh
 from rigslim.numerics.small_qp import solve_small_qps
 from rigslim.plugins.selection.best_fit import best_fit, one_ring_vote, rank_entries, rank_entries_reference
 from rigslim.plugins.selection.sparse_fit import sparse_fit, sparse_fit_reference

@@ -2,9 +2,9 @@
 
 import pytest
 
-from rigslim.cli import main
+from rigslim.commands.cli import main
 from rigslim.errors import PipelineError
-from rigslim.pipeline import load_pipeline
+from rigslim.runtime.document import load_pipeline
 
 PIPELINE = """
 inputs:

@@ -6,11 +6,11 @@ from pydantic import ValidationError
 from support.synthetic import tube_asset
 
 from rigslim.errors import StepError
+from rigslim.model.poses import FrameSplit
 from rigslim.plugin import StepContext
 from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.auto_lambda import choose_position_weight, held_out_errors, kfold_splits
 from rigslim.plugins.solvers.methods import PoissonParams, PoissonSolver, reduce_weights
-from rigslim.poses import FrameSplit
 
 
 def asset_with_examples(count=7):

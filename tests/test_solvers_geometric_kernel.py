@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from support.synthetic import tube_asset
 
-from rigslim.asset import Asset
-from rigslim.mesh import Mesh
+from rigslim.model.asset import Asset
+from rigslim.model.mesh import Mesh
 from rigslim.plugin import StepContext
 from rigslim.plugins.selection.best_fit import best_fit
 from rigslim.plugins.selection.k_largest import k_largest

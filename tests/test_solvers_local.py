@@ -167,7 +167,7 @@ def test_feasible_start_linear_precision_nonnegative():
 @pytest.mark.slow
 def test_opencl_and_numpy_sweeps_agree():
     pytest.importorskip("pyopencl")
-    from rigslim.opencl import OpenCLUnavailable, get_runtime
+    from rigslim.device.opencl import OpenCLUnavailable, get_runtime
 
     try:
         get_runtime("cpu")

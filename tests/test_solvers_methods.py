@@ -7,9 +7,9 @@ import pytest
 from support.synthetic import cage_asset, tube_asset
 
 from rigslim.errors import RigslimError, StepError
-from rigslim.pipeline import run_pipeline
 from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.methods import LaplacianParams, PoissonParams, ReductionParams, reduce_weights
+from rigslim.runtime.run import run_pipeline
 
 PARAMS = {"geometric": ReductionParams, "smooth": LaplacianParams, "poisson": PoissonParams}
 
@@ -99,7 +99,7 @@ def test_global_with_nonnegative_is_an_error():
 
 
 def test_position_weight_lowers_position_error_on_examples():
-    from rigslim.blend import linear_blend
+    from rigslim.numerics.blend import linear_blend
 
     asset = tube_asset()
     asset.influences = k_largest(asset.weights, 2)

@@ -36,13 +36,13 @@ def test_install_and_use_third_party_plugin(tmp_path):
     where = subprocess.run([str(python), "-c", "import rigslim_absweights; print(rigslim_absweights.__file__)"],
                            check=True, capture_output=True, text=True).stdout.strip()
     assert Path(where).is_relative_to(tmp_path / "venv")
-    listed = subprocess.run([str(python), "-m", "rigslim.cli", "plugins", "--json"], capture_output=True,
+    listed = subprocess.run([str(python), "-m", "rigslim.commands.cli", "plugins", "--json"], capture_output=True,
                             text=True, check=True)
     rows = {r["name"]: r for r in json.loads(listed.stdout)}
     assert rows["largest-abs"]["package"] == "rigslim-absweights"
     assert rows["largest-abs"]["stage"] == "influence-selection"
     metrics = tmp_path / "m.json"
-    run = subprocess.run([str(python), "-m", "rigslim.cli", "run", "-q",
+    run = subprocess.run([str(python), "-m", "rigslim.commands.cli", "run", "-q",
                           str(ROOT / "examples/elephant-absweights-k4.yaml"), "--metrics", str(metrics)],
                          capture_output=True, text=True)
     assert run.returncode == 0, run.stderr

@@ -3,7 +3,7 @@ import pytest
 import scipy.sparse as sp
 
 from rigslim.errors import InputError
-from rigslim.weights import InfluenceSets, ReducedWeights, influence_counts, validate_weights
+from rigslim.model.weights import InfluenceSets, ReducedWeights, influence_counts, validate_weights
 
 
 def test_roundoff_becomes_zero():
