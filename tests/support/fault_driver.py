@@ -1,4 +1,4 @@
-"""Run ``rigslim ARGS`` with one fault hook, for tests/test_faults.py (never used outside the tests).
+"""Run ``rigslim ARGS`` with one fault hook, for tests/hostile/test_faults.py (never used outside the tests).
 
     python tests/support/fault_driver.py MODE MARKER ARGS...
 

@@ -116,8 +116,8 @@ def test_seams_collapse_only_along_themselves(tube):
 def test_backends_agree_with_locked_vertices(elephant, monkeypatch, seamed):
     """The numpy reference and the compiled loop make the same collapses when vertices are locked.
 
-    On a real piece of the elephant (as tests/plugins/decimation/test_decimation_compiled.py; the glTF samples are mirror
-    symmetric, so equal costs would tie-break by heap order), with a random fifth of the vertices locked.
+    On a real piece of the elephant (as tests/plugins/decimation/test_decimation_compiled.py; the glTF samples
+    are mirror symmetric, so equal costs would tie-break by heap order), with a random fifth of the vertices locked.
     """
     import scipy.sparse as sp
 
