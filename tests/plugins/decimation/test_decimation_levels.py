@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from tests.test_decimation_collapse import decimate, tube
+from tests.plugins.decimation.test_decimation_collapse import decimate, tube
 
 from rigslim.errors import StepError
 from rigslim.plugins.decimation.levels import choose_levels, collapse_distances, parse_max_error
