@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from tests.plugins.decimation.test_decimation_collapse import decimate, tube
 
 from rigslim.errors import StepError
 from rigslim.plugins.decimation.levels import choose_levels, collapse_distances, parse_max_error
+from tests.plugins.decimation.test_decimation_collapse import decimate, tube
 
 
 class FakeHierarchy:
