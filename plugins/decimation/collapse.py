@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import heapq
 import logging
+import time
 
 import numpy as np
 
@@ -434,11 +435,17 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     hsize = 1 << int(np.ceil(np.log2(4 * cap)))
     hk, hv = np.full(hsize, -1, np.int64), np.zeros(hsize, np.int64)
     eq.init_table(edges, N, ea, eb, estamp, hk, hv)
+    t0 = time.perf_counter()           # load (or compile) the kernels first, so that the timings below are work
+    edge_costs(kind, edges[:0, 0].copy(), edges[:0, 1].copy(), st.V, st.W, Qv, st.T, ip, fp)
+    kernels = time.perf_counter() - t0
+    first_costs = 0.0
     if n_edges:
         b0 = setup.boundary
         place = placements(b0[edges[:, 0]], b0[edges[:, 1]], setup.along[edges[:, 0]], setup.along[edges[:, 1]])
+        t0 = time.perf_counter()
         v, w, E = edge_costs(kind, edges[:, 0].copy(), edges[:, 1].copy(), st.V, st.W, Qv, st.T, ip, fp,
                              place=place)
+        first_costs = time.perf_counter() - t0
         ecost[:n_edges], ev[:n_edges], ew[:n_edges] = E, v, w
     estate[:n_edges] = CLEAN
     estamp[:n_edges] += 1
@@ -460,7 +467,12 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     total = max(0, (f - min_faces + 1) // 2)
     chunk = max(256, -(-total // 100))
     n_chunks = -(-total // chunk)
+    t0 = time.perf_counter()
+    cc.collapse_chunk(0, min_faces, float(min_normal_cos), tiny, cost_model, mesh, verts, table, queue, record,
+                      scratch)
+    kernels += time.perf_counter() - t0
     finished = False
+    t0 = time.perf_counter()
     for _ in progress(range(n_chunks), total=n_chunks, description=f"{method} collapses"):
         finished = cc.collapse_chunk(chunk, min_faces, float(min_normal_cos), tiny, cost_model, mesh, verts, table,
                                      queue, record, scratch)
@@ -469,8 +481,13 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     while not finished:         # collapses along a border remove one face: a few more chunks may be left
         finished = cc.collapse_chunk(chunk, min_faces, float(min_normal_cos), tiny, cost_model, mesh, verts, table,
                                      queue, record, scratch)
+    loop = time.perf_counter() - t0
     k = int(cnt[eq.C_COLLAPSES])
-    stats = {"pops": int(cnt[eq.C_POPS]), "attempts": int(cnt[eq.C_TRIES]),
-             "evaluations": n_edges + int(cnt[eq.C_EVALS])}
+    stats = {"collapses": k, "pops": int(cnt[eq.C_POPS]), "attempts": int(cnt[eq.C_TRIES]),
+             "evaluations": n_edges + int(cnt[eq.C_EVALS]), "kernel_load_seconds": kernels,
+             "first_costs_seconds": first_costs,
+             "loop_seconds": loop, "loop_us_per_collapse": 1e6 * loop / max(k, 1)}
     log.debug("%s: %d collapses, %s", method, k, stats)
-    return _hierarchy(st.V, st.W, F, record.col[:k], record.errs[:k], record.nfaces[:k], method, params)
+    hier = _hierarchy(st.V, st.W, F, record.col[:k], record.errs[:k], record.nfaces[:k], method, params)
+    hier.loop_stats = stats          # type: ignore[attr-defined]  (the decimate step reports it)
+    return hier
