@@ -74,6 +74,11 @@ def test_skeleton_without_joints(project, capfd):
     _fails(project, capfd, "model.usda", "/Hero/Rig")
 
 
+def test_joints_listed_child_before_parent(project, capfd):
+    _edit(project, lambda s: _attr("/Hero/Rig", "joints")(s).Set(["root/mid", "root", "root/mid/tip"]))
+    _fails(project, capfd, "model.usda", "/Hero/Rig.joints", "parent")
+
+
 def test_wrong_element_size(project, capfd):
     def fn(stage):
         from pxr import UsdSkel

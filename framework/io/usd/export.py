@@ -7,7 +7,9 @@ The stage written by :func:`build_stage`::
       Animation        SkelAnimation: translations, rotations, scales per frame (time code = frame)
       MESH             Mesh: points, triangles, skel:skeleton, jointIndices/jointWeights (elementSize k)
 
-Handle ``b`` becomes joint ``b``. Its bind transform ``B_b`` (skeleton space)
+Handle ``b`` becomes joint ``b`` (joints are listed parents first, as UsdSkel
+requires; when that reorders them, the mesh's ``skel:joints`` lists them in
+handle order so that ``jointIndices`` are the handle numbers). Its bind transform ``B_b`` (skeleton space)
 is the glTF joint's ``IBM_b^{-1}`` when the asset was read from glTF, else the
 translation to the bone's start ``joints[bones[b, 0]]``. A pose's handle
 transform ``T_b`` (rigslim's ``v' = sum_b a_b T_b v``) becomes the joint's
@@ -167,6 +169,8 @@ def build_stage(mesh, handles, weights, poses=None, *, fps: float = 30.0, bind=N
     parents = np.asarray(handles.parents if handles.parents is not None else np.full(n, -1), np.int64)
     bind = bind_transforms(handles) if bind is None else np.asarray(bind, np.float64)
     tokens = joint_tokens(list(handles.names), parents)
+    order = np.array(_parents_first(parents), np.int64)    # UsdSkel lists every parent before its children
+    skel_tokens = [tokens[j] for j in order]
     stage = Usd.Stage.CreateInMemory()
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
@@ -175,13 +179,14 @@ def build_stage(mesh, handles, weights, poses=None, *, fps: float = 30.0, bind=N
     stage.SetDefaultPrim(root.GetPrim())
     Usd.ModelAPI(root.GetPrim()).SetKind("component")
     skel = UsdSkel.Skeleton.Define(stage, f"/{root_name}/Skeleton")
-    skel.CreateJointsAttr(Vt.TokenArray(tokens))
-    skel.CreateJointNamesAttr(Vt.TokenArray([str(x) for x in handles.names]))
-    skel.CreateBindTransformsAttr(to_rows(bind))
+    skel.CreateJointsAttr(Vt.TokenArray(skel_tokens))
+    skel.CreateJointNamesAttr(Vt.TokenArray([str(handles.names[j]) for j in order]))
+    skel.CreateBindTransformsAttr(to_rows(bind[order]))
     rest = local_transforms(np.broadcast_to(np.eye(4)[:3], (1, n, 3, 4)), bind, parents)[0]
-    skel.CreateRestTransformsAttr(to_rows(rest))
+    skel.CreateRestTransformsAttr(to_rows(rest[order]))
     if poses is not None and len(poses):
-        _animation(stage, skel, f"/{root_name}/Animation", tokens, local_transforms(poses.T, bind, parents), fps)
+        L = local_transforms(poses.T, bind, parents)[:, order]
+        _animation(stage, skel, f"/{root_name}/Animation", skel_tokens, L, fps)
     geom = UsdGeom.Mesh.Define(stage, f"/{root_name}/{usd_identifier(mesh_name, {'Skeleton', 'Animation'})}")
     V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
     geom.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(V.astype(np.float32)))
@@ -198,6 +203,8 @@ def build_stage(mesh, handles, weights, poses=None, *, fps: float = 30.0, bind=N
     binding = UsdSkel.BindingAPI.Apply(geom.GetPrim())
     binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
     binding.CreateGeomBindTransformAttr(matrix_rows(np.eye(4)))
+    if not np.array_equal(order, np.arange(n)):      # the weights index handles: name them in that order
+        binding.CreateJointsAttr(Vt.TokenArray(tokens))
     set_influences(geom.GetPrim(), *fixed_width(weights))
     return stage
 

@@ -228,10 +228,9 @@ def _matches(prim, mesh) -> bool:
 # --------------------------------------------------------------------------- skeleton
 
 
-def _skeleton(skel_query, path: Path, where: str):
-    """Joint tokens, parents, bind (column) and rest local transforms of a skeleton, checked."""
-    Usd, _, UsdSkel, _, _, _ = pxr_modules()
-    skel = skel_query.GetSkeleton()
+def check_joints(skel, path: Path, where: str) -> list[str]:
+    """The skeleton's ``joints`` tokens, refused with one line when empty, repeated or not parents-first."""
+    _, _, UsdSkel, _, _, _ = pxr_modules()
     joints = [str(j) for j in (skel.GetJointsAttr().Get() or [])]
     if not joints:
         raise InputError("the skeleton has no joints", source=path, field=f"{where}.joints",
@@ -244,6 +243,13 @@ def _skeleton(skel_query, path: Path, where: str):
     if not ok:
         raise InputError(f"the joint hierarchy is invalid ({' '.join(str(why).split())})", source=path,
                          field=f"{where}.joints", fix="list every joint after its parent, as 'Parent/Child' paths")
+    return joints
+
+
+def _skeleton(skel_query, path: Path, where: str):
+    """Joint tokens, parents, bind (column) and rest local transforms of a skeleton, checked."""
+    skel = skel_query.GetSkeleton()
+    joints = check_joints(skel, path, where)
     parents = np.asarray(skel_query.GetTopology().GetParentIndices(), np.int64)
     bind_raw = skel.GetBindTransformsAttr().Get()
     if bind_raw is None or len(bind_raw) != len(joints):
@@ -614,6 +620,7 @@ def read_usd_skin(path, *, skeleton=None, mesh=None, animation=None, fps: float 
     binding = _choose_binding(bindings, skeleton, mesh, path)
     skel_prim = binding.GetSkeleton().GetPrim()
     where = str(skel_prim.GetPath())
+    check_joints(binding.GetSkeleton(), path, where)
     with diagnostics():
         skel_query = cache.GetSkelQuery(binding.GetSkeleton())
     if not skel_query:

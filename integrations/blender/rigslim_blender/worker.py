@@ -30,6 +30,7 @@ import json
 import os
 import sys
 import time
+from typing import Any
 
 import numpy as np
 
@@ -93,7 +94,7 @@ def cmd_version() -> int:
 
 
 def cmd_reduce(request: str, result: str) -> int:
-    """k weights per vertex with :func:`rigslim.reduce_weights`' default selection and solver."""
+    """k weights per vertex with :func:`rigslim.reduce_weights` (its default selection and solver unless named)."""
     import rigslim
     from rigslim.model.mesh import Mesh
     from rigslim.model.poses import Poses
@@ -101,17 +102,19 @@ def cmd_reduce(request: str, result: str) -> int:
     req = load_request(request)
     k = int(req["k"])
     defaults = api_defaults(rigslim.reduce_weights)
+    chosen = {key: str(req[key]) for key in ("select", "solve") if key in req and str(req[key]).strip()}
+    methods = {**{key: defaults[key] for key in ("select", "solve")}, **chosen}
     progress(0.05, f"fitting {k} weights per vertex to {len(req['poses'])} poses "
-                   f"(select {defaults['select']}, solve {defaults['solve']})")
+                   f"(select {methods['select']}, solve {methods['solve']})")
     mesh = Mesh(req["V"], req["F"], source="blender mesh")
     poses = Poses(req["poses"], frames=np.arange(len(req["poses"])), source="blender poses")
     stats: dict = {}
     t0 = time.perf_counter()
-    reduced = rigslim.reduce_weights(mesh, sparse_weights(req), poses, k=k, report=stats)
+    reduced = rigslim.reduce_weights(mesh, sparse_weights(req), poses, k=k, report=stats, **chosen)
     seconds = time.perf_counter() - t0
     progress(0.95, f"fitted in {seconds:.1f} s")
     save_result(result, indices=reduced.indices.astype(np.int64), values=reduced.values.astype(np.float64),
-                seconds=np.float64(seconds), select=np.str_(defaults["select"]), solve=np.str_(defaults["solve"]))
+                seconds=np.float64(seconds), select=np.str_(methods["select"]), solve=np.str_(methods["solve"]))
     return 0
 
 
@@ -218,7 +221,7 @@ def cmd_lod(request: str, result: str) -> int:
     F, L = np.asarray(req["F"], np.int64), np.asarray(req["L"], np.int64)
     X = np.asarray(req["loop_values"], np.float64).reshape(int(req["n_loops"]), -1)
     charts = face_charts(F, np.asarray(req["corner_keys"], np.int64))
-    arrays: dict[str, np.ndarray] = {"n_levels": np.int64(len(out.levels)), "seconds": np.float64(seconds),
+    arrays: dict[str, Any] = {"n_levels": np.int64(len(out.levels)), "seconds": np.float64(seconds),
                                      "method": np.str_(method)}
     for i, level in enumerate(out.levels):
         faces, source, values = level_corners(out.hierarchy, level, F, L, charts, X)

@@ -180,3 +180,20 @@ steps:
     back = run_pipeline(tmp_path / "again.yaml")
     assert read_usd_skin(tmp_path / "back.usdc").parts[0].element_size == 1 and back.asset.reduced.k == 1
     assert check_usd(tmp_path / "back.usdc") == []
+
+
+def test_the_usd_examples_run_and_validate(tmp_path):
+    """examples/usd-export-huesitos.yaml then examples/usd-simplify.yaml, from a copy of examples/."""
+    import shutil
+    from pathlib import Path
+
+    examples = Path(__file__).resolve().parents[1] / "examples"
+    (tmp_path / "data").symlink_to(examples / "data", target_is_directory=True)
+    for name in ("usd-export-huesitos.yaml", "usd-simplify.yaml"):
+        shutil.copy(examples / name, tmp_path / name)
+        run_pipeline(tmp_path / name)
+    for name in ("huesitos.usdc", "huesitos-lod.usdc", "huesitos-lod-prims.usda"):
+        assert check_usd(tmp_path / "out" / name) == [], name
+    for lod in (0, 1, 2):
+        u = read_usd_skin(tmp_path / "out" / "huesitos-lod.usdc", lod=lod)
+        assert all(p.element_size == 2 for p in u.parts) and (u.weights.getnnz(axis=1) <= 2).all()

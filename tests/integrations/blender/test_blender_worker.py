@@ -21,8 +21,8 @@ PKG = ROOT / "integrations" / "blender" / "rigslim_blender"
 
 def load(name: str, path: Path):
     spec = importlib.util.spec_from_file_location(name, path)
+    assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
-    assert spec.loader is not None
     sys.modules[name] = module                  # dataclasses look their module up
     spec.loader.exec_module(module)
     return module
@@ -41,8 +41,8 @@ def strip(n_bones: int = 4, rings: int = 12, seed: int = 0):
     F = []
     for r in range(rings - 1):
         for c in range(3):
-            a = r * 4 + c
-            F += [(a, a + 1, a + 5), (a, a + 5, a + 4)]
+            i = r * 4 + c
+            F += [(i, i + 1, i + 5), (i, i + 5, i + 4)]
     centres = (np.arange(n_bones) + 0.5) * 4 / n_bones
     W = np.exp(-((V[:, 2:3] - centres[None]) / 0.8) ** 2)
     W /= W.sum(axis=1, keepdims=True)
@@ -53,8 +53,8 @@ def strip(n_bones: int = 4, rings: int = 12, seed: int = 0):
             K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
             th = np.linalg.norm(a)
             R = np.eye(3) + np.sin(th) / th * K + (1 - np.cos(th)) / th**2 * K @ K
-            c = np.array([0.5, 0, centres[b]])
-            T[p, b, :, :3], T[p, b, :, 3] = R, c - R @ c
+            pivot = np.array([0.5, 0, centres[b]])
+            T[p, b, :, :3], T[p, b, :, 3] = R, pivot - R @ pivot
     return V, np.array(F, np.int64), W, T
 
 
