@@ -21,7 +21,7 @@ posed points are in the skeleton's space, as UsdSkel's own
 ``UsdSkelSkinningQuery.ComputeSkinnedPoints`` gives them.
 
 :func:`read_usd_skin` returns every mesh bound to one skeleton merged into one
-:class:`rigslim.mesh.Mesh` (polygons fan-triangulated), the skeleton's joints
+:class:`rigslim.model.mesh.Mesh` (polygons fan-triangulated), the skeleton's joints
 as handles, the sparse weights and the poses of one ``SkelAnimation`` sampled
 at a frame rate; the open stage travels with it for :mod:`rigslim.io.usd.write`.
 """
@@ -36,12 +36,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from rigslim.errors import InputError, brief, closest
-from rigslim.handles import Handles
 from rigslim.io.usd import stage as usd_stage
 from rigslim.io.usd.stage import diagnostics, open_stage, pxr_modules, time_codes_per_second, to_columns
-from rigslim.mesh import Mesh
-from rigslim.poses import Poses
-from rigslim.weights import validate_weights
+from rigslim.model.handles import Handles
+from rigslim.model.mesh import Mesh
+from rigslim.model.poses import Poses
+from rigslim.model.weights import validate_weights
 
 #: Most frames :func:`read_usd_skin` samples (a longer clip or a higher fps is refused, not sampled).
 MAX_FRAMES = 100_000
