@@ -1,6 +1,6 @@
 """Articulated decimation plugins on the shared collapse loop: ``quartic``, ``mohr-gleicher``, ``decoro-rusinkiewicz``.
 
-Each builds a :class:`rigslim.hierarchy.ProgressiveHierarchy` of the rest
+Each builds a :class:`rigslim.model.hierarchy.ProgressiveHierarchy` of the rest
 mesh with per-vertex skin weights, fitted to the asset's example poses, and
 extracts the levels the step asks for (``targets``: fractions of the input
 faces or face counts; ``error_targets``: collapse-error thresholds). Results
@@ -15,8 +15,8 @@ import numpy as np
 import scipy.sparse as sp
 from pydantic import Field
 
-from rigslim.asset import Asset
 from rigslim.errors import StepError
+from rigslim.model.asset import Asset
 from rigslim.plugin import Decimation, Decimator, Params, StepContext
 from rigslim.plugins.decimation.levels import choose_levels, collapse_distances, parse_max_error, target_name
 
@@ -64,10 +64,10 @@ class DecimationParams(Params):
     (``TEXCOORD_0``) or family (``TEXCOORD``, ``COLOR``, ``NORMAL``, ``TANGENT``); see :func:`attribute_term`."""
     lock_seams: bool = True
     """For a mesh read from glTF: never move a vertex on a UV/colour seam or a material (primitive) boundary
-    (:func:`rigslim.io.gltf_lod.seam_vertices`), so every level keeps them exactly."""
+    (:func:`rigslim.io.gltf.seams.seam_vertices`), so every level keeps them exactly."""
     seams_collapse_along: bool = True
     """With ``lock_seams``: seam vertices may still collapse with each other along their seam (both
-    sides keep their own attributes; :func:`rigslim.io.gltf_lod.seam_structure`); false keeps every seam vertex."""
+    sides keep their own attributes; :func:`rigslim.io.gltf.seams.seam_structure`); false keeps every seam vertex."""
     max_error: float | str | None = None
     """Error bound of every level (:mod:`rigslim.plugins.decimation.levels`): a number or ``"E%"`` is % of
     the bounding-box diagonal of the first test pose, ``"Em"`` metres (world units); ``none`` (default) turns
@@ -98,7 +98,7 @@ def target_label(method: str, t: float, faces: int) -> str:
 
 def error_bound(asset, max_error) -> float | None:
     """``max_error`` in the units of the positions: % of the first test pose's bounding-box diagonal, or metres."""
-    from rigslim.blend import linear_blend
+    from rigslim.numerics.blend import linear_blend
 
     parsed = parse_max_error(max_error)
     if parsed is None:
@@ -141,7 +141,7 @@ def attribute_term(asset, weights: dict[str, float], Q, T, X):
 
     Notes
     -----
-    :func:`rigslim.io.gltf_lod.attribute_quadrics` gives per vertex
+    :func:`rigslim.io.gltf.seams.attribute_quadrics` gives per vertex
     ``sum lambda_a area (s_a(p) - s_a,i)^2`` (attribute units). It is scaled by
     ``P D^2`` (P example poses, D the first example pose's bounding-box
     diagonal), so that an attribute displacement of 1 (a whole texture) costs
@@ -151,7 +151,7 @@ def attribute_term(asset, weights: dict[str, float], Q, T, X):
     whatever its weights: the quartic error gains ``E_attr(v)`` and the weight
     step is unchanged, in both decimation backends.
     """
-    from rigslim.io.gltf_lod import attribute_quadrics
+    from rigslim.io.gltf.seams import attribute_quadrics
 
     source = asset.extras.get("gltf")
     if source is None or source.mesh is not asset.mesh or not any(w > 0 for w in weights.values()):
@@ -174,7 +174,7 @@ def seam_lock(asset, along: bool = True):
     :func:`rigslim.plugins.decimation.collapse.simplify` (None when ``along`` is false), or
     ``(None, None)`` for other inputs, or when a step replaced the mesh the glTF reader made.
     """
-    from rigslim.io.gltf_lod import seam_structure
+    from rigslim.io.gltf.seams import seam_structure
 
     source = asset.extras.get("gltf")
     if source is None or source.mesh is not asset.mesh:

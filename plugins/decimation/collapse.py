@@ -5,7 +5,7 @@ they differ only in their :class:`EdgeCostModel` (where the new vertex goes,
 which weights it gets, what the collapse costs).
 
 Every collapse is recorded, so the result is a
-:class:`rigslim.hierarchy.ProgressiveHierarchy`. Guards: the link condition
+:class:`rigslim.model.hierarchy.ProgressiveHierarchy`. Guards: the link condition
 (no non-manifold results), no fold-over of any surviving face in the rest
 pose or any example pose, boundary vertices kept.
 
@@ -24,7 +24,8 @@ import time
 
 import numpy as np
 
-from rigslim.hierarchy import ProgressiveHierarchy
+from rigslim.model.hierarchy import ProgressiveHierarchy
+from rigslim.model.weights import ReducedWeights
 from rigslim.plugins.decimation.setup import (
     BEST,
     BLOCKED,
@@ -41,7 +42,6 @@ from rigslim.plugins.decimation.setup import (
     placements,
     zero_cost,
 )
-from rigslim.weights import ReducedWeights
 
 log = logging.getLogger(__name__)
 
@@ -189,11 +189,11 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     locked : (m,) bool array, optional
         Vertices no collapse may move (like boundary vertices, whatever
         ``keep_boundary`` says): e.g. a glTF file's UV seams and material
-        boundaries (:func:`rigslim.io.gltf_lod.seam_vertices`).
+        boundaries (:func:`rigslim.io.gltf.seams.seam_vertices`).
     seams : (along, charts), optional
         ``along`` (m,) bool: locked vertices that may collapse with each
         other along a seam edge, an edge whose two faces have different
-        ``charts`` (f,) labels (:func:`rigslim.io.gltf_lod.seam_structure`).
+        ``charts`` (f,) labels (:func:`rigslim.io.gltf.seams.seam_structure`).
         The merged vertex stays locked for every other edge, so seams are
         simplified only along themselves.
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from rigslim.blend import linear_blend
+from rigslim.numerics.blend import linear_blend
 
 #: Weight of the border planes (:func:`border_quadrics`) relative to the faces' area weights.
 BORDER_WEIGHT = 1.0

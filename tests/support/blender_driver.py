@@ -50,7 +50,8 @@ def gltf_character(path: str):
               and any(m.type == "ARMATURE" for m in o.modifiers)]
     if not meshes:
         raise SystemExit(f"{path}: no skinned mesh after import")
-    obj = max(meshes, key=lambda o: len(o.data.vertices))
+    # the mesh with the most vertices blended by two or more bones (where limiting can change something)
+    obj = max(meshes, key=lambda o: (sum(len(v.groups) > 1 for v in o.data.vertices), len(o.data.vertices)))
     arm = next(m.object for m in obj.modifiers if m.type == "ARMATURE")
     for a in bpy.data.actions:
         a.use_fake_user = True
@@ -60,7 +61,7 @@ def gltf_character(path: str):
 def measure_independently(ext, obj, ref, lt, test) -> dict:
     sc = ext.scene
     D = float(np.linalg.norm(np.ptp(sc.read_skin(ref).V, axis=0)))
-    out = {"rigslim": [], "limit_total": [], "rigslim_max": [], "limit_total_max": []}
+    out: dict[str, list[float]] = {"rigslim": [], "limit_total": [], "rigslim_max": [], "limit_total_max": []}
     skin = sc.read_skin(ref)
     with sc.preserved_animation(bpy.context.scene, skin.armature):
         for action, frame in test:
@@ -144,6 +145,9 @@ def main() -> int:
     ap.add_argument("--actions", default="")
     ap.add_argument("--frame-step", type=int, default=1)
     ap.add_argument("--max-error", type=float, default=0.05, help="for the bounded LOD run, % of the diagonal")
+    ap.add_argument("--select", default="")
+    ap.add_argument("--solve", default="")
+    ap.add_argument("--skip-lods", action="store_true")
     ap.add_argument("--blend", default=None, help="also save the scene there")
     args = ap.parse_args(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:])
     if args.gltf:
@@ -166,6 +170,7 @@ def main() -> int:
     result["errors"]["bad_action"] = expect_error(lambda: bpy.ops.rigslim.limit_influences(k=args.k,
                                                                                            actions="NoSuchAction"))
     result["input_groups"] = group_stats(ext, obj)
+    result["source_triangles"] = sum(len(p.vertices) - 2 for p in obj.data.polygons)
     ref = ext.measure.temporary_copy(obj, "Reference")
     lt = ext.measure.temporary_copy(obj, "LimitTotal")
     select_only(lt)
@@ -173,7 +178,8 @@ def main() -> int:
     bpy.ops.object.vertex_group_normalize_all(group_select_mode="BONE_DEFORM", lock_active=False)
     result["limit_total_groups"] = group_stats(ext, lt)
     select_only(obj)
-    op = bpy.ops.rigslim.limit_influences(k=args.k, actions=args.actions, frame_step=args.frame_step, holdout=4)
+    op = bpy.ops.rigslim.limit_influences(k=args.k, actions=args.actions, frame_step=args.frame_step, holdout=4,
+                                          select=args.select, solve=args.solve)
     result["limit_status"] = sorted(op)
     result["limit"] = json.loads(obj["rigslim_limit"])
     result["groups"] = group_stats(ext, obj)
@@ -182,6 +188,10 @@ def main() -> int:
     result["temporary_objects_left"] = sorted(o.name for o in bpy.data.objects if "rigslim-" in o.name)
     ext.measure.remove_copy(ref)
     ext.measure.remove_copy(lt)
+    if args.skip_lods:
+        with open(args.out, "w") as fh:
+            json.dump(result, fh, indent=1)
+        return 0
     select_only(obj)
     bpy.ops.rigslim.generate_lods(ratios=args.ratios, max_bones=args.max_bones, actions=args.actions,
                                   frame_step=max(args.frame_step, 2), max_error=args.max_error)

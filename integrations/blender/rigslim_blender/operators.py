@@ -1,3 +1,5 @@
+# mypy: disable-error-code="valid-type"
+# (bpy properties are declared as annotations that call bpy.props: Blender's idiom)
 """The two operators: Limit Influences (fit to animation) and Generate Skinned LODs.
 
 Each operator's work is one generator of steps (:meth:`StepOperator.steps`) that yields
@@ -11,7 +13,9 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Iterator
+import traceback
+from collections.abc import Generator, Iterator
+from typing import Any
 
 import bpy
 import numpy as np
@@ -22,12 +26,21 @@ from . import scene as sc
 from . import weights as wt
 
 Step = tuple[float, str, bool]
+#: A step generator whose ``yield from`` gives a value (a worker result, sampled poses).
+Steps = Generator[Step, None, Any]
 
 _CHECKED: dict[str, dict] = {}
 
+#: Below this RMS (% of the diagonal) Blender's float32 vertex positions cannot tell two results apart.
+ROUND_OFF_PCT = 1e-4
+
 
 class Cancelled(Exception):
-    pass
+    """Esc before anything was written: the operator ends with nothing changed."""
+
+
+class Stop(Exception):
+    """Esc after some objects were written: skip the rest, keep what is done (one undo step)."""
 
 
 def addon_prefs(context) -> object | None:
@@ -61,6 +74,7 @@ class StepOperator:
     """Runs :meth:`steps` to completion (``execute``) or one step per timer tick (``invoke``/``modal``)."""
 
     bl_options = {"REGISTER", "UNDO"}
+    report: Any                      # bpy.types.Operator.report (the operator classes mix this in first)
     _timer = None
     _gen: Iterator[Step] | None = None
     cancel_requested = False
@@ -81,6 +95,13 @@ class StepOperator:
         self.report({"ERROR"}, f"rigslim: {exc}")
         return {"CANCELLED"}
 
+    def _bug(self, exc: Exception) -> set[str]:
+        traceback.print_exc()
+        done = f" ({self.written} object(s) were already changed)" if self.written else " (nothing was changed)"
+        self.report({"ERROR"}, f"rigslim: internal error {type(exc).__name__}: {exc}{done}; the traceback is on "
+                               "the system console, please report it")
+        return {"CANCELLED"}
+
     def execute(self, context):
         self.cancel_requested, self.written = False, 0
         last = ""
@@ -93,13 +114,16 @@ class StepOperator:
                     time.sleep(0.05)
         except (runner.RunnerError, sc.SkinError) as exc:
             return self._fail(exc)
+        except Exception as exc:  # a bug: one line in Blender, the traceback on the console
+            return self._bug(exc)
         return {"FINISHED"}
 
     def invoke(self, context, event):
         if bpy.app.background or context.window is None:
             return self.execute(context)
         self.cancel_requested, self.written = False, 0
-        self._gen = self.steps(context)
+        # bpy.context, not the invoke's context: that one is only valid during this call
+        self._gen = self.steps(bpy.context)
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.05, window=context.window)
         wm.progress_begin(0, 100)
@@ -135,6 +159,9 @@ class StepOperator:
         except (runner.RunnerError, sc.SkinError) as exc:
             self._end(context)
             return self._fail(exc)
+        except Exception as exc:
+            self._end(context)
+            return self._bug(exc)
         context.window_manager.progress_update(int(100 * fraction))
         _status(context, f"rigslim: {message}  ({int(100 * fraction)} %, Esc to cancel)")
         return {"RUNNING_MODAL"}
@@ -144,14 +171,14 @@ class StepOperator:
             self._gen.close()
         self._end(context)
 
-    def run_job(self, python: str, command: str, request: dict, lo: float, hi: float) -> Iterator[Step]:
+    def run_job(self, python: str, command: str, request: dict, lo: float, hi: float) -> Steps:
         """Run the worker, yielding its progress mapped onto [lo, hi]; returns its result (``yield from``)."""
         job = runner.Job(python, command, request).start()
         try:
             while not job.poll():
                 if self.cancel_requested:
                     job.cancel()
-                    raise Cancelled()
+                    raise Cancelled() if not self.written else Stop()
                 yield lo + (hi - lo) * job.fraction, f"{job.message} ({job.elapsed():.0f} s)", True
         except GeneratorExit:
             job.cancel()
@@ -160,13 +187,13 @@ class StepOperator:
 
 
 def sample_poses(op: StepOperator, context, skin: sc.Skin, frames, lo: float, hi: float,
-                 label: str) -> Iterator[Step]:
+                 label: str) -> Steps:
     """Bone transforms of ``frames`` (``(action, frame)`` pairs) through the depsgraph; returns (p, n', 3, 4)."""
     scene = context.scene
     out = []
     for i, (action, frame) in enumerate(frames):
         if op.checkpoint():
-            break
+            raise Stop()
         sc.go_to(scene, skin.armature, action, frame)
         out.append(sc.bone_transforms(skin, context.evaluated_depsgraph_get()))
         yield lo + (hi - lo) * (i + 1) / len(frames), f"{label}: {action.name} frame {frame}", False
@@ -203,6 +230,10 @@ class RIGSLIM_OT_limit_influences(StepOperator, bpy.types.Operator):
                                      "against Limit Total (0 or 1: fit every frame, measure none)")
     measure: BoolProperty(name="Compare with Limit Total", default=True,
                           description="Measure rigslim's and Blender's Limit Total error on the held-out frames")
+    select: StringProperty(name="Selection", default="",
+                           description="rigslim influence selection plugin (empty: the library's default)")
+    solve: StringProperty(name="Solver", default="",
+                          description="rigslim weight solver plugin (empty: the library's default)")
 
     @classmethod
     def poll(cls, context):
@@ -215,11 +246,14 @@ class RIGSLIM_OT_limit_influences(StepOperator, bpy.types.Operator):
             if self.checkpoint():
                 break
             lo, hi = j / len(objs), (j + 1) / len(objs)
-            yield from self.limit_one(context, obj, python, info, lo, hi)
+            try:
+                yield from self.limit_one(context, obj, python, info, lo, hi)
+            except Stop:
+                break
         if self.cancel_requested:
             self.report({"WARNING"}, f"rigslim: cancelled after {self.written} of {len(objs)} objects")
 
-    def limit_one(self, context, obj, python, info, lo, hi) -> Iterator[Step]:
+    def limit_one(self, context, obj, python, info, lo, hi) -> Steps:
         span = hi - lo
         skin = sc.read_skin(obj)
         for w in skin.warnings:
@@ -227,7 +261,8 @@ class RIGSLIM_OT_limit_influences(StepOperator, bpy.types.Operator):
         _, examples, test = action_frames(self, skin, self.holdout)
         with sc.preserved_animation(context.scene, skin.armature):
             T = yield from sample_poses(self, context, skin, examples, lo, lo + 0.2 * span, "sampling poses")
-            request = {"V": skin.V, "F": skin.F, "k": np.int64(self.k), "poses": T, **wt.request_weights(skin)}
+            request = {"V": skin.V, "F": skin.F, "k": np.int64(self.k), "poses": T, "select": np.str_(self.select),
+                       "solve": np.str_(self.solve), **wt.request_weights(skin)}
             res = yield from self.run_job(python, "reduce", request, lo + 0.2 * span, lo + 0.8 * span)
             idx, val = wt.blender_rows(skin, res["indices"], res["values"])
             held = measure.HeldOut(skin, self.k) if (self.measure and test) else None
@@ -238,6 +273,7 @@ class RIGSLIM_OT_limit_influences(StepOperator, bpy.types.Operator):
                     if self.checkpoint():
                         break
                     sc.go_to(context.scene, skin.armature, action, frame)
+                    assert held is not None
                     held.measure_frame(context.evaluated_depsgraph_get())
                     yield lo + span * (0.8 + 0.2 * (i + 1) / len(test)), f"measuring: {action.name} {frame}", False
             finally:
@@ -255,7 +291,9 @@ class RIGSLIM_OT_limit_influences(StepOperator, bpy.types.Operator):
         if held is not None and held.rms["rigslim"]:
             ours, theirs = held.errors("rigslim"), held.errors("limit_total")
             ratio = theirs.rms_pct / ours.rms_pct if ours.rms_pct > 0 else float("inf")
-            line += (f"; held-out error {ours} vs Limit Total {theirs}: {ratio:.2f}x lower"
+            verdict = (f"{ratio:.2f}x lower" if max(ours.rms_pct, theirs.rms_pct) > ROUND_OFF_PCT
+                       else "both at float32 round-off, k loses nothing here")
+            line += (f"; held-out error {ours} vs Limit Total {theirs}: {verdict}"
                      f" over {len(held.rms['rigslim'])} frames")
             record.update({"rms_pct": ours.rms_pct, "max_pct": ours.max_pct, "limit_total_rms_pct": theirs.rms_pct,
                            "limit_total_max_pct": theirs.max_pct, "measured_frames": len(held.rms["rigslim"])})
@@ -285,7 +323,7 @@ def lod_request(skin: sc.Skin, T: np.ndarray, op, extra: dict) -> dict:
     X = np.hstack(layers) if layers else np.zeros((n_loops, 0))
     mat = np.empty(len(mesh.polygons), np.int64)
     mesh.polygons.foreach_get("material_index", mat)
-    corner = np.concatenate([X[skin.L].reshape(-1, X.shape[1]),
+    corner = np.concatenate([X[skin.L].reshape(3 * len(skin.L), X.shape[1]),
                              np.repeat(mat[skin.tri_poly], 3)[:, None].astype(float)], axis=1)
     _, keys = np.unique(corner, axis=0, return_inverse=True)
     return {"V": skin.V, "F": skin.F, "L": skin.L, "n_loops": np.int64(n_loops), "loop_values": X,
@@ -344,7 +382,7 @@ def build_lod(skin: sc.Skin, res: dict, i: int, name: str) -> bpy.types.Object:
     mod_src = sc.armature_modifier(src)
     mod = ob.modifiers.new("Armature", "ARMATURE")
     mod.object = skin.armature
-    mod.use_deform_preserve_volume = mod_src.use_deform_preserve_volume
+    mod.use_deform_preserve_volume = bool(getattr(mod_src, "use_deform_preserve_volume", False))
     return ob
 
 
@@ -394,9 +432,12 @@ class RIGSLIM_OT_generate_lods(StepOperator, bpy.types.Operator):
         for j, obj in enumerate(objs):
             if self.checkpoint():
                 break
-            yield from self.lods_one(context, obj, python, extra, j / len(objs), (j + 1) / len(objs))
+            try:
+                yield from self.lods_one(context, obj, python, extra, j / len(objs), (j + 1) / len(objs))
+            except Stop:
+                break
 
-    def lods_one(self, context, obj, python, extra, lo, hi) -> Iterator[Step]:
+    def lods_one(self, context, obj, python, extra, lo, hi) -> Steps:
         span = hi - lo
         skin = sc.read_skin(obj)
         _, examples, _ = action_frames(self, skin, 0)

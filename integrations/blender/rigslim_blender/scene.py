@@ -123,9 +123,9 @@ def read_skin(obj: bpy.types.Object) -> Skin:
                         "weight paint it or parent it With Automatic Weights")
     mesh = obj.data
     m = len(mesh.vertices)
-    V = np.empty(m * 3, np.float64)
-    mesh.vertices.foreach_get("co", V)
-    V = V.reshape(m, 3)
+    flat = np.empty(m * 3, np.float64)
+    mesh.vertices.foreach_get("co", flat)
+    V = flat.reshape(m, 3)
     mesh.calc_loop_triangles()
     nt = len(mesh.loop_triangles)
     F = np.empty(nt * 3, np.int64)
@@ -220,7 +220,8 @@ def sample_frames(actions, step: int, holdout: int) -> tuple[list, list]:
     Held-out samples interleave the examples (sample ``i`` is held out when ``i % holdout == holdout // 2``),
     so no frame is used for both fitting and measuring.
     """
-    examples, test = [], []
+    examples: list = []
+    test: list = []
     i = 0
     for action, start, end in actions:
         a0, a1 = action.frame_range

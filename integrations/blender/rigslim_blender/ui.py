@@ -1,3 +1,5 @@
+# mypy: disable-error-code="valid-type"
+# (bpy properties are declared as annotations that call bpy.props: Blender's idiom)
 """The add-on preferences (where rigslim is) and the panel in Properties > Object Data."""
 
 from __future__ import annotations

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import bpy
 import numpy as np
 
 from .scene import Skin
 
 
-def request_weights(skin: Skin) -> dict[str, np.ndarray]:
+def request_weights(skin: Skin) -> dict[str, Any]:
     """The (m, n') weight triplets for the worker, rows summing to one.
 
     Vertices Blender leaves at rest (no deform weight) get weight one on an extra handle n whose

@@ -17,7 +17,7 @@ temporary name and renamed, so Blender never reads half a file.
 Only rigslim's public API does the work: :func:`rigslim.reduce_weights` with
 the library's defaults (whatever it selects and solves by default), and
 :func:`rigslim.simplify`; the UVs of new LOD vertices are resampled with
-:func:`rigslim.io.gltf_lod.projected_attributes`, the function rigslim's glTF
+:func:`rigslim.io.gltf.lod.projected_attributes`, the function rigslim's glTF
 writer uses.
 
 This file must not import bpy, and must run on numpy 1.26 and 2.x alike.
@@ -30,6 +30,7 @@ import json
 import os
 import sys
 import time
+from typing import Any
 
 import numpy as np
 
@@ -93,25 +94,27 @@ def cmd_version() -> int:
 
 
 def cmd_reduce(request: str, result: str) -> int:
-    """k weights per vertex with :func:`rigslim.reduce_weights`' default selection and solver."""
+    """k weights per vertex with :func:`rigslim.reduce_weights` (its default selection and solver unless named)."""
     import rigslim
-    from rigslim.mesh import Mesh
-    from rigslim.poses import Poses
+    from rigslim.model.mesh import Mesh
+    from rigslim.model.poses import Poses
 
     req = load_request(request)
     k = int(req["k"])
     defaults = api_defaults(rigslim.reduce_weights)
+    chosen = {key: str(req[key]) for key in ("select", "solve") if key in req and str(req[key]).strip()}
+    methods = {**{key: defaults[key] for key in ("select", "solve")}, **chosen}
     progress(0.05, f"fitting {k} weights per vertex to {len(req['poses'])} poses "
-                   f"(select {defaults['select']}, solve {defaults['solve']})")
+                   f"(select {methods['select']}, solve {methods['solve']})")
     mesh = Mesh(req["V"], req["F"], source="blender mesh")
     poses = Poses(req["poses"], frames=np.arange(len(req["poses"])), source="blender poses")
     stats: dict = {}
     t0 = time.perf_counter()
-    reduced = rigslim.reduce_weights(mesh, sparse_weights(req), poses, k=k, report=stats)
+    reduced = rigslim.reduce_weights(mesh, sparse_weights(req), poses, k=k, report=stats, **chosen)
     seconds = time.perf_counter() - t0
     progress(0.95, f"fitted in {seconds:.1f} s")
     save_result(result, indices=reduced.indices.astype(np.int64), values=reduced.values.astype(np.float64),
-                seconds=np.float64(seconds), select=np.str_(defaults["select"]), solve=np.str_(defaults["solve"]))
+                seconds=np.float64(seconds), select=np.str_(methods["select"]), solve=np.str_(methods["solve"]))
     return 0
 
 
@@ -144,9 +147,9 @@ def level_corners(hier, level, F: np.ndarray, L: np.ndarray, charts: np.ndarray,
 
     Parameters
     ----------
-    hier : rigslim.hierarchy.ProgressiveHierarchy
+    hier : rigslim.model.hierarchy.ProgressiveHierarchy
         Built on the rest mesh (V, F).
-    level : rigslim.hierarchy.SimplifiedLevel
+    level : rigslim.model.hierarchy.SimplifiedLevel
     F, L : (f, 3) int arrays
         Source triangles by vertex and by Blender loop (face corner).
     charts : (f,) :func:`face_charts`.
@@ -159,11 +162,11 @@ def level_corners(hier, level, F: np.ndarray, L: np.ndarray, charts: np.ndarray,
     Notes
     -----
     A level triangle is a source triangle whose three corners map to three distinct level vertices
-    (:func:`rigslim.io.gltf_lod.level_representatives`). A corner whose vertex the level kept keeps its
+    (:func:`rigslim.io.gltf.lod.level_representatives`). A corner whose vertex the level kept keeps its
     loop's values; a corner at a vertex made by collapses takes the values at the closest point of the
-    source triangles of its chart that it replaced (:func:`rigslim.io.gltf_lod.projected_attributes`).
+    source triangles of its chart that it replaced (:func:`rigslim.io.gltf.lod.projected_attributes`).
     """
-    from rigslim.io.gltf_lod import level_representatives, projected_attributes
+    from rigslim.io.gltf.lod import level_representatives, projected_attributes
 
     m = hier.n_original
     ids = np.asarray(level.vertex_ids, np.int64)
@@ -194,8 +197,8 @@ def level_corners(hier, level, F: np.ndarray, L: np.ndarray, charts: np.ndarray,
 def cmd_lod(request: str, result: str) -> int:
     """Levels of detail with :func:`rigslim.simplify` (its default method), bone limit and UVs per corner."""
     import rigslim
-    from rigslim.mesh import Mesh
-    from rigslim.poses import Poses
+    from rigslim.model.mesh import Mesh
+    from rigslim.model.poses import Poses
 
     req = load_request(request)
     ratios = [float(r) for r in req["ratios"]]
@@ -218,7 +221,7 @@ def cmd_lod(request: str, result: str) -> int:
     F, L = np.asarray(req["F"], np.int64), np.asarray(req["L"], np.int64)
     X = np.asarray(req["loop_values"], np.float64).reshape(int(req["n_loops"]), -1)
     charts = face_charts(F, np.asarray(req["corner_keys"], np.int64))
-    arrays: dict[str, np.ndarray] = {"n_levels": np.int64(len(out.levels)), "seconds": np.float64(seconds),
+    arrays: dict[str, Any] = {"n_levels": np.int64(len(out.levels)), "seconds": np.float64(seconds),
                                      "method": np.str_(method)}
     for i, level in enumerate(out.levels):
         faces, source, values = level_corners(out.hierarchy, level, F, L, charts, X)
