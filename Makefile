@@ -35,9 +35,10 @@ test-tools:
 test: install-test test-tools
 	$(PY) -m pytest -q $(PYTEST_ARGS)
 
-## lint: ruff over the tree, mypy over the plugin contract (tools/mypy-contract.sh)
+## lint: ruff over the tree, the import contracts (tools/lint-imports.sh), mypy over the plugin contract
 lint: install-test
 	$(VENV)/bin/ruff check .
+	bash tools/lint-imports.sh
 	bash tools/mypy-contract.sh
 
 ## blender-extension: the installable Blender extension, dist/rigslim-VERSION.zip (docs/blender.md)

@@ -59,7 +59,7 @@ RATIOS = (0.5, 0.25, 0.1)
 REPEATS = 3
 EQUAL = 0.03
 RIGSLIM = ([str(Path(sys.executable).with_name("rigslim"))] if Path(sys.executable).with_name("rigslim").exists()
-           else [sys.executable, "-m", "rigslim.cli"])
+           else [sys.executable, "-m", "rigslim.commands.cli"])
 ASSIMP_CHARACTERS = ("X/BCN_Epileptic.X", "X/Testwuson.X")
 
 
@@ -151,7 +151,7 @@ def rigslim_at(path: Path, tmp: Path, faces: int, input_faces: int, test: str, s
 
 
 def bench(path: Path, tmp: Path, tools: dict, samples: int) -> dict:
-    from rigslim.gltf_commands import _poses, clip_frames
+    from rigslim.commands.gltf_common import _poses, clip_frames
 
     frames, clip, duration = clip_frames(path, None, 30.0)
     test = _poses(frames)["test"]

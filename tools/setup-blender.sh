@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Blender as a Python module (PyPI's "bpy") for the headless Blender extension tests
-# (tests/test_blender_extension.py, docs/blender.md). bpy pins numpy < 2 and Python 3.11, so it
+# (tests/integrations/blender/test_blender_extension.py, docs/blender.md). bpy pins numpy < 2 and Python 3.11, so it
 # lives in a venv of its own ($BLENDER_VENV, default .venv-blender), as Blender's own Python does:
 # the extension runs rigslim (the project's .venv) out of process. Idempotent: does nothing when
 # the pinned version is already installed.

@@ -1,6 +1,6 @@
 """Articulated decimation plugins on the shared collapse loop: ``quartic``, ``mohr-gleicher``, ``decoro-rusinkiewicz``.
 
-Each builds a :class:`rigslim.hierarchy.ProgressiveHierarchy` of the rest
+Each builds a :class:`rigslim.model.hierarchy.ProgressiveHierarchy` of the rest
 mesh with per-vertex skin weights, fitted to the asset's example poses, and
 extracts the levels the step asks for (``targets``: fractions of the input
 faces or face counts; ``error_targets``: collapse-error thresholds). Results
@@ -15,8 +15,8 @@ import numpy as np
 import scipy.sparse as sp
 from pydantic import Field
 
-from rigslim.asset import Asset
 from rigslim.errors import StepError
+from rigslim.model.asset import Asset
 from rigslim.plugin import Decimation, Decimator, Params, StepContext
 from rigslim.plugins.decimation.levels import choose_levels, collapse_distances, parse_max_error, target_name
 
@@ -53,15 +53,21 @@ class DecimationParams(Params):
     onto a neighbouring border point, and free vertices collapse onto them (false: borders are ordinary)."""
     border_collapses: bool = True
     """With ``keep_boundary``: border vertices may collapse along their border (false fixes every one)."""
+    border_weight: float = Field(default=1.0, ge=0.0)
+    """With ``keep_boundary``: weight of the planes through each border edge, perpendicular to its face
+    (:func:`rigslim.plugins.decimation.quadrics.border_quadrics`), relative to the faces' area weights."""
+    normalised_error: bool = True
+    """Rank collapses by the error over the merged planes' total area, a mean squared distance
+    (meshoptimizer), so that small parts are not collapsed first; false: [S09]'s area-weighted error."""
     attribute_weights: dict[str, float] = Field(default_factory=lambda: dict(ATTRIBUTE_WEIGHTS))
     """For a mesh read from glTF: weight of each vertex attribute's displacement term in the error, by name
     (``TEXCOORD_0``) or family (``TEXCOORD``, ``COLOR``, ``NORMAL``, ``TANGENT``); see :func:`attribute_term`."""
     lock_seams: bool = True
     """For a mesh read from glTF: never move a vertex on a UV/colour seam or a material (primitive) boundary
-    (:func:`rigslim.io.gltf_lod.seam_vertices`), so every level keeps them exactly."""
+    (:func:`rigslim.io.gltf.seams.seam_vertices`), so every level keeps them exactly."""
     seams_collapse_along: bool = True
     """With ``lock_seams``: seam vertices may still collapse with each other along their seam (both
-    sides keep their own attributes; :func:`rigslim.io.gltf_lod.seam_structure`); false keeps every seam vertex."""
+    sides keep their own attributes; :func:`rigslim.io.gltf.seams.seam_structure`); false keeps every seam vertex."""
     max_error: float | str | None = None
     """Error bound of every level (:mod:`rigslim.plugins.decimation.levels`): a number or ``"E%"`` is % of
     the bounding-box diagonal of the first test pose, ``"Em"`` metres (world units); ``none`` (default) turns
@@ -92,7 +98,7 @@ def target_label(method: str, t: float, faces: int) -> str:
 
 def error_bound(asset, max_error) -> float | None:
     """``max_error`` in the units of the positions: % of the first test pose's bounding-box diagonal, or metres."""
-    from rigslim.blend import linear_blend
+    from rigslim.numerics.blend import linear_blend
 
     parsed = parse_max_error(max_error)
     if parsed is None:
@@ -135,7 +141,7 @@ def attribute_term(asset, weights: dict[str, float], Q, T, X):
 
     Notes
     -----
-    :func:`rigslim.io.gltf_lod.attribute_quadrics` gives per vertex
+    :func:`rigslim.io.gltf.seams.attribute_quadrics` gives per vertex
     ``sum lambda_a area (s_a(p) - s_a,i)^2`` (attribute units). It is scaled by
     ``P D^2`` (P example poses, D the first example pose's bounding-box
     diagonal), so that an attribute displacement of 1 (a whole texture) costs
@@ -145,7 +151,7 @@ def attribute_term(asset, weights: dict[str, float], Q, T, X):
     whatever its weights: the quartic error gains ``E_attr(v)`` and the weight
     step is unchanged, in both decimation backends.
     """
-    from rigslim.io.gltf_lod import attribute_quadrics
+    from rigslim.io.gltf.seams import attribute_quadrics
 
     source = asset.extras.get("gltf")
     if source is None or source.mesh is not asset.mesh or not any(w > 0 for w in weights.values()):
@@ -168,7 +174,7 @@ def seam_lock(asset, along: bool = True):
     :func:`rigslim.plugins.decimation.collapse.simplify` (None when ``along`` is false), or
     ``(None, None)`` for other inputs, or when a step replaced the mesh the glTF reader made.
     """
-    from rigslim.io.gltf_lod import seam_structure
+    from rigslim.io.gltf.seams import seam_structure
 
     source = asset.extras.get("gltf")
     if source is None or source.mesh is not asset.mesh:
@@ -199,7 +205,8 @@ class ArticulatedDecimator(Decimator):
             hier = self.collapse(asset, params, W, T, X, model, min_faces, locked, seams, ctx)
         with clock("levels"):
             bound = error_bound(asset, params.max_error)
-            distances = collapse_distances(hier, Q[:, :len(asset.example_poses().T)])
+            distances = (np.sqrt(np.maximum(hier.errors, 0.0)) if params.normalised_error
+                         else collapse_distances(hier, Q[:, :len(asset.example_poses().T)]))
             choices = choose_levels(hier, list(params.targets), faces, distances, bound, self.name)
             levels = self.levels(asset, params, hier, choices)
         self.report(asset, params, ctx, hier, levels, choices, bound, locked, seams, len(T))
@@ -210,11 +217,13 @@ class ArticulatedDecimator(Decimator):
 
     def setup(self, asset: Asset, params: DecimationParams):
         """Per-pose quadrics (and the attribute term), bone-limited weights, the edge cost model."""
-        from rigslim.plugins.decimation.quadrics import per_pose_quadrics
+        from rigslim.plugins.decimation.quadrics import border_quadrics, per_pose_quadrics
 
         mesh = asset.mesh
         T = asset.example_poses().T
         Q, X = per_pose_quadrics(mesh.V, mesh.F, asset.weights, T, params.area_weighted)
+        if params.keep_boundary and params.border_weight > 0:
+            Q = Q + border_quadrics(X, mesh.F, params.border_weight)
         Q, T, X = attribute_term(asset, params.attribute_weights, Q, T, X)
         W = limited_weights(asset.weights, params.max_bones)
         return Q, W, T, X, self.model(Q, W, T, params)
@@ -227,7 +236,7 @@ class ArticulatedDecimator(Decimator):
         return simplify(mesh.V, mesh.F, W, T, X, model, min_faces=min_faces, keep_boundary=params.keep_boundary,
                         border_collapses=params.border_collapses, min_normal_cos=params.min_normal_cos,
                         progress=ctx.progress, method=self.name, params=params.model_dump(), backend=params.backend,
-                        locked=locked, seams=seams)
+                        locked=locked, seams=seams, normalised=params.normalised_error)
 
     def levels(self, asset, params, hier, choices) -> list:
         """The face-target levels (:func:`choose_levels`), error-target and adaptive levels, finest first."""

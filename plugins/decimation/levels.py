@@ -1,7 +1,7 @@
 """Levels that are what they say: face targets, an error bound, strictly decreasing face counts.
 
 A decimation step builds one progressive hierarchy and takes its levels as
-prefixes of the collapse sequence (:meth:`rigslim.hierarchy.ProgressiveHierarchy.prefix`).
+prefixes of the collapse sequence (:meth:`rigslim.model.hierarchy.ProgressiveHierarchy.prefix`).
 This module chooses those prefixes:
 
 - a face target ``t`` gives the first prefix with at most ``t`` faces;

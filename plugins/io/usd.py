@@ -18,7 +18,7 @@ from rigslim.plugin import Params, Reader, Writer
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from rigslim.asset import Asset
+    from rigslim.model.asset import Asset
     from rigslim.plugin import StepContext
 
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
@@ -77,7 +77,7 @@ class UsdWriter(Writer):
         reduced = asset.reduced
         if source is not None and source.mesh is asset.mesh:
             if reduced is None and not params.keep_input_weights:
-                from rigslim.io.gltf_write import fixed_width_weights
+                from rigslim.io.gltf.write import fixed_width_weights
 
                 asset.require("weights", step="write: usd")
                 reduced = fixed_width_weights(asset.weights)

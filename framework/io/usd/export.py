@@ -90,8 +90,8 @@ def bind_transforms(handles, gltf_skin=None) -> np.ndarray:
 
 
 def gltf_inverse_bind_matrices(skin) -> np.ndarray | None:
-    """The (n, 4, 4) inverse bind matrices of a :class:`rigslim.io.gltf.GltfSkin` (identity when unauthored)."""
-    from rigslim.io.gltf import read_accessor
+    """The (n, 4, 4) inverse bind matrices of a :class:`rigslim.io.gltf.skin.GltfSkin` (identity when unauthored)."""
+    from rigslim.io.gltf.document import read_accessor
 
     sk = skin.document.json["skins"][skin.skin]
     n = len(skin.joints)
@@ -233,7 +233,7 @@ def fixed_width(weights) -> tuple[np.ndarray, np.ndarray]:
 
     if hasattr(weights, "indices") and hasattr(weights, "values") and not sp.issparse(weights):
         return np.asarray(weights.indices, np.int64), np.asarray(weights.values, np.float64)
-    from rigslim.io.gltf_write import fixed_width_weights
+    from rigslim.io.gltf.write import fixed_width_weights
 
     reduced = fixed_width_weights(sp.csr_matrix(weights))
     return np.asarray(reduced.indices, np.int64), np.asarray(reduced.values, np.float64)
@@ -243,13 +243,13 @@ def set_influences(prim, indices: np.ndarray, values: np.ndarray, *, clamp_negat
     """Author ``primvars:skel:jointIndices``/``jointWeights`` (vertex, elementSize = k) on a mesh prim.
 
     Weights are written as float32 rows that sum to one (the largest of each
-    row absorbs the rounding: :func:`rigslim.io.gltf_write.quantize_weights`);
+    row absorbs the rounding: :func:`rigslim.io.gltf.write.quantize_weights`);
     negative weights are refused, or with ``clamp_negative`` set to zero and
     the row renormalised. Slots past a vertex's last influence hold joint 0
     with weight 0.
     """
     _, _, UsdSkel, _, _, Vt = pxr_modules()
-    from rigslim.io.gltf_write import clamp_negative_weights, quantize_weights
+    from rigslim.io.gltf.write import clamp_negative_weights, quantize_weights
 
     stats: dict = {}
     values = np.asarray(values, np.float64)

@@ -1,9 +1,9 @@
 """Levels of detail of a UsdSkel character: each level's meshes with their primvars, subsets and blend shapes.
 
-A level taken from a :class:`rigslim.hierarchy.ProgressiveHierarchy` of the
+A level taken from a :class:`rigslim.model.hierarchy.ProgressiveHierarchy` of the
 merged mesh (:func:`rigslim.io.usd.read.read_usd_skin`) keeps the source
 triangles whose three corners stand for three distinct level vertices
-(:func:`rigslim.io.gltf_lod.level_representatives`); each stays in its mesh,
+(:func:`rigslim.io.gltf.lod.level_representatives`); each stays in its mesh,
 so every level face has a *source triangle* ``s`` and its corner ``c`` is the
 source corner ``c`` moved to the level vertex ``u``. Everything a USD mesh
 carries per point, per face corner or per face is carried by barycentric
@@ -11,7 +11,7 @@ coordinates in the source triangle:
 
 - ``beta_{c} = e_c`` when ``u`` is the source corner's own point (the level kept it),
   else the closest point of triangle ``s`` to ``u``'s rest position
-  (:func:`rigslim.io.gltf_lod.closest_point_barycentric`);
+  (:func:`rigslim.io.gltf.lod.closest_point_barycentric`);
 - a ``faceVarying`` primvar (UVs) at the level corner is ``sum_j beta_{cj} x(s, j)``, with ``x(s, j)``
   the value at the source triangle's corner j: each face keeps its own UV chart, so seams stay seams;
 - a ``vertex``/``varying`` primvar (and normals, blend-shape offsets) at level vertex ``u`` is the mean
@@ -94,7 +94,7 @@ def level_parts(skin, hier, level) -> list[LevelPart]:
 
     A mesh every face of which collapsed away gets a part with no faces.
     """
-    from rigslim.io.gltf_lod import closest_point_barycentric, level_representatives
+    from rigslim.io.gltf.lod import closest_point_barycentric, level_representatives
 
     if level.vertex_ids is None:
         raise StepError(f"level '{level.label}' was not taken from a progressive hierarchy", field="levels",

@@ -109,7 +109,7 @@ def world_transform(skin) -> np.ndarray:
 
 def world_points(skin, frames=None) -> np.ndarray:
     """(p, m, 3) the skin's merged mesh posed by rigslim's linear blend, in world metres, Y up."""
-    from rigslim.blend import linear_blend
+    from rigslim.numerics.blend import linear_blend
 
     frames = range(len(skin.poses)) if frames is None else frames
     M = world_transform(skin)

@@ -17,7 +17,7 @@ temporary name and renamed, so Blender never reads half a file.
 Only rigslim's public API does the work: :func:`rigslim.reduce_weights` with
 the library's defaults (whatever it selects and solves by default), and
 :func:`rigslim.simplify`; the UVs of new LOD vertices are resampled with
-:func:`rigslim.io.gltf_lod.projected_attributes`, the function rigslim's glTF
+:func:`rigslim.io.gltf.lod.projected_attributes`, the function rigslim's glTF
 writer uses.
 
 This file must not import bpy, and must run on numpy 1.26 and 2.x alike.
@@ -96,8 +96,8 @@ def cmd_version() -> int:
 def cmd_reduce(request: str, result: str) -> int:
     """k weights per vertex with :func:`rigslim.reduce_weights` (its default selection and solver unless named)."""
     import rigslim
-    from rigslim.mesh import Mesh
-    from rigslim.poses import Poses
+    from rigslim.model.mesh import Mesh
+    from rigslim.model.poses import Poses
 
     req = load_request(request)
     k = int(req["k"])
@@ -147,9 +147,9 @@ def level_corners(hier, level, F: np.ndarray, L: np.ndarray, charts: np.ndarray,
 
     Parameters
     ----------
-    hier : rigslim.hierarchy.ProgressiveHierarchy
+    hier : rigslim.model.hierarchy.ProgressiveHierarchy
         Built on the rest mesh (V, F).
-    level : rigslim.hierarchy.SimplifiedLevel
+    level : rigslim.model.hierarchy.SimplifiedLevel
     F, L : (f, 3) int arrays
         Source triangles by vertex and by Blender loop (face corner).
     charts : (f,) :func:`face_charts`.
@@ -162,11 +162,11 @@ def level_corners(hier, level, F: np.ndarray, L: np.ndarray, charts: np.ndarray,
     Notes
     -----
     A level triangle is a source triangle whose three corners map to three distinct level vertices
-    (:func:`rigslim.io.gltf_lod.level_representatives`). A corner whose vertex the level kept keeps its
+    (:func:`rigslim.io.gltf.lod.level_representatives`). A corner whose vertex the level kept keeps its
     loop's values; a corner at a vertex made by collapses takes the values at the closest point of the
-    source triangles of its chart that it replaced (:func:`rigslim.io.gltf_lod.projected_attributes`).
+    source triangles of its chart that it replaced (:func:`rigslim.io.gltf.lod.projected_attributes`).
     """
-    from rigslim.io.gltf_lod import level_representatives, projected_attributes
+    from rigslim.io.gltf.lod import level_representatives, projected_attributes
 
     m = hier.n_original
     ids = np.asarray(level.vertex_ids, np.int64)
@@ -197,8 +197,8 @@ def level_corners(hier, level, F: np.ndarray, L: np.ndarray, charts: np.ndarray,
 def cmd_lod(request: str, result: str) -> int:
     """Levels of detail with :func:`rigslim.simplify` (its default method), bone limit and UVs per corner."""
     import rigslim
-    from rigslim.mesh import Mesh
-    from rigslim.poses import Poses
+    from rigslim.model.mesh import Mesh
+    from rigslim.model.poses import Poses
 
     req = load_request(request)
     ratios = [float(r) for r in req["ratios"]]
