@@ -230,6 +230,9 @@ class RIGSLIM_OT_limit_influences(StepOperator, bpy.types.Operator):
                                      "against Limit Total (0 or 1: fit every frame, measure none)")
     measure: BoolProperty(name="Compare with Limit Total", default=True,
                           description="Measure rigslim's and Blender's Limit Total error on the held-out frames")
+    keep_better: BoolProperty(name="Keep Limit Total If Better", default=True,
+                              description="If Limit Total's result has the lower error on the held-out frames, "
+                                          "write it instead of rigslim's fit (and say so)")
     select: StringProperty(name="Selection", default="",
                            description="rigslim influence selection plugin (empty: the library's default)")
     solve: StringProperty(name="Solver", default="",
@@ -276,25 +279,33 @@ class RIGSLIM_OT_limit_influences(StepOperator, bpy.types.Operator):
                     assert held is not None
                     held.measure_frame(context.evaluated_depsgraph_get())
                     yield lo + span * (0.8 + 0.2 * (i + 1) / len(test)), f"measuring: {action.name} {frame}", False
+                kept = "rigslim"
+                if held is not None and self.keep_better and held.rms["rigslim"] \
+                        and held.errors("rigslim").rms_pct > held.errors("limit_total").rms_pct:
+                    wt.write_groups(obj, skin, *wt.fixed_rows(sc.read_skin(held.limited), self.k))
+                    kept = "limit_total"
             finally:
                 if held is not None:
                     held.remove()
-        self.report_result(obj, skin, res, examples, test, held)
+        self.report_result(obj, skin, res, examples, test, held, kept)
 
-    def report_result(self, obj, skin, res, examples, test, held) -> None:
+    def report_result(self, obj, skin, res, examples, test, held, kept: str) -> None:
         method = f"{res['select']} + {res['solve']}"
         line = (f"rigslim: {obj.name}: {self.k} influences per vertex ({method}, {len(examples)} frames fitted, "
                 f"{float(res['seconds']):.1f} s)")
         record = {"k": self.k, "select": str(res["select"]), "solve": str(res["solve"]),
                   "fitted_frames": len(examples), "held_out_frames": len(test), "seconds": float(res["seconds"]),
-                  "input_max_influences": skin.max_influences()}
+                  "input_max_influences": skin.max_influences(), "kept": kept}
         if held is not None and held.rms["rigslim"]:
             ours, theirs = held.errors("rigslim"), held.errors("limit_total")
             ratio = theirs.rms_pct / ours.rms_pct if ours.rms_pct > 0 else float("inf")
-            verdict = (f"{ratio:.2f}x lower" if max(ours.rms_pct, theirs.rms_pct) > ROUND_OFF_PCT
-                       else "both at float32 round-off, k loses nothing here")
+            verdict = ("both at float32 round-off, k loses nothing here"
+                       if max(ours.rms_pct, theirs.rms_pct) <= ROUND_OFF_PCT
+                       else f"{ratio:.2f}x lower" if ratio >= 1 else f"{1 / ratio:.2f}x higher")
             line += (f"; held-out error {ours} vs Limit Total {theirs}: {verdict}"
                      f" over {len(held.rms['rigslim'])} frames")
+            if kept == "limit_total":
+                line += "; the fit was worse on those frames, so Limit Total's weights were kept"
             record.update({"rms_pct": ours.rms_pct, "max_pct": ours.max_pct, "limit_total_rms_pct": theirs.rms_pct,
                            "limit_total_max_pct": theirs.max_pct, "measured_frames": len(held.rms["rigslim"])})
         obj["rigslim_limit"] = json.dumps(record)
