@@ -30,6 +30,8 @@ CHARACTERS = {"tube": None, "huesitos": GLTF / "huesitos.glb",
               "animation_with_skeleton": GLTF / "animation_with_skeleton.glb",
               "RiggedFigure": GLTF / "RiggedFigure" / "RiggedFigure.gltf"}
 RENDERED = ("tube", "animation_with_skeleton")
+#: name -> (fitted actions, held-out actions) for characters whose suite entry holds clips out
+CLIPS: dict[str, tuple[list[str], list[str]]] = {}
 
 
 def blender(script: Path, zip_path: Path, *args: str) -> None:
@@ -46,6 +48,8 @@ def driver(zip_path: Path, name: str, k: int, select: str, lods: bool) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "r.json"
         args = ["--out", str(out), "--k", str(k), "--select", select, "--max-bones", "4", "--no-keep-better"]
+        if name in CLIPS:
+            args += ["--actions", ", ".join(CLIPS[name][0]), "--test-actions", ", ".join(CLIPS[name][1])]
         if CHARACTERS[name] is not None:
             args += ["--gltf", str(CHARACTERS[name])]
         if not lods:
@@ -138,6 +142,8 @@ def main() -> int:
     ap.add_argument("--suite", action="store_true", help="also every character of examples/data/gltf/suite/suite.json")
     ap.add_argument("--suite-dir", default=str(GLTF / "suite"), help="folder of suite.json (default: %(default)s)")
     ap.add_argument("--output", default="blender_extension", help="name of the docs/results files")
+    ap.add_argument("--clip-split", action="store_true",
+                    help="suite characters with held-out clips: fit on the fit clips, measure on the held-out ones")
     ap.add_argument("--renders-only", action="store_true",
                     help="keep the figures of docs/results/OUTPUT.json, render the named characters again")
     args = ap.parse_args()
@@ -146,6 +152,10 @@ def main() -> int:
         suite = json.loads((Path(args.suite_dir) / "suite.json").read_text())
         for ch in suite["characters"]:
             CHARACTERS[ch["name"]] = Path(args.suite_dir) / Path(ch["file"]).name
+            if args.clip_split and ch.get("holdout_clips"):
+                CLIPS[ch["name"]] = (list(ch["fit_clips"]), list(ch["holdout_clips"]))
+            elif args.clip_split:
+                continue
             names.append(ch["name"])
     if not BLENDER_PY.exists():
         print(f"{BLENDER_PY} missing: run tools/setup-blender.sh", file=sys.stderr)
@@ -165,7 +175,7 @@ def main() -> int:
     for name in names:
         full = driver(zip_path, name, args.k, "", True)
         best = driver(zip_path, name, args.k, "best-fit", False)
-        rows.append({"name": name, "blender": full["blender"], "object": full["object"],
+        rows.append({"name": name, "clips": CLIPS.get(name), "blender": full["blender"], "object": full["object"],
                      "vertices": full["groups"]["vertices"], "triangles": full["source_triangles"],
                      "materials": full["source_materials"], "default": full["limit"], "best_fit": best["limit"],
                      "independent_default": full["independent"], "lods": full["lods"],

@@ -201,14 +201,14 @@ def sample_poses(op: StepOperator, context, skin: sc.Skin, frames, lo: float, hi
 
 
 def action_frames(op, skin: sc.Skin, holdout: int):
-    actions = sc.parse_actions(op.actions)
-    if not actions:
+    if not sc.parse_actions(op.actions):
         raise sc.SkinError(f"{skin.obj.name}: no action poses the bones of {skin.armature.name}; "
                            "animate it or name the actions to fit (actions: Walk, Run:1-40)")
-    examples, test = sc.sample_frames(actions, op.frame_step, holdout)
+    examples, test = sc.split_frames(op.actions, getattr(op, "test_actions", ""), op.frame_step, holdout)
     if not examples:
-        raise sc.SkinError(f"{skin.obj.name}: the actions' frame ranges give no frame to fit; widen them")
-    return actions, examples, test
+        raise sc.SkinError(f"{skin.obj.name}: the actions' frame ranges give no frame to fit (with the held-out "
+                           "actions taken out); widen them or fit more actions")
+    return examples, test
 
 
 class RIGSLIM_OT_limit_influences(StepOperator, bpy.types.Operator):
@@ -225,6 +225,9 @@ class RIGSLIM_OT_limit_influences(StepOperator, bpy.types.Operator):
                                         "empty: every action that poses bones")
     frame_step: IntProperty(name="Frame Step", default=1, min=1, max=100,
                             description="Sample every n-th frame of each action")
+    test_actions: StringProperty(name="Held-Out Actions", default="",
+                                 description="Actions only measured, never fitted (e.g. Run while fitting Walk); "
+                                             "empty: hold out every n-th sampled frame instead")
     holdout: IntProperty(name="Hold Out Every", default=4, min=0, max=100,
                          description="Every n-th sampled frame is not fitted but used to measure the error "
                                      "against Limit Total (0 or 1: fit every frame, measure none)")
@@ -261,7 +264,7 @@ class RIGSLIM_OT_limit_influences(StepOperator, bpy.types.Operator):
         skin = sc.read_skin(obj)
         for w in skin.warnings:
             self.report({"WARNING"}, f"rigslim: {obj.name}: {w}")
-        _, examples, test = action_frames(self, skin, self.holdout)
+        examples, test = action_frames(self, skin, self.holdout)
         with sc.preserved_animation(context.scene, skin.armature):
             T = yield from sample_poses(self, context, skin, examples, lo, lo + 0.2 * span, "sampling poses")
             request = {"V": skin.V, "F": skin.F, "k": np.int64(self.k), "poses": T, "select": np.str_(self.select),
@@ -451,7 +454,7 @@ class RIGSLIM_OT_generate_lods(StepOperator, bpy.types.Operator):
     def lods_one(self, context, obj, python, extra, lo, hi) -> Steps:
         span = hi - lo
         skin = sc.read_skin(obj)
-        _, examples, _ = action_frames(self, skin, 0)
+        examples, _ = action_frames(self, skin, 0)
         with sc.preserved_animation(context.scene, skin.armature):
             T = yield from sample_poses(self, context, skin, examples, lo, lo + 0.2 * span, "sampling poses")
         request = lod_request(skin, T, self, extra)

@@ -58,6 +58,13 @@ def tube_smooth(extension_zip, tmp_path_factory) -> dict:
                       "--skip-lods")
 
 
+@pytest.fixture(scope="module")
+def tube_clips(extension_zip, tmp_path_factory) -> dict:
+    """Fitted on Bend only, measured on Twist (a held-out action)."""
+    return run_driver(extension_zip, tmp_path_factory.mktemp("clips"), "--k", "2", "--actions", "Bend",
+                      "--test-actions", "Twist", "--skip-lods")
+
+
 def test_zip_matches_blenders_own_build(extension_zip, tmp_path):
     ext = next((ROOT / ".venv-blender" / "lib").glob("python3*/site-packages/bpy/*/scripts/addons_core/bl_pkg/"
                                                      "cli/blender_ext.py"))
@@ -133,3 +140,13 @@ def test_limit_influences_keeps_limit_total_when_the_fit_is_worse(tube_smooth):
     assert rec["kept"] == "limit_total"
     assert indep["rms_pct"] == pytest.approx(indep["limit_total_rms_pct"], rel=1e-6)   # what is on the mesh now
     assert tube_smooth["groups"]["max_groups"] <= 2 and tube_smooth["groups"]["max_sum_error"] < 1e-5
+
+
+def test_limit_influences_held_out_action(tube_clips):
+    rec, indep = tube_clips["limit"], tube_clips["independent"]
+    # Bend fitted, Twist measured
+    assert rec["fitted_frames"] == 40 and rec["held_out_frames"] == indep["frames"] == 40
+    on_mesh = rec["rms_pct"] if rec["kept"] == "rigslim" else rec["limit_total_rms_pct"]
+    assert indep["rms_pct"] == pytest.approx(on_mesh, rel=1e-6)
+    assert indep["rms_pct"] <= indep["limit_total_rms_pct"] * (1 + 1e-9)
+    assert tube_clips["groups"]["max_groups"] <= 2
