@@ -15,6 +15,7 @@ from rigslim.commands.compare import cmd_compare
 from rigslim.commands.gltf_common import _common
 from rigslim.commands.inspect import cmd_inspect
 from rigslim.commands.lod import cmd_lod
+from rigslim.commands.lod_levels import add_level_arguments
 from rigslim.commands.plugins import _cmd_plugins
 from rigslim.commands.reduce import cmd_reduce
 from rigslim.commands.report import _cmd_report
@@ -149,6 +150,7 @@ def add_commands(sub) -> None:
     p.add_argument("--quantize", choices=["ubyte", "ushort", "float"], default="ubyte")
     p.add_argument("--split", action="store_true", help="one file per level: OUT-50.glb, OUT-25.glb")
     p.add_argument("--measure", action="store_true", help="also measure each level (metro) on the test frames")
+    add_level_arguments(p)
     p.add_argument("--save-pipeline", metavar="FILE.yaml", help="also write the pipeline this command runs")
     _common(p)
     p.set_defaults(func=cmd_lod)

@@ -20,6 +20,14 @@ from rigslim.commands.gltf_common import (
     is_usd,
     write_step,
 )
+from rigslim.commands.lod_levels import (
+    decimate_params,
+    level_rows,
+    sidecar_path,
+    switch_camera,
+    write_params,
+    write_sidecar,
+)
 from rigslim.errors import InputError
 from rigslim.runtime.metrics_document import flat_metrics
 
@@ -41,12 +49,17 @@ def split_names(out: Path, ratios) -> list[Path]:
 
 
 def lod_pipeline(src: Path, out: Path, *, ratios, max_bones: int, clip, fps: float, frames: int, quantize: str,
-                 method: str = "quartic", measure: bool = False, skin: int | None = None) -> dict:
-    """The pipeline ``rigslim lod`` runs: a decimation step with a bone limit, then the LOD writer."""
-    steps = [{"decimate": method, "targets": list(ratios), "max_bones": max_bones}]
+                 method: str = "quartic", measure: bool = False, skin: int | None = None,
+                 joints: dict | None = None, coverage: dict | None = None) -> dict:
+    """The pipeline ``rigslim lod`` runs: a decimation step with a bone limit (and ``joints``: the joint budget,
+    :func:`rigslim.commands.lod_levels.decimate_params`), then the LOD writer (``coverage``: its switch camera)."""
+    steps = [{"decimate": method, "targets": list(ratios), "max_bones": max_bones, **(joints or {})}]
     if measure:
         steps.append({"evaluate": ["metro", "max-influences"]})
-    steps.append(write_step(out, quantize=quantize, lod=True, clamp_negative=True))
+    write = write_step(out, quantize=quantize, lod=True, clamp_negative=True)
+    if not is_usd(out):
+        write.update(coverage or {})
+    steps.append(write)
     return {"name": f"lod-{src.stem}", "inputs": input_section(src, _gltf_input(src, clip, fps, frames, skin)),
             "poses": _poses(frames), "steps": steps}
 
@@ -62,6 +75,7 @@ def cmd_lod(args) -> int:
     if not 1 <= args.max_bones <= (64 if is_usd(out) else 8):
         raise InputError(f"--max-bones {args.max_bones}: glTF holds 1 to 8 influences per vertex",
                          field="--max-bones", fix="give 1..8 (4 for three.js and most engines)")
+    joints, coverage = decimate_params(args, len(ratios)), write_params(args)
     frames, clip, duration = clip_frames(src, args.clip, args.fps)
     if frames < 2:
         print(f"rigslim lod: {src.name} has no animation: simplifying for the rest pose only", file=sys.stderr)
@@ -70,20 +84,19 @@ def cmd_lod(args) -> int:
         target = Path(tmp) / f"lod{out.suffix}" if args.split else out
         runs = _chain(src, target, lambda i, o, s: lod_pipeline(
             i, o, ratios=ratios, max_bones=args.max_bones, clip=args.clip, fps=args.fps, frames=frames,
-            quantize=args.quantize, method=args.method, measure=args.measure, skin=s), args, console, Path(tmp))
+            quantize=args.quantize, method=args.method, measure=args.measure, skin=s, joints=joints,
+            coverage=coverage), args, console, Path(tmp))
         pipeline, result, _ = runs[0]
         seconds = sum(r[2] for r in runs)
         outputs = [out]
         if args.split:
             outputs = split_names(out, ratios)
             split_levels(target, outputs)
-    levels = result.asset.levels
     step = next(s for s in result.document["steps"] if s["stage"] == "decimate")
     write = result.document["steps"][-1].get("report", {})
     rows = []
-    for r, lv in zip(ratios, levels, strict=False):
-        rows.append({"ratio": r, "label": lv.label, "faces": lv.n_faces, "vertices": lv.n_vertices,
-                     "max_bones": int(lv.weights.influence_counts().max())})
+    for r, row in zip(ratios, level_rows(result), strict=False):
+        rows.append({"ratio": r} | row)
     per_prim = {x["label"]: x["primitive_faces"] for x in write.get("level_primitives", [])}
     for row in rows:
         row["primitive_faces"] = per_prim.get(row["label"])
@@ -103,6 +116,11 @@ def cmd_lod(args) -> int:
             doc["per_skin"].append({"skin": p["inputs"]["gltf"].get("skin"), "seconds": t, "pipeline": p,
                                     "input_faces": st.get("input_faces"),
                                     "levels": [lv["faces"] for lv in st.get("levels", [])]})
+    doc["switch"] = switch_camera(result)
+    if args.split and not is_usd(out):
+        doc["sidecar"] = str(sidecar_path(out))
+        write_sidecar(sidecar_path(out), source=src, outputs=outputs, rows=rows, result=result,
+                      header=_header("lod"))
     _emit_report(args, doc)
     faces = ", ".join(f"{r['faces']}" for r in rows)
     print(f"wrote {', '.join(str(p) for p in outputs)}: {len(rows)} levels ({faces} faces of "

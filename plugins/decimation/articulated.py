@@ -74,6 +74,16 @@ class DecimationParams(Params):
     it off.
     A level whose next collapse would move the surface farther than this (meshoptimizer's normalised
     quadric error, over every example pose) stops there, short of its target."""
+    joint_budget: float | list[float] | None = None
+    """Joints each level's skin may list (:mod:`rigslim.plugins.decimation.joint_budget`): a count (24), a
+    fraction of the skin's joints (0.5), or one per face target; the others' vertices are re-fitted."""
+    keep_joints: str | None = None
+    """With ``joint_budget``: a regular expression; joints whose name it finds are never dropped."""
+    joint_choice: Literal["leaf-first", "global", "best"] = "global"
+    """With ``joint_budget``: greedy removal of leaf joints only, of any joint, or the better of both."""
+    joint_weights: Literal["refit", "parent"] = "refit"
+    """With ``joint_budget``: re-fit the dropped joints' vertices over the example poses, or give their
+    weights to the nearest kept ancestor (Unreal's way; a baseline)."""
     min_normal_cos: float = Field(default=0.0, ge=-1.0, le=1.0)
     """Refuse collapses that turn a surviving face's normal by more than arccos(this), in any pose."""
     area_weighted: bool = True
@@ -209,6 +219,11 @@ class ArticulatedDecimator(Decimator):
                          else collapse_distances(hier, Q[:, :len(asset.example_poses().T)]))
             choices = choose_levels(hier, list(params.targets), faces, distances, bound, self.name)
             levels = self.levels(asset, params, hier, choices)
+        if params.joint_budget is not None:
+            with clock("joints"):
+                from rigslim.plugins.decimation.joint_budget import step_joint_budgets
+
+                levels = step_joint_budgets(asset, params, levels, choices, faces, ctx)
         self.report(asset, params, ctx, hier, levels, choices, bound, locked, seams, len(T))
         ctx.report["seconds"] = clock.seconds
         if hier.faces_after(hier.n_collapses) > min_faces:

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Literal
 
+from pydantic import Field
+
 from rigslim.plugin import Params, Reader, Writer
 
 if TYPE_CHECKING:
@@ -66,6 +68,19 @@ class GltfWriter(Writer):
         keep_input_weights: bool = True
         """With no solve step, keep the file's skinning bytes when they sum to one (else write them normalised)."""
         clamp_negative: bool = False
+        coverage: Literal["measured", "halving"] = "measured"
+        """With ``lod``: ``MSFT_screencoverage`` from each level's test-pose error (:mod:`rigslim.io.gltf.switch`),
+        or the unmeasured series 0.5, 0.25, ..."""
+        pixel_error: float = Field(1.0, gt=0)
+        """Measured coverage: the level may show where its error projects to at most this many pixels ..."""
+        fov: float = Field(60.0, gt=0, lt=180)
+        """... for a camera of this vertical field of view (degrees) ..."""
+        resolution: int = Field(1080, ge=1)
+        """... and a viewport this many pixels high ..."""
+        aspect: float = Field(16.0 / 9.0, gt=0)
+        """... and this width / height (coverage is the bounding sphere's share of the screen area)."""
+        level_skins: bool = True
+        """Each level mesh gets a skin of only the joints its vertices use (false: the source skin)."""
 
     def write(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
         from rigslim.io.gltf.write import export_skinned, fixed_width_weights, write_gltf
@@ -85,9 +100,19 @@ class GltfWriter(Writer):
             if reduced is None and (renormalised or not params.keep_input_weights):
                 asset.require("weights", step="write: gltf")
                 reduced = fixed_width_weights(asset.weights)
+            switch = None
+            if levels and params.lod and params.coverage == "measured":
+                from rigslim.io.gltf.switch import level_switch
+
+                switch = level_switch(asset, levels, pixel_error=params.pixel_error, fov=params.fov,
+                                      resolution=params.resolution, aspect=params.aspect)
+                ctx.report["switch"] = switch
             stats = write_gltf(path, source, reduced, quantize=params.quantize, sets=params.sets, levels=levels,
                                lod=params.lod, embed=params.embed, clamp_negative=params.clamp_negative,
-                               hierarchy=asset.hierarchy if levels else None)
+                               hierarchy=asset.hierarchy if levels else None,
+                               coverage=switch["coverage"] if switch else None,
+                               level_extras=switch["node_extras"] if switch else None,
+                               level_skins=params.level_skins)
             if renormalised:
                 stats["renormalised_input_weights"] = True
                 ctx.log("the file's weights do not sum to one: written normalised")

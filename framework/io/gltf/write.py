@@ -31,6 +31,7 @@ if TYPE_CHECKING:
     from rigslim.model.weights import ReducedWeights
 
 from rigslim.io.gltf.document import CHUNK_BIN, CHUNK_JSON, GLB_MAGIC
+from rigslim.io.gltf.level_skins import level_skin, source_inverse_binds, used_joints
 from rigslim.io.gltf.lod import hierarchy_attributes, level_document, level_primitives, lod_level_count, lod_nodes
 from rigslim.io.gltf.primitives import primitive_data
 from rigslim.io.gltf.skin import GltfSkin, skinning_sets
@@ -328,7 +329,7 @@ def _put_sets(blob: _Blob, attrs: dict, indices, values, n_joints: int, kind: st
 
 def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float", sets: int | None = None,
                levels=None, lod: bool = False, embed: bool = False, clamp_negative: bool = False,
-               hierarchy=None) -> dict:
+               hierarchy=None, coverage=None, level_extras=None, level_skins: bool = True) -> dict:
     """Write the source document with new skin weights (and simplified levels).
 
     Parameters
@@ -358,6 +359,14 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
         Link each skinned node to its own level nodes with ``MSFT_lod``
         (coarser levels in order, plus ``MSFT_screencoverage`` in the node's
         extras); otherwise each level gets its own scene.
+    coverage : list of float, optional
+        ``MSFT_screencoverage`` of each linked node (``len(levels) + 1`` values, from the levels'
+        measured errors: :func:`rigslim.numerics.screen_coverage.coverage_series`); default halving.
+    level_extras : list of dict, optional
+        ``extras`` of each level's nodes (e.g. the level's measured error).
+    level_skins : bool
+        Give each level mesh a skin of only the joints its vertices use (:mod:`rigslim.io.gltf.level_skins`);
+        false: every level node uses the source skin (all its joints).
     embed : bool
         For ``.gltf``: store the buffer as a data URI instead of a ``.bin`` file.
     clamp_negative : bool
@@ -454,9 +463,9 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
                                 fix="simplify the mesh read from this glTF file")
         if hierarchy is not None and all(lv.vertex_ids is not None for lv in levels):
             stats["level_primitives"] = _write_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp,
-                                                      lod)
+                                                      lod, coverage, level_extras, level_skins)
         else:
-            _write_merged_levels(js, blob, source, levels, quantize, sets, clamp, lod)
+            _write_merged_levels(js, blob, source, levels, quantize, sets, clamp, lod, coverage)
 
     # 4. one buffer
     data = blob.bytes()
@@ -477,13 +486,20 @@ def _skinned_nodes(js: dict, source: GltfSkin) -> list[int]:
     return [i for i, n in enumerate(js.get("nodes", [])) if n.get("skin") == source.skin and n.get("mesh") in meshes]
 
 
-def _link_levels(js: dict, source: GltfSkin, node_levels: dict[int, list[int]], lod: bool, labels) -> None:
-    """MSFT_lod on each original node (its own level nodes only), or one scene per level."""
+def _link_levels(js: dict, source: GltfSkin, node_levels: dict[int, list[int]], lod: bool, labels,
+                 coverage=None) -> None:
+    """MSFT_lod on each original node (its own level nodes only), or one scene per level.
+
+    ``coverage``: the ``MSFT_screencoverage`` values (one per level and one for the node itself,
+    :func:`rigslim.numerics.screen_coverage.coverage_series`); default halving 0.5, 0.25, ... (unmeasured).
+    """
     if lod:
         for i, ids in node_levels.items():
             node = js["nodes"][i]
             node.setdefault("extensions", {})["MSFT_lod"] = {"ids": ids}
-            node.setdefault("extras", {})["MSFT_screencoverage"] = [0.5 ** (j + 1) for j in range(len(ids))] + [0.0]
+            node.setdefault("extras", {})["MSFT_screencoverage"] = (
+                [float(c) for c in coverage[:len(ids)]] + [float(coverage[-1])] if coverage is not None
+                else [0.5 ** (j + 1) for j in range(len(ids))] + [0.0])
         used_ext = js.setdefault("extensionsUsed", [])
         if "MSFT_lod" not in used_ext:
             used_ext.append("MSFT_lod")
@@ -494,7 +510,7 @@ def _link_levels(js: dict, source: GltfSkin, node_levels: dict[int, list[int]], 
             js.setdefault("scenes", []).append({"name": label, "nodes": nodes + roots})
 
 
-def _write_merged_levels(js, blob, source, levels, quantize, sets, clamp, lod) -> None:
+def _write_merged_levels(js, blob, source, levels, quantize, sets, clamp, lod, coverage=None) -> None:
     """Levels without a hierarchy (e.g. static-qslim): one primitive, only for a single-node, single-primitive skin."""
     skinned = _skinned_nodes(js, source)
     if len(skinned) != 1 or len(source.slices) != 1:
@@ -509,29 +525,31 @@ def _write_merged_levels(js, blob, source, levels, quantize, sets, clamp, lod) -
         js.setdefault("meshes", []).append({"name": level.label, "primitives": [prim]})
         js["nodes"].append({"name": level.label, "mesh": len(js["meshes"]) - 1, "skin": source.skin})
         ids.append(len(js["nodes"]) - 1)
-    _link_levels(js, source, {skinned[0]: ids}, lod, [lv.label for lv in levels])
+    _link_levels(js, source, {skinned[0]: ids}, lod, [lv.label for lv in levels], coverage)
 
 
 #: Primitive properties a level primitive copies from its source primitive.
 _PRIMITIVE_KEEP = ("material", "extensions", "extras")
 
 
-def _write_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp, lod) -> list[dict]:
+def _write_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp, lod, coverage=None,
+                  node_extras=None, level_skins: bool = True) -> list[dict]:
     """Per-node, per-primitive levels with every attribute (:mod:`rigslim.io.gltf.lod`).
 
     For each level and each mesh the reader used, a new mesh with one
     primitive per source primitive (same material, attributes and morph
     targets); for each skinned node, one level node per level with that
-    mesh and the same skin. Each node's ``MSFT_lod`` lists only its own
-    level nodes. Returns per level the faces of each primitive.
+    mesh and a skin of the joints that mesh uses (:mod:`rigslim.io.gltf.level_skins`). Each node's
+    ``MSFT_lod`` lists only its own level nodes. Returns per level the faces of each primitive and
+    the joints of each level mesh's skin.
     """
 
-    n_joints = len(source.joints)
     data = primitive_data(source)
     attributes = hierarchy_attributes(source, hierarchy, data)
     skinned = _skinned_nodes(js, source)
     node_levels = {i: [] for i in skinned}
     summary = []
+    ibm = source_inverse_binds(source)
     for _j, level in enumerate(levels):
         parts = level_primitives(source, hierarchy, level, data, attributes)
         values = np.asarray(level.weights.values, dtype=np.float64)
@@ -542,6 +560,7 @@ def _write_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp, lo
         order = np.argsort(-values, axis=1, kind="stable")[:, :width]
         I = np.take_along_axis(level.weights.indices, order, 1)
         W = np.take_along_axis(values, order, 1)
+        skins = _level_skins(js, blob, source, parts, I, W, level.label, ibm if level_skins else None)
         by_mesh: dict[int, list] = {}
         for part in parts:
             sl = source.slices[part.slice_index]
@@ -550,7 +569,8 @@ def _write_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp, lo
             attrs = {"POSITION": blob.new_accessor(part.positions.astype(np.float32), 5126, "VEC3", minmax=True)}
             for name, arr in part.attributes.items():
                 attrs[name] = blob.new_accessor(arr.astype(np.float32), 5126, _vec(arr.shape[1]))
-            _put_sets(blob, attrs, I[part.weight_rows], W[part.weight_rows], n_joints, quantize, sets)
+            ls = skins[sl.mesh]
+            _put_sets(blob, attrs, ls.remap(I[part.weight_rows]), W[part.weight_rows], ls.n_joints, quantize, sets)
             prim["attributes"] = attrs
             if part.targets:
                 prim["targets"] = [{name: blob.new_accessor(arr.astype(np.float32), 5126, _vec(arr.shape[1]),
@@ -578,16 +598,34 @@ def _write_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp, lo
             if mi not in new_mesh:       # every primitive of it degenerated: show the full mesh
                 new_mesh[mi] = mi
             js["nodes"].append({"name": f"{node.get('name', f'node{i}')}-{level.label}", "mesh": new_mesh[mi],
-                                "skin": source.skin})
+                                "skin": skins[mi].skin if new_mesh[mi] != mi else source.skin})
+            if node_extras is not None and node_extras[_j]:
+                js["nodes"][-1]["extras"] = copy.deepcopy(node_extras[_j])
             node_levels[i].append(len(js["nodes"]) - 1)
             for anim in js.get("animations", []):           # morph weights play on the level nodes too
                 for ch in list(anim.get("channels", [])):
                     if ch.get("target", {}).get("node") == i and ch["target"].get("path") == "weights":
                         anim["channels"].append({"sampler": ch["sampler"],
                                                  "target": {"node": len(js["nodes"]) - 1, "path": "weights"}})
-        summary.append({"label": level.label, "primitive_faces": [n for ps in by_mesh.values() for _, _, n in ps]})
-    _link_levels(js, source, node_levels, lod, [lv.label for lv in levels])
+        summary.append({"label": level.label, "primitive_faces": [n for ps in by_mesh.values() for _, _, n in ps],
+                        "skin_joints": {int(mi): skins[mi].n_joints for mi in by_mesh}})
+    _link_levels(js, source, node_levels, lod, [lv.label for lv in levels], coverage)
     return summary
+
+
+def _level_skins(js, blob, source, parts, I, W, label, ibm) -> dict:
+    """Source mesh -> the :class:`~rigslim.io.gltf.level_skins.LevelSkin` of its level mesh (the joints its
+    primitives' vertices use)."""
+    rows: dict[int, list] = {}
+    for part in parts:
+        rows.setdefault(source.slices[part.slice_index].mesh, []).append(part.weight_rows)
+    out = {}
+    n = len(source.joints)
+    for mi, r in rows.items():
+        r = np.concatenate(r)
+        used = used_joints(I[r], W[r]) if ibm is not None else np.arange(n)    # None: the source skin
+        out[mi] = level_skin(js, blob, source, used, label, ibm)
+    return out
 
 
 def _vec(width: int) -> str:
@@ -835,6 +873,17 @@ def write_pruned(path, doc, js: dict) -> None:
                 yield n, "mesh"
 
     _drop(js, "meshes", drop, mesh_refs)
+
+    def skin_refs(j):
+        for n in j.get("nodes", []):
+            if "skin" in n:
+                yield n, "skin"
+
+    if "skins" in js:            # a level file keeps only its own skins (not the full mesh's)
+        _drop(js, "skins", set(range(len(js["skins"]))) - {n["skin"] for n in js.get("nodes", []) if "skin" in n},
+              skin_refs)
+        if not js["skins"]:
+            js.pop("skins")
     used = {c[k] for c, k in _accessor_refs(js)}
     _drop(js, "accessors", set(range(len(js.get("accessors", [])))) - used, _accessor_refs)
     used_views = {c[k] for c, k in _view_refs(js)}

@@ -1,0 +1,188 @@
+"""What ``rigslim lod`` adds per level: joint budgets, switch hints, the report rows and the ``--split`` sidecar.
+
+- ``--max-joints 40,24,12`` (one per level, or one for all; a number below 1 is a fraction of the skin's
+  joints), ``--keep-joints REGEX`` and ``--joint-choice`` become the decimation step's ``joint_budget``,
+  ``keep_joints`` and ``joint_choice`` (:mod:`rigslim.plugins.decimation.joint_budget`);
+- ``--pixel-error P``, ``--fov DEG``, ``--resolution H`` become the glTF writer's coverage parameters
+  (:mod:`rigslim.io.gltf.switch`);
+- :func:`level_rows` gives each level's faces, joints, influences, error and coverage for ``--report``;
+- :func:`write_sidecar` writes ``OUT.lod.json`` beside ``--split`` outputs, for engines without ``MSFT_lod``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from rigslim.errors import InputError
+
+__all__ = ["SIDECAR_SCHEMA", "add_level_arguments", "decimate_params", "level_rows", "parse_max_joints",
+           "sidecar_path", "write_params", "write_sidecar"]
+
+#: Schema name of ``OUT.lod.json``.
+SIDECAR_SCHEMA = "rigslim-lod-sidecar"
+SIDECAR_VERSION = 1
+
+
+def add_level_arguments(p) -> None:
+    """The per-level options of ``rigslim lod``."""
+    p.add_argument("--max-joints", metavar="J", help="joints each level's skin may list: one per level "
+                   "(40,24,12) or one for all; below 1 a fraction of the skin's joints (0.5)")
+    p.add_argument("--keep-joints", metavar="REGEX", help="with --max-joints: never drop joints whose name "
+                   "this regular expression finds (joints with attached nodes and other skins' joints stay anyway)")
+    p.add_argument("--joint-choice", choices=["leaf-first", "global", "best"], default=None,
+                   help="with --max-joints: drop leaf joints only, any joint, or the better of both (default global)")
+    p.add_argument("--pixel-error", type=float, default=1.0, metavar="P",
+                   help="switch coverage: where a level's test-pose error projects to P pixels (default 1)")
+    p.add_argument("--fov", type=float, default=60.0, metavar="DEG", help="... for this vertical field of view "
+                   "(default 60)")
+    p.add_argument("--resolution", type=int, default=1080, metavar="H", help="... and a viewport H pixels high "
+                   "(default 1080)")
+
+
+def parse_max_joints(text: str | None, n_levels: int) -> float | list[float] | None:
+    """``--max-joints``: one number for every level, or one per level (``40,24,12``)."""
+    if text is None:
+        return None
+    try:
+        values = [float(x) for x in str(text).split(",") if x.strip()]
+    except ValueError:
+        values = []
+    bad = not values or any(not v > 0 or (v >= 1 and v != int(v)) for v in values)
+    if bad or len(values) not in (1, n_levels):
+        raise InputError(f"--max-joints '{text}' is not one joint count (or fraction) per level of {n_levels}",
+                         field="--max-joints", fix=f"give one count for all levels (24) or {n_levels} counts "
+                         "(e.g. 40,24,12), or fractions of the skin's joints (0.5)")
+    values = [int(v) if v >= 1 else v for v in values]
+    return values[0] if len(values) == 1 else values
+
+
+def decimate_params(args, n_levels: int) -> dict:
+    """The decimation step's joint parameters from the command line (empty without ``--max-joints``)."""
+    budget = parse_max_joints(getattr(args, "max_joints", None), n_levels)
+    if budget is None:
+        for flag in ("keep_joints", "joint_choice"):
+            if getattr(args, flag, None) is not None:
+                raise InputError(f"--{flag.replace('_', '-')} needs --max-joints", field=f"--{flag.replace('_', '-')}",
+                                 fix="add --max-joints J (joints per level), or leave it out")
+        return {}
+    out: dict = {"joint_budget": budget}
+    if getattr(args, "keep_joints", None):
+        from rigslim.io.gltf.joints import compile_keep_pattern
+
+        compile_keep_pattern(args.keep_joints, "--keep-joints")
+        out["keep_joints"] = args.keep_joints
+    if getattr(args, "joint_choice", None):
+        out["joint_choice"] = args.joint_choice
+    return out
+
+
+def write_params(args) -> dict:
+    """The glTF writer's coverage parameters from the command line."""
+    if not args.pixel_error > 0:
+        raise InputError(f"--pixel-error {args.pixel_error} is not positive", field="--pixel-error",
+                         fix="give a number of pixels, e.g. 1")
+    if not 0 < args.fov < 180:
+        raise InputError(f"--fov {args.fov} is not an angle in (0, 180) degrees", field="--fov", fix="e.g. --fov 60")
+    if args.resolution < 1:
+        raise InputError(f"--resolution {args.resolution} is not a pixel count", field="--resolution",
+                         fix="give the viewport height in pixels, e.g. 1080")
+    return {"pixel_error": float(args.pixel_error), "fov": float(args.fov), "resolution": int(args.resolution)}
+
+
+def _steps(result, stage: str) -> list[dict]:
+    return [s for s in result.document["steps"] if s["stage"] == stage]
+
+
+def level_rows(result) -> list[dict]:
+    """Per level of a ``rigslim lod`` run: faces, vertices, joints (and the skin of each level mesh),
+    influences (vertices x influences, the most per vertex), the joint budget, error and coverage."""
+    decimate = (_steps(result, "decimate") or [{}])[-1].get("report", {})
+    write = (_steps(result, "write") or [{}])[-1].get("report", {})
+    budget = {r["label"]: r for r in (decimate.get("joint_budget") or {}).get("levels", [])}
+    switch = {r["label"]: r for r in (write.get("switch") or {}).get("levels", [])}
+    prims = {r["label"]: r for r in write.get("level_primitives", [])}
+    rows = []
+    for lv in result.asset.levels:
+        counts = lv.weights.influence_counts()
+        used = np.unique(lv.weights.indices[lv.weights.values != 0])
+        row = {"label": lv.label, "faces": lv.n_faces, "vertices": lv.n_vertices, "joints": int(len(used)),
+               "influences": int(counts.sum()), "max_bones": int(counts.max(initial=0)),
+               "joint_matrices_per_draw": list((prims.get(lv.label) or {}).get("skin_joints", {}).values()) or None}
+        if lv.label in budget:
+            b = budget[lv.label]
+            row["joint_budget"] = {k: b.get(k) for k in ("budget", "joints_before", "dropped", "met", "strategy",
+                                                         "example_rms")}
+        if lv.label in switch:
+            s = switch[lv.label]
+            row |= {k: s[k] for k in ("error_max_m", "error_rms_m", "screen_coverage", "switch_distance_m")}
+        rows.append(row)
+    return rows
+
+
+def switch_camera(result) -> dict | None:
+    """The write step's coverage camera and ``MSFT_screencoverage`` (None when unmeasured)."""
+    sw = ((_steps(result, "write") or [{}])[-1].get("report") or {}).get("switch")
+    if not sw:
+        return None
+    return {k: sw[k] for k in ("pixel_error", "fov_deg", "resolution", "aspect", "bounding_radius_m", "test_frames",
+                               "coverage")}
+
+
+def sidecar_path(out: Path) -> Path:
+    """``OUT.lod.json`` beside ``OUT.glb``."""
+    return out.with_name(f"{out.stem}.lod.json")
+
+
+def _relative(path: Path, folder: Path) -> str:
+    try:
+        return os.path.relpath(Path(path).resolve(), Path(folder).resolve())
+    except ValueError:            # another drive
+        return str(Path(path).resolve())
+
+
+def write_sidecar(path: Path, *, source: Path, outputs: list[Path], rows: list[dict], result, header: dict) -> dict:
+    """``OUT.lod.json``: each level's file, faces, joints, error and the coverage range it shows in.
+
+    Level 0 is the input. Level ``i`` shows while ``min_coverage <= coverage < max_coverage`` (Babylon's
+    screen coverage of the bounding sphere, :mod:`rigslim.numerics.screen_coverage`), i.e. from
+    ``switch_distance_m`` on; file paths are relative to the sidecar's folder.
+    """
+    from rigslim.io.atomic import atomic_path
+
+    cam = switch_camera(result) or {}
+    cov = cam.get("coverage") or []
+    src = result.asset
+    full_joints = int(len(np.unique(sp_indices(src.weights)))) if src.weights is not None else None
+    levels = [{"level": 0, "file": _relative(source, path.parent), "label": "input",
+               "faces": src.mesh.n_faces if src.mesh is not None else None, "joints": full_joints,
+               "error_max_m": 0.0, "error_rms_m": 0.0, "max_coverage": 1.0,
+               "min_coverage": cov[0] if cov else None, "switch_distance_m": 0.0}]
+    for i, (row, file) in enumerate(zip(rows, outputs, strict=False), 1):
+        levels.append({"level": i, "file": _relative(file, path.parent), "label": row["label"], "faces": row["faces"],
+                       "vertices": row["vertices"], "joints": row["joints"], "influences": row["influences"],
+                       "max_bones": row["max_bones"], "error_max_m": row.get("error_max_m"),
+                       "error_rms_m": row.get("error_rms_m"),
+                       "max_coverage": cov[i - 1] if len(cov) > i - 1 else None,
+                       "min_coverage": cov[i] if len(cov) > i else None,
+                       "switch_distance_m": row.get("switch_distance_m")})
+    doc = header | {"sidecar_schema": SIDECAR_SCHEMA, "sidecar_version": SIDECAR_VERSION, "camera": {
+        k: cam.get(k) for k in ("pixel_error", "fov_deg", "resolution", "aspect")},
+        "bounding_radius_m": cam.get("bounding_radius_m"), "test_frames": cam.get("test_frames"),
+        "coverage": "pi r^2 / (4 aspect d^2 tan^2(fov / 2)): the bounding sphere's share of the screen area "
+                    "(Babylon.js's MSFT_screencoverage); show level i while min_coverage <= coverage < max_coverage",
+        "levels": levels}
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(json.dumps(doc, indent=2) + "\n")
+    return doc
+
+
+def sp_indices(W) -> np.ndarray:
+    """Column indices of a sparse matrix's stored non-zeros."""
+    import scipy.sparse as sp
+
+    A = sp.csr_matrix(W)
+    return A.indices[A.data != 0]

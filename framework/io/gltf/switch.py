@@ -1,0 +1,60 @@
+"""LOD switch hints of a glTF output: each level's test-pose error, its switch distance and screen coverage.
+
+The glTF writer (``lod: true``) measures every level posed on the pipeline's test poses against the full
+mesh (:func:`rigslim.numerics.level_error.level_errors`: max and RMS two-sided distance in metres, glTF
+poses being in world space) and turns the maximum into the screen coverage at which it projects to
+``pixel_error`` pixels (:func:`rigslim.numerics.screen_coverage.coverage_series`). The values go
+
+- into ``MSFT_screencoverage`` in the ``extras`` of each node carrying ``MSFT_lod``;
+- into ``extras.rigslim_lod`` of each level node (``level``, ``error_max_m``, ``error_rms_m``,
+  ``screen_coverage``, ``switch_distance_m``) so that the file says what its levels cost;
+- into the write step's report (``switch``), from which ``rigslim lod`` writes its ``--report`` rows and,
+  with ``--split``, the sidecar ``OUT.lod.json``.
+"""
+
+from __future__ import annotations
+
+from rigslim.numerics.level_error import bounding_radius, level_errors
+from rigslim.numerics.screen_coverage import coverage_series
+
+__all__ = ["level_switch"]
+
+
+def _measured(asset, levels) -> list[dict]:
+    """Level errors, measured once per asset and set of levels (several writes of one run share them)."""
+    key = tuple(id(lv) for lv in levels)
+    cached = asset.extras.get("level_errors")
+    if cached is not None and cached[0] == key:
+        return cached[1]
+    T = asset.test_poses().T
+    errors = level_errors(asset.mesh, asset.weights, T, levels)
+    asset.extras["level_errors"] = (key, errors)
+    return errors
+
+
+def level_switch(asset, levels, *, pixel_error: float, fov: float, resolution: int, aspect: float) -> dict:
+    """The switch hints of ``levels`` (module docstring).
+
+    Returns
+    -------
+    dict
+        ``coverage`` (``MSFT_screencoverage``: one value per level and the node's), ``node_extras``
+        (per level), ``levels`` (per level: label, faces, ``error_max_m``, ``error_rms_m``,
+        ``screen_coverage``, ``switch_distance_m``), and the camera: ``pixel_error``, ``fov_deg``,
+        ``resolution``, ``aspect``, ``bounding_radius_m``, ``test_frames``.
+    """
+    asset.require("mesh", "weights", "poses", "split", step="write: gltf (LOD switch coverage)")
+    T = asset.test_poses().T
+    radius = bounding_radius(asset.mesh.V, asset.weights, T[0])
+    errors = _measured(asset, levels)
+    series = coverage_series([e["error_max"] for e in errors], radius, pixel_error=pixel_error, fov=fov,
+                             resolution=resolution, aspect=aspect)
+    rows, extras = [], []
+    for i, (lv, e) in enumerate(zip(levels, errors, strict=True)):
+        row = {"label": lv.label, "faces": lv.n_faces, "error_max_m": e["error_max"], "error_rms_m": e["error_rms"],
+               "screen_coverage": series["level_coverage"][i], "switch_distance_m": series["switch_distance_m"][i]}
+        rows.append(row)
+        extras.append({"rigslim_lod": {"level": i + 1} | {k: v for k, v in row.items() if k != "faces"}})
+    return {"coverage": series["coverage"], "node_extras": extras, "levels": rows, "pixel_error": pixel_error,
+            "fov_deg": fov, "resolution": resolution, "aspect": aspect, "bounding_radius_m": radius,
+            "test_frames": int(len(T))}
