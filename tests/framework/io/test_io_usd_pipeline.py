@@ -187,7 +187,7 @@ def test_the_usd_examples_run_and_validate(tmp_path):
     import shutil
     from pathlib import Path
 
-    examples = Path(__file__).resolve().parents[1] / "examples"
+    examples = Path(__file__).resolve().parents[3] / "examples"
     (tmp_path / "data").symlink_to(examples / "data", target_is_directory=True)
     for name in ("usd-export-huesitos.yaml", "usd-simplify.yaml"):
         shutil.copy(examples / name, tmp_path / name)
