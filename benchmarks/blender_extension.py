@@ -110,6 +110,12 @@ def markdown(rows: list[dict], figures: dict, k: int) -> str:
            "| character | vertices | input max influences | held-out frames | Limit Total RMS % (max %) | "
            "rigslim default | RMS % (max %) | ratio | best-fit RMS % (max %) | ratio |",
            "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|"]
+    if any(r.get("clips") for r in rows):
+        out[2] = out[2].replace("held-out frames (every 4th sampled frame, never fitted)",
+                                "every frame of the held-out clips (never fitted; the others' frames are fitted)")
+        out.insert(3, "\nClips (fitted / held out): " + "; ".join(
+            f"{r['name']}: {', '.join(r['clips'][0])} / {', '.join(r['clips'][1])}" for r in rows if r.get("clips"))
+            + ". Raw fits (keep-Limit-Total fallback off).")
     for r in rows:
         d, b = r["default"], r["best_fit"]
         out.append(f"| {r['name']} | {r['vertices']} | {d['input_max_influences']} | {d['measured_frames']} | "
