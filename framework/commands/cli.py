@@ -159,6 +159,9 @@ def add_commands(sub) -> None:
     p.add_argument("--max-bones", type=int, default=4, help="influences per vertex at every level (default 4)")
     p.add_argument("--method", default="quartic", help="decimator (quartic, mohr-gleicher, decoro-rusinkiewicz)")
     p.add_argument("--quantize", choices=["ubyte", "ushort", "float"], default="ubyte")
+    p.add_argument("--max-error", default="1%", metavar="E",
+                   help="stop a level where the error would pass E: %% of the world diagonal (1, 1%%), metres "
+                        "(0.02m), or none (default 1%%)")
     p.add_argument("--split", action="store_true", help="one file per level: OUT-50.glb, OUT-25.glb")
     p.add_argument("--measure", action="store_true", help="also measure each level (metro) on the test frames")
     p.add_argument("--save-pipeline", metavar="FILE.yaml", help="also write the pipeline this command runs")
