@@ -33,7 +33,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from functools import lru_cache
 from importlib.metadata import EntryPoint, entry_points
-from typing import Any
+from typing import Any, cast
 
 import pluggy
 
@@ -47,7 +47,7 @@ from rigslim.errors import (
     closest,
 )
 from rigslim.plugin import hookspecs
-from rigslim.plugin.contract import PLUGIN_API_VERSION, STAGE_HOOKS, STAGES, Params, Plugin
+from rigslim.plugin.contract import PLUGIN_API_VERSION, STAGE_HOOKS, STAGES, Metric, Params, Plugin, Reader, Writer
 
 #: Environment variable naming entry points (or distributions) not to load, comma separated.
 DISABLE_ENV = "RIGSLIM_DISABLE_PLUGINS"
@@ -318,7 +318,7 @@ class PluginHost:
         """The plugin called ``name`` in ``stage``; a PluginNotFoundError suggests close names."""
         return self.info(stage, name).plugin
 
-    def by_suffix(self, stage: str, suffix: str, role: str | None = None) -> list[Plugin[Any]]:
+    def by_suffix(self, stage: str, suffix: str, role: str | None = None) -> list[Any]:
         """The readers (``role`` given) or writers that take ``suffix`` files; more than one is ambiguous.
 
         Raises
@@ -334,6 +334,24 @@ class PluginHost:
             raise DuplicatePluginError(f"{stage}s {who} both take '{suffix}' files", field=stage,
                                        fix=f"name one with '{key}: NAME', or set {DISABLE_ENV} to an entry point")
         return [i.plugin for i in infos]
+
+    def reader(self, name: str) -> Reader[Any]:
+        """The reader called ``name`` (typed :meth:`get`)."""
+        return cast("Reader[Any]", self.get("reader", name))
+
+    def writer(self, name: str) -> Writer[Any]:
+        """The writer called ``name`` (typed :meth:`get`)."""
+        return cast("Writer[Any]", self.get("writer", name))
+
+    def metric(self, name: str) -> Metric[Any]:
+        """The metric called ``name`` (typed :meth:`get`)."""
+        return cast("Metric[Any]", self.get("metric", name))
+
+    def readers(self) -> dict[str, Reader[Any]]:
+        return {name: cast("Reader[Any]", p) for name, p in self.plugins("reader").items()}
+
+    def writers(self) -> dict[str, Writer[Any]]:
+        return {name: cast("Writer[Any]", p) for name, p in self.plugins("writer").items()}
 
     def plugins(self, stage: str) -> dict[str, Plugin[Any]]:
         return {name: info.plugin for name, info in self.registry.get(stage, {}).items()}

@@ -40,7 +40,7 @@ def read_inputs(doc: PipelineDoc, base: Path, host: PluginHost, ctx: StepContext
     normalize = inputs.pop("normalize", None)
     if "gltf" in inputs:
         inputs = _gltf_inputs(inputs)
-    readers = host.plugins("reader")
+    readers = host.readers()
     specs = {}
     for role, spec in inputs.items():
         if isinstance(spec, str):
@@ -61,7 +61,7 @@ def read_inputs(doc: PipelineDoc, base: Path, host: PluginHost, ctx: StepContext
         name = spec.pop("reader", None)
         if name is not None:
             try:
-                reader = host.get("reader", name)
+                reader = host.reader(name)
             except PluginNotFound as e:
                 raise PipelineError(e.problem, source=source, field=f"inputs.{role}.reader", fix=e.fix) from None
         else:

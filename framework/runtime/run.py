@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -31,7 +31,7 @@ class RunResult:
     evaluations: list = field(default_factory=list)
 
 
-def run_pipeline(path, *, overrides: list[str] = (), metrics_path=None, host: PluginHost | None = None,
+def run_pipeline(path, *, overrides: Sequence[str] = (), metrics_path=None, host: PluginHost | None = None,
                  console=None, on_evaluation: Callable | None = None, raw: dict | None = None) -> RunResult:
     """Run a pipeline file (or the document ``raw``, see :func:`load_pipeline`); return the asset and metrics.
 
@@ -130,7 +130,7 @@ def _run_evaluate(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, 
     metrics: dict = {}
     levels: list[dict] = []
     for name, p in step.plugin:
-        metric = host.get("metric", name)
+        metric = host.metric(name)
         params = metric.parse_params(p)
         with host.calling("metric", name, f"steps[{step.index}].evaluate.{name}"), \
                 np.errstate(over="ignore", invalid="ignore"):  # non-finite results: null + note in the JSON
@@ -164,7 +164,7 @@ def _run_write(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, bas
     params = dict(step.params)
     name = params.pop("writer", "report" if step.key == "report" else None)
     ctx.document = document
-    writers = host.plugins("writer")
+    writers = host.writers()
     if name is None:
         fitting = host.by_suffix("writer", out.suffix)  # two writers taking the suffix: DuplicatePluginError
         if not fitting:
@@ -173,7 +173,7 @@ def _run_write(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, bas
                                 field=f"steps[{step.index}].write", fix="use one of " + ", ".join(sufs))
         writer = fitting[0]
     else:
-        writer = host.get("writer", name)
+        writer = host.writer(name)
     checked = _check_params(writer, params, source, f"steps[{step.index}]")
     with host.calling("writer", writer.name, f"steps[{step.index}].{step.key}"):
         writer.write(out, asset, checked, ctx)
