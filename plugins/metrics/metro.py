@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 from pydantic import Field
 
 from rigslim.errors import StepError
-from rigslim.numerics.surface_distance import metro_distance
+from rigslim.numerics.surface_distance import metro_distance, pymeshlab_available
 from rigslim.plugin import Metric, Params, aggregate
 
 if TYPE_CHECKING:
@@ -35,11 +35,9 @@ class Metro(Metric):
 
     def compute(self, evaluation: Evaluation, params: Params,
                 ctx: StepContext | None = None) -> dict[str, Any]:
-        try:
-            import pymeshlab  # noqa: F401
-        except ImportError:  # pragma: no cover - pymeshlab is in the 'metro' extra
+        if not pymeshlab_available():  # pragma: no cover - pymeshlab is in the 'metro' extra
             raise StepError("the metro metric needs pymeshlab", field="evaluate",
-                            fix="pip install 'rigslim[metro]'") from None
+                            fix="pip install 'rigslim[metro]'")
         mesh = evaluation.mesh
         scale = 100.0 / mesh.bbox_diagonal
         frames = range(len(evaluation))
