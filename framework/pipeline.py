@@ -28,7 +28,7 @@ from rigslim.errors import PluginNotFoundError as PluginNotFound
 from rigslim.evaluation import Evaluation
 from rigslim.host import PluginHost, get_host
 from rigslim.io.atomic import atomic_path, check_output, output_transaction
-from rigslim.metrics_document import SCHEMA_VERSION, merge_levels
+from rigslim.metrics_document import SCHEMA_VERSION, UNITS, merge_levels
 from rigslim.plugin import STEP_STAGES, StepContext
 from rigslim.poses import FrameSplit
 from rigslim.weights import influence_counts
@@ -376,6 +376,7 @@ def _run_pipeline(path, *, overrides, metrics_path, host, console, on_evaluation
         asset = read_inputs(doc, base, host, reporter.context(base), path)
     document = {
         "schema_version": SCHEMA_VERSION,
+        "units": dict(UNITS),
         "rigslim_version": rigslim.__version__,
         "pipeline": str(path),
         "pipeline_file": str(path.resolve()),

@@ -147,7 +147,7 @@ def build_gltf(path, parts: list[Part], n_joints: int | None = None, *, weights:
                sparse_weights: bool = False, weight_stride: int | None = None, meshopt: bool = False,
                draco: bool = False, required: tuple[str, ...] = (), metadata: bool = False,
                duplicate_joint: bool = False, ibm: np.ndarray | None = None, frames: int = 9,
-               scale: float = 1.0) -> Path:
+               scale: float = 1.0, root_scale: float = 1.0) -> Path:
     """Write a skinned ``.glb``: ``parts`` on a chain of ``n_joints`` joints along x (joint i at x = i), with a
     ``frames``-key rotation animation.
 
@@ -168,7 +168,10 @@ def build_gltf(path, parts: list[Part], n_joints: int | None = None, *, weights:
     metadata : add an EXT_structural_metadata property table whose values live in a bufferView
     duplicate_joint : list the last joint twice in the skin
     ibm : (n_joints, 4, 4) inverse bind matrices to write instead of the correct ones
-    scale : uniform scale of every position and joint offset (0.01: a centimetre-scaled export)
+    scale : uniform scale of every position and joint offset
+    root_scale : the root joint scales by this and the bind-space mesh and joint offsets are divided by it, so the
+        posed (world) geometry is the same: 0.01 is assimp's centimetre FBX conversion (bind space in cm, world
+        in m)
     """
     n_joints = n_joints or max(int(p.J.max()) + 1 for p in parts)
     b = _Bin()
@@ -178,7 +181,7 @@ def build_gltf(path, parts: list[Part], n_joints: int | None = None, *, weights:
     node_extra: dict = {}
     for part in parts:
         attrs, prim = {}, {"mode": 4}
-        V = np.asarray(part.V, float) * scale
+        V = np.asarray(part.V, float) * scale / root_scale
         if positions == "f32":
             attrs["POSITION"] = b.accessor(V, CT["f32"], "VEC3", minmax=True)
         else:
@@ -225,7 +228,9 @@ def build_gltf(path, parts: list[Part], n_joints: int | None = None, *, weights:
     jstart = 0
     nodes: list[dict] = []
     for i in range(n_joints):
-        node = {"name": f"joint{i}", "translation": [scale * (1.0 if i else 0.0), 0.0, 0.0]}
+        node = {"name": f"joint{i}", "translation": [scale / root_scale * (1.0 if i else 0.0), 0.0, 0.0]}
+        if i == 0 and root_scale != 1.0:
+            node["scale"] = [root_scale] * 3
         if i + 1 < n_joints:
             node["children"] = [i + 1]
         nodes.append(node)
@@ -250,7 +255,8 @@ def build_gltf(path, parts: list[Part], n_joints: int | None = None, *, weights:
     nj = len(joint_list)
     if ibm is None:
         M = np.tile(np.eye(4), (n_joints, 1, 1))
-        M[:, 0, 3] = -scale * np.arange(n_joints)
+        # bind-space joint i at x = scale i / root_scale; G_i IBM_i = root_scale I at rest (assimp's cm files)
+        M[:, 0, 3] = -scale / root_scale * np.arange(n_joints)
     else:
         M = np.asarray(ibm, float)
     if duplicate_joint:
