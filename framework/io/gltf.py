@@ -623,7 +623,12 @@ class GltfSkin:
 
 
 def weld_vertices(V: np.ndarray, F: np.ndarray, weights: sp.csr_matrix):
-    """Merge vertices at identical positions (glTF splits them at UV seams and hard edges).
+    """Merge file vertices that are one skinned vertex: the same position *and* the same weights.
+
+    glTF splits a surface's vertices at UV seams, hard edges and material boundaries; solvers and decimators
+    need them joined. Welding is a connectivity device only: corners that the file keeps apart with different
+    weights (separate parts that touch, each bound to its own joint) stay apart, and no file vertex ever gets
+    another's weights.
 
     Parameters
     ----------
@@ -636,22 +641,39 @@ def weld_vertices(V: np.ndarray, F: np.ndarray, weights: sp.csr_matrix):
         order of first occurrence.
     V, F, weights
         The welded mesh (faces that became degenerate are dropped) and its
-        weights: the mean of the merged rows, ``A_w = D^{-1} P^T A`` with
-        ``P`` the (m, m_w) merge indicator and ``D`` the group sizes, so
-        rows still sum to one.
+        weights: the row every merged vertex has (``A_w[g] = A[first(g)]``, bit for bit).
+
+    Notes
+    -----
+    Two vertices merge when ``x_a = x_b`` and ``A[a, :] = A[b, :]`` exactly (compared as bytes, with
+    ``-0.0`` read as ``0.0``).
     """
-    _, first, inverse = np.unique(V, axis=0, return_index=True, return_inverse=True)
+    A = sp.csr_matrix(weights, copy=True)
+    A.sum_duplicates()
+    A.eliminate_zeros()
+    A.sort_indices()
+    m = len(V)
+    counts = np.diff(A.indptr)
+    width = int(counts.max(initial=0))
+    slot = np.arange(A.nnz) - np.repeat(A.indptr[:-1], counts)
+    row = np.repeat(np.arange(m), counts)
+    cols = np.full((m, width), -1.0)
+    vals = np.zeros((m, width))
+    cols[row, slot] = A.indices
+    vals[row, slot] = A.data
+    key = np.ascontiguousarray(np.concatenate([np.asarray(V, np.float64) + 0.0, cols, vals + 0.0], axis=1))
+    void = key.view(np.dtype((np.void, key.dtype.itemsize * key.shape[1]))).ravel()
+    _, first, inverse = np.unique(void, return_index=True, return_inverse=True)
     inverse = inverse.reshape(-1)
     order = np.argsort(first, kind="stable")
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
     vertex_map = rank[inverse]
-    Vw = V[first[order]]
+    keep_rows = first[order]
+    Vw = np.asarray(V)[keep_rows]
     Fw = vertex_map[F]
     keep = (Fw[:, 0] != Fw[:, 1]) & (Fw[:, 1] != Fw[:, 2]) & (Fw[:, 2] != Fw[:, 0])
-    P = sp.csr_matrix((np.ones(len(V)), (np.arange(len(V)), vertex_map)), shape=(len(V), len(Vw)))
-    sizes = np.asarray(P.sum(axis=0)).ravel()
-    Aw = sp.csr_matrix(sp.diags(1.0 / sizes) @ (P.T @ weights))
+    Aw = sp.csr_matrix(sp.csr_matrix(weights)[keep_rows])
     Aw.sort_indices()
     return vertex_map, Vw, Fw[keep], Aw
 

@@ -76,7 +76,7 @@ def random_parts(rng: np.random.Generator, n_parts: int, k: int, n_joints: int, 
         J = np.zeros((m, width), np.int64)
         W = np.zeros((m, width))
         for v in range(m):
-            c = int(rng.integers(1, k + 1))
+            c = int(rng.integers(1, min(k, n_joints) + 1))
             J[v, :c] = rng.choice(n_joints, c, replace=False)
             w = rng.random(c) + 0.05
             W[v, :c] = w / w.sum()
