@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY      = $(VENV)/bin/python
 PIP     = $(PY) -m pip
 
-.PHONY: demo test lint install install-test test-tools clean
+.PHONY: demo test lint install install-test test-tools clean blender-extension
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,6 +24,8 @@ install-test: $(VENV)/.installed-test
 ## demo: create .venv, install rigslim, reduce the elephant to 4 weights and print the errors
 demo: install
 	$(VENV)/bin/rigslim run examples/elephant-k4.yaml --metrics examples/out/elephant-k4.json
+	@# an LOD chain of a small character: also compiles the decimation kernels once into numba's cache
+	$(VENV)/bin/rigslim lod examples/data/gltf/huesitos.glb -o examples/out/huesitos-lod.glb --ratios 0.5,0.25
 
 ## test-tools: system tools some tests drive (each tools/setup-*.sh installs one, idempotently)
 test-tools:
@@ -33,10 +35,15 @@ test-tools:
 test: install-test test-tools
 	$(PY) -m pytest -q $(PYTEST_ARGS)
 
-## lint: ruff over the tree, mypy over the plugin contract (tools/mypy-contract.sh)
+## lint: ruff over the tree, the import contracts (tools/lint-imports.sh), mypy over the plugin contract
 lint: install-test
 	$(VENV)/bin/ruff check .
+	bash tools/lint-imports.sh
 	bash tools/mypy-contract.sh
 
+## blender-extension: the installable Blender extension, dist/rigslim-VERSION.zip (docs/blender.md)
+blender-extension:
+	$(PYTHON) integrations/blender/build.py --output dist
+
 clean:
-	rm -rf $(VENV) examples/out build *.egg-info
+	rm -rf $(VENV) .venv-blender examples/out build dist *.egg-info

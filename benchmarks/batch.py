@@ -84,8 +84,8 @@ def _rotation(rng) -> np.ndarray:
 
 def similarity(mesh, handles, poses, s: float, R: np.ndarray, c: np.ndarray, shift: int):
     """The asset moved by ``x -> s R x + c`` and its animation started ``shift`` frames later (cyclically)."""
-    from rigslim.mesh import Mesh
-    from rigslim.poses import Poses
+    from rigslim.model.mesh import Mesh
+    from rigslim.model.poses import Poses
 
     V = s * mesh.V @ R.T + c
     joints = s * np.asarray(handles.joints, float) @ R.T + c
@@ -99,11 +99,12 @@ def similarity(mesh, handles, poses, s: float, R: np.ndarray, c: np.ndarray, shi
 
 def _sources():
     """family -> (mesh, handles, weights, poses) of the bundled data."""
-    from rigslim.host import get_host
     from rigslim.io import read_dmat, read_mesh, read_stacked_animation, read_tgf
-    from rigslim.pipeline import PipelineDoc, read_inputs
+    from rigslim.model.weights import validate_weights
     from rigslim.plugin import StepContext
-    from rigslim.weights import validate_weights
+    from rigslim.plugin.host import get_host
+    from rigslim.runtime.document import PipelineDoc
+    from rigslim.runtime.inputs import read_inputs
 
     ctx = StepContext(report={}, base_dir=ROOT, progress=lambda it, **k: it, log=lambda *a: None)
     out = {}
@@ -111,14 +112,14 @@ def _sources():
     handles = read_tgf(DATA / "elephant.tgf")
     W = validate_weights(read_dmat(DATA / "elephant-weights.dmat"), mesh.n_vertices, n_handles=handles.n)
     out["elephant"] = (mesh, handles, W, read_stacked_animation(DATA / "elephant-anim.dmat", n_handles=handles.n))
-    from rigslim.asset import Asset
+    from rigslim.model.asset import Asset
 
     cheb = Asset(mesh=read_mesh(DATA / "cheburashka.off"), handles=read_tgf(DATA / "cheburashka.tgf"))
     gen = get_host().get("weight-generator", "bone-heat")
     Wc = gen.generate(cheb, gen.parse_params({}), ctx)
     out["cheb"] = (cheb.mesh, cheb.handles, Wc,
                    read_stacked_animation(DATA / "cheburashka-anim.dmat", n_handles=cheb.handles.n))
-    from rigslim.poses import Poses
+    from rigslim.model.poses import Poses
 
     for family, rel in [("RiggedFigure", "RiggedFigure/RiggedFigure.gltf"), ("huesitos", "huesitos.glb")]:
         doc = PipelineDoc(inputs={"gltf": str(DATA / "gltf" / rel), "fps": 30}, steps=[{"select": "k-largest"}])
@@ -132,7 +133,7 @@ def _sources():
 
 def make_library(folder: Path, mix: dict[str, int], seed: int = 15) -> list[Path]:
     """Write the variants as .glb files (``<family>-<i>.glb``); returns their paths in order."""
-    from rigslim.io.gltf_write import export_skinned
+    from rigslim.io.gltf.write import export_skinned
 
     folder.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
@@ -157,8 +158,8 @@ def serial_loop(jobs, template: dict, template_path: Path, out: Path, threads: i
 
     ``threads``: BLAS/numba threads (default: every core, as a plain loop of ``rigslim run`` gets).
     """
-    from rigslim.batch import available_cores
-    from rigslim.batch_task import run_asset
+    from rigslim.batch.cores import available_cores
+    from rigslim.batch.task import run_asset
 
     t0 = time.perf_counter()
     rows = [run_asset(j.as_dict(), template, str(template_path), str(out), force=True,
@@ -193,7 +194,7 @@ def _warm_workers(cluster, job, template: dict, template_path: Path, out: Path) 
     """Run one asset on every worker of ``cluster`` (not timed with the batch)."""
     from distributed import Client
 
-    from rigslim.batch_task import run_asset
+    from rigslim.batch.task import run_asset
 
     with Client(cluster) as client:
         workers = list(client.scheduler_info()["workers"])
@@ -205,7 +206,8 @@ def _warm_workers(cluster, job, template: dict, template_path: Path, out: Path) 
 def dask_batch(template_path: Path, assets, out: Path, **kw) -> tuple[float, object]:
     from rich.console import Console
 
-    from rigslim.batch import BatchOptions, run_batch
+    from rigslim.batch.options import BatchOptions
+    from rigslim.batch.run import run_batch
 
     opts = BatchOptions(template=template_path, assets=[str(a) for a in assets], out=out, force=True,
                         dashboard=False, **kw)
@@ -223,7 +225,7 @@ def scheduler_throughput(n: int) -> float:
     """
     from distributed import Client
 
-    from rigslim.batch import local_cluster
+    from rigslim.batch.run import local_cluster
 
     with local_cluster(workers=2, threads_per_worker=1, dashboard=False) as (cluster, _), Client(cluster) as client:
         client.gather(client.map(abs, range(-100, 0), pure=False))
@@ -242,8 +244,8 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "results" / "batch")
     args = parser.parse_args(argv)
 
-    from rigslim.batch import local_cluster
-    from rigslim.batch_assets import collect_assets, load_template
+    from rigslim.batch.assets import collect_assets, load_template
+    from rigslim.batch.run import local_cluster
 
     work = args.work or Path(tempfile.mkdtemp(prefix="rigslim-batch-bench-"))
     work.mkdir(parents=True, exist_ok=True)

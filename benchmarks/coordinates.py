@@ -60,7 +60,7 @@ def bench_mvc(log) -> list[dict]:
                  "seconds": tn, "check": f"linear precision {lin_n:.1e} (x diag)",
                  "linear_precision_rel": lin_n, "negative_fraction": float((Wn < 0).mean())})
     try:
-        from rigslim.opencl import get_runtime
+        from rigslim.device.opencl import get_runtime
 
         for spec in ("cpu", "gpu"):
             try:
@@ -138,7 +138,7 @@ def bench_hand(log) -> list[dict]:
 
 
 def bench_quality(log) -> list[dict]:
-    from rigslim.pipeline import run_pipeline
+    from rigslim.runtime.run import run_pipeline
 
     rows = []
     for name in ("cheburashka-k5", "armadillo-k8", "armadillo-harmonic-k8", "cheburashka-cage-k8"):

@@ -39,14 +39,14 @@ def elephant(levels: int = 0, examples: str = EXAMPLES, test: str = TEST):
 
     Returns
     -------
-    rigslim.asset.Asset
+    rigslim.model.asset.Asset
         mesh, skeleton handles, weights (csr, rows sum to 1), all 457 poses and
         the split (example frames ``0:457:45``, test frames ``5:457:7`` minus 180).
     """
-    from rigslim.asset import Asset
     from rigslim.io import read_dmat, read_mesh, read_stacked_animation, read_tgf
-    from rigslim.poses import FrameSplit
-    from rigslim.weights import validate_weights
+    from rigslim.model.asset import Asset
+    from rigslim.model.poses import FrameSplit
+    from rigslim.model.weights import validate_weights
 
     mesh = read_mesh(DATA / "elephant.obj")
     handles = read_tgf(DATA / "elephant.tgf")
@@ -63,7 +63,7 @@ def subdivide(mesh, W, levels: int):
     """Midpoint-subdivide a mesh ``levels`` times, interpolating the weights linearly."""
     import igl
 
-    from rigslim.mesh import Mesh
+    from rigslim.model.mesh import Mesh
 
     V, F = mesh.V, mesh.F
     Wd = sp.csr_matrix(W).toarray()
@@ -100,3 +100,90 @@ def write_results(stem, doc: dict, markdown: str) -> None:
         tmp.write_text(json.dumps(doc, indent=2) + "\n")
     with atomic_path(stem.with_suffix(".md")) as tmp:
         tmp.write_text(markdown)
+
+
+# --- the real-character suite (examples/data/gltf/suite/, index suite.json; provenance in its README) ---------
+
+SUITE = DATA / "gltf" / "suite"
+
+
+class SuiteCharacter:
+    """One character of the real-character suite, as ``examples/data/gltf/suite/suite.json`` lists it.
+
+    Attributes
+    ----------
+    name, path, kind : str, Path, str
+    faces, vertices, joints, primitives : int
+    clips : list of dict
+        ``{"name", "duration" (s), "keys", "channels"}`` in file order.
+    fit_clips, holdout_clips : list of str
+        Clips to fit example poses on, and clips held out for testing (empty
+        for one-clip characters: then ``single_clip_split`` gives fit and test
+        frame specs of that clip at 30 fps).
+    textured : bool
+        Some primitive has a base-colour texture and UVs.
+    test_renders : list of dict
+        ``{"clip", "time"}``: poses to render and compare.
+    view : dict
+        ``front_azimuth`` / ``side_azimuth`` (degrees about +y, 0 = camera on +z), ``elevation``.
+    entry : dict
+        The whole index entry (licence, source package, sha256...).
+    """
+
+    def __init__(self, entry: dict):
+        self.entry = entry
+        self.name = entry["name"]
+        self.path = SUITE.parent / entry["file"]
+        for key in ("kind", "faces", "vertices", "joints", "primitives", "clips", "fit_clips", "holdout_clips",
+                    "textured", "test_renders", "view"):
+            setattr(self, key, entry[key])
+
+    @property
+    def clip_names(self) -> list[str]:
+        return [c["name"] for c in self.clips]
+
+    @property
+    def multi_clip(self) -> bool:
+        """Two or more clips, so that held-out clips can be tested."""
+        return bool(self.holdout_clips)
+
+    def read(self, clip=None, fps: float = 30.0, **kwargs):
+        """The character as rigslim reads it (``rigslim.io.gltf.skin.read_gltf_skin``), posed over ``clip``."""
+        from rigslim.io.gltf.skin import read_gltf_skin
+
+        return read_gltf_skin(self.path, animation=clip if clip is not None else self.fit_clips[0], fps=fps,
+                              **kwargs)
+
+    def __repr__(self) -> str:
+        return (f"SuiteCharacter({self.name!r}: {self.faces} faces, {self.joints} joints, "
+                f"{len(self.clips)} clips)")
+
+
+def suite(names=None, *, min_joints: int = 0, multi_clip: bool | None = None,
+          textured: bool | None = None) -> list[SuiteCharacter]:
+    """The suite's characters (index order), optionally filtered.
+
+    Parameters
+    ----------
+    names : iterable of str, optional
+        Only these (unknown names raise ``KeyError`` listing the known ones).
+    min_joints : int
+        Only characters with at least this many joints (e.g. 30 for joint budgets).
+    multi_clip, textured : bool, optional
+        Only characters with (True) or without (False) held-out clips / a texture.
+
+    Example
+    -------
+    >>> [c.name for c in suite(min_joints=30, multi_clip=True)]   # doctest: +SKIP
+    ['wuson', 'frankie', 'snoutx10k', 're_player']
+    """
+    index = json.loads((SUITE / "suite.json").read_text())
+    chars = [SuiteCharacter(e) for e in index["characters"]]
+    if names is not None:
+        known = {c.name: c for c in chars}
+        missing = [n for n in names if n not in known]
+        if missing:
+            raise KeyError(f"no suite character {missing} (known: {', '.join(known)})")
+        chars = [known[n] for n in names]
+    return [c for c in chars if c.joints >= min_joints and (multi_clip is None or c.multi_clip == multi_clip)
+            and (textured is None or c.textured == textured)]

@@ -90,10 +90,10 @@ def time_bound(bound, poses, normals: bool) -> dict:
 def run(levels: int, frames: int, backends: list[str], ks: list[int | None], device: str | None = None,
         log=print) -> dict:
     from benchmarks.datasets import elephant
+    from rigslim.model.weights import influence_counts
     from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
     from rigslim.plugins.selection.k_largest import k_largest
     from rigslim.plugins.solvers.k_largest import k_largest_weights
-    from rigslim.weights import influence_counts
 
     load_start = os.getloadavg()[0]
     t = time.perf_counter()
@@ -118,7 +118,7 @@ def run(levels: int, frames: int, backends: list[str], ks: list[int | None], dev
         devices["cpu"] = f"{cpu_model()} ({os.cpu_count()} logical CPUs), numba"
         params["cpu"] = {}
     if "opencl" in backends:
-        from rigslim.opencl import OpenCLUnavailable, get_runtime
+        from rigslim.device.opencl import OpenCLUnavailable, get_runtime
         from rigslim.plugins.deformers.opencl_deformer import OpenCLDeformer
 
         try:
@@ -128,7 +128,7 @@ def run(levels: int, frames: int, backends: list[str], ks: list[int | None], dev
         except OpenCLUnavailable as e:
             log(f"opencl skipped: {e}")
     if "opengl" in backends:
-        from rigslim.egl import EGLUnavailable, shared_context
+        from rigslim.device.egl import EGLUnavailable, shared_context
         from rigslim.plugins.deformers.opengl_deformer import OpenGLDeformer
 
         try:
@@ -310,12 +310,12 @@ def run_quick(levels: int = 3, frames: int = 8, ks=(8, 4), copy_mib: int = 512, 
     output written once (``bytes_per_frame`` of each bound deformer).
     """
     from benchmarks.datasets import elephant
+    from rigslim.model.weights import influence_counts
     from rigslim.numerics.area_weighted_normals import operator_for
     from rigslim.plugins.deformers.cpu_deformer import CPUDeformer
     from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
     from rigslim.plugins.selection.k_largest import k_largest
     from rigslim.plugins.solvers.k_largest import k_largest_weights
-    from rigslim.weights import influence_counts
 
     started = time.perf_counter()
     load_start = os.getloadavg()[0]
@@ -362,7 +362,7 @@ def run_quick(levels: int = 3, frames: int = 8, ks=(8, 4), copy_mib: int = 512, 
 
     backends = {"cpu": CPUDeformer()}
     try:
-        from rigslim.opencl import OpenCLUnavailable, get_runtime
+        from rigslim.device.opencl import OpenCLUnavailable, get_runtime
         from rigslim.plugins.deformers.opencl_deformer import OpenCLDeformer
 
         rt = get_runtime("cpu")
@@ -371,7 +371,7 @@ def run_quick(levels: int = 3, frames: int = 8, ks=(8, 4), copy_mib: int = 512, 
     except (ImportError, OpenCLUnavailable, Exception) as e:  # noqa: BLE001 - any missing driver skips the rows
         log(f"opencl (CPU device) skipped: {e}")
     try:
-        from rigslim.egl import shared_context
+        from rigslim.device.egl import shared_context
         from rigslim.plugins.deformers.opengl_deformer import OpenGLDeformer
 
         ctx = shared_context()

@@ -126,7 +126,7 @@ def time_device(bound, poses, normals: bool) -> tuple[float, float]:
 
 def qp_problems(asset, reduced, n_poses: int = 11):
     """One small QP per vertex, as the reduction's local sweep builds them (see the module docstring)."""
-    from rigslim.blend import basis_positions
+    from rigslim.numerics.blend import basis_positions
 
     m, k = reduced.indices.shape
     T = asset.poses.T[asset.split.examples[:n_poses]]
@@ -147,7 +147,7 @@ def qp_problems(asset, reduced, n_poses: int = 11):
 
 def run(levels: list[int], frames: int, device: str | None, log=print) -> dict:
     from benchmarks.datasets import elephant
-    from rigslim.opencl import OpenCLUnavailable, get_runtime
+    from rigslim.device.opencl import OpenCLUnavailable, get_runtime
 
     k_largest = plugin_module("rigslim.plugins.selection.k_largest").k_largest
     k_largest_weights = plugin_module("rigslim.plugins.solvers.k_largest").k_largest_weights
@@ -170,7 +170,7 @@ def run(levels: list[int], frames: int, device: str | None, log=print) -> dict:
         log(f"OpenCL unavailable: {e}")
     gl = None
     try:
-        from rigslim.egl import shared_context
+        from rigslim.device.egl import shared_context
         from rigslim.plugins.deformers.opengl_deformer import OpenGLDeformer
 
         ctx = shared_context()

@@ -1,25 +1,39 @@
-"""glTF LOD benchmark: ``rigslim lod`` against gltfpack in the same run, measured with ``rigslim compare``.
+"""glTF LOD benchmark: ``rigslim lod`` against gltfpack and gltf-transform in the same run, at equal face counts.
 
-For every skinned character in examples/data/gltf/ (and the elephant
-exported to glTF with its 4 largest weights, ~12k triangles):
+Characters: every skinned glTF in examples/data/gltf/, the elephant
+exported to glTF with its 4 largest weights (~12k triangles), assimp's
+animated test characters converted with ``assimp export IN OUT -fglb2``
+(``BCN_Epileptic.X``, ``Testwuson.X``, when assimp-testmodels is installed)
+and every ``.glb``/``.gltf`` under ``--suite DIR`` (the real-character suite).
 
-- ``rigslim lod IN -o OUT --ratios 0.5,0.25`` (quartic, 4 bones, seams and
-  material boundaries locked), run as a command-line process and timed;
-- ``gltfpack -i IN -o OUT -si R -noq`` for R = 0.5 and 0.25 (meshoptimizer's
-  simplifier; ``-noq`` keeps positions unquantised, so only simplification
-  is measured);
-- ``rigslim compare IN CANDIDATE --frames TEST [--level L] --json``: the
+Per character and ratio R in 0.5, 0.25, 0.1:
+
+- the peers: ``gltfpack -i IN -o OUT -si R -sa -noq`` (meshoptimizer,
+  aggressive: it reaches R; ``-noq`` keeps positions unquantised) and
+  ``gltf-transform weld`` then ``simplify --ratio R --error 1`` (also
+  meshoptimizer, unbounded);
+- rigslim at each peer's face count: ``rigslim lod IN -o OUT --ratios F/F0``
+  (quartic [S09], at most 4 bones per vertex, seams and borders collapsing
+  only along themselves, no error bound), so that every comparison is at
+  equal face counts (within 3 %);
+- ``rigslim compare IN CANDIDATE --frames TEST [--level 1] --json``: the
   two-sided Hausdorff distance of each result posed by its own skin against
-  the input posed by its own, on the test frames ``lod`` did not fit to
-  (frames halfway between its example frames), RMS as % of the input's
-  world-space diagonal and in world units.
+  the input posed by its own, on the test frames ``lod`` did not fit to, RMS
+  averaged over them and max over them, as % of the input's world diagonal.
+
+Targets (issue 25): rigslim RMS <= 0.8x the better peer's, max <= 1.0x.
+
+Time: ``rigslim lod IN -o OUT --ratios 0.5,0.25,0.1`` as a process (fastest of
+3) against gltfpack's three runs in the same loop, and the compiled collapse
+loop's microseconds per collapse (the decimate step's report).
 
 Usage::
 
     flock /tmp/rigslim-bench.lock .venv/bin/python benchmarks/gltf_lod.py [--gltfpack PATH]
+        [--gltf-transform PATH] [--suite DIR] [--only NAME ...]
 
-gltfpack defaults to tools/node/node_modules/gltfpack/cli.js (tools/setup-testmodels.sh).
-Writes docs/results/gltf_lod.{json,md}.
+gltfpack defaults to tools/node/node_modules/gltfpack/cli.js (tools/setup-testmodels.sh), gltf-transform to
+tools/node/node_modules/.bin/gltf-transform. Writes docs/results/gltf_lod.{json,md}.
 """
 
 from __future__ import annotations
@@ -27,6 +41,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -40,14 +55,34 @@ from benchmarks.datasets import DATA, machine, write_results  # noqa: E402
 
 GLTF = ROOT / "examples" / "data" / "gltf"
 OUT = ROOT / "docs" / "results"
-RATIOS = (0.5, 0.25)
+RATIOS = (0.5, 0.25, 0.1)
 REPEATS = 3
+EQUAL = 0.03
 RIGSLIM = ([str(Path(sys.executable).with_name("rigslim"))] if Path(sys.executable).with_name("rigslim").exists()
-           else [sys.executable, "-m", "rigslim.cli"])
+           else [sys.executable, "-m", "rigslim.commands.cli"])
+ASSIMP_CHARACTERS = ("X/BCN_Epileptic.X", "X/Testwuson.X")
 
 
-def characters() -> list[Path]:
-    return sorted(list(GLTF.glob("*.gl*")) + list(GLTF.glob("*/*.gltf")))
+def characters(suite: Path | None) -> list[Path]:
+    out = sorted(list(GLTF.glob("*.gl*")) + list(GLTF.glob("*/*.gltf")))
+    if suite is not None:
+        out += sorted(p for p in suite.rglob("*") if p.suffix in (".glb", ".gltf"))
+    return out
+
+
+def assimp_characters(folder: Path) -> list[Path]:
+    """assimp's animated test characters as .glb (skipped without assimp or its test models)."""
+    models = Path("/usr/share/assimp/models")
+    if shutil.which("assimp") is None or not models.is_dir():
+        return []
+    out = []
+    for rel in ASSIMP_CHARACTERS:
+        src = models / rel
+        dst = folder / f"{src.stem}.glb"
+        if src.exists() and subprocess.run(["assimp", "export", str(src), str(dst), "-fglb2"],
+                                           capture_output=True).returncode == 0:
+            out.append(dst)
+    return out
 
 
 def export_elephant(folder: Path) -> Path:
@@ -83,111 +118,141 @@ def run(cmd: list[str]) -> tuple[float, str]:
 def compare(ref: Path, cand: Path, frames: str, level: int, samples: int) -> dict:
     _, out = run(RIGSLIM + ["compare", str(ref), str(cand), "--frames", frames, "--level", str(level), "--json",
                             "--samples", str(samples)])
-    return json.loads(out)
+    r = json.loads(out)
+    return {"faces": r["faces"], "rms_pct": r["hausdorff_rms_pct"], "max_pct": r["hausdorff_max_pct"],
+            "rms_m": r["hausdorff_rms_m"]}
 
 
-def bench(path: Path, tmp: Path, gltfpack: list[str] | None, samples: int) -> dict:
-    from rigslim.gltf_commands import _poses, clip_frames
+def peers(path: Path, tmp: Path, ratio: float, tools: dict) -> dict:
+    """Each peer's result at one ratio: ``{name: (file, seconds)}``."""
+    out = {}
+    stem = path.stem
+    if tools.get("gltfpack"):
+        gp = tmp / f"{stem}-gltfpack-{ratio:g}.glb"
+        out["gltfpack"] = (gp, run(tools["gltfpack"] + ["-i", str(path), "-o", str(gp), "-si", str(ratio), "-sa",
+                                                        "-noq"])[0])
+    if tools.get("gltf-transform"):
+        welded, gt = tmp / f"{stem}-welded.glb", tmp / f"{stem}-gltf-transform-{ratio:g}.glb"
+        t0 = time.perf_counter()
+        run(tools["gltf-transform"] + ["weld", str(path), str(welded)])
+        run(tools["gltf-transform"] + ["simplify", str(welded), str(gt), "--ratio", str(ratio), "--error", "1"])
+        out["gltf-transform"] = (gt, time.perf_counter() - t0)
+    return out
+
+
+def rigslim_at(path: Path, tmp: Path, faces: int, input_faces: int, test: str, samples: int) -> dict:
+    """rigslim's level at a face count (one-level ``lod``), measured."""
+    dst = tmp / f"{path.stem}-rigslim-{faces}.glb"
+    report = tmp / f"{path.stem}-rigslim-{faces}.json"
+    run(RIGSLIM + ["lod", str(path), "-o", str(dst), "--ratios", f"{min(faces / input_faces, 0.999):.6f}",
+                   "--report", str(report)])
+    rep = json.loads(report.read_text())
+    return compare(path, dst, test, 1, samples) | {"label": rep["levels"][0]["label"]}
+
+
+def bench(path: Path, tmp: Path, tools: dict, samples: int) -> dict:
+    from rigslim.commands.gltf_common import _poses, clip_frames
 
     frames, clip, duration = clip_frames(path, None, 30.0)
     test = _poses(frames)["test"]
-    stem = path.stem
-    out = tmp / f"{stem}-rigslim.glb"
-    report = tmp / f"{stem}-report.json"
-    times, command_times = [], []
+    out, report = tmp / f"{path.stem}-rigslim.glb", tmp / f"{path.stem}-report.json"
+    times, command_times, peer_times = [], [], []
     for _ in range(REPEATS):          # the machine is shared: the minimum of a few runs is the fairest figure
         secs, _ = run(RIGSLIM + ["lod", str(path), "-o", str(out), "--ratios", ",".join(map(str, RATIOS)),
                                  "--report", str(report)])
         times.append(secs)
         command_times.append(json.loads(report.read_text())["seconds"])
+        if tools.get("gltfpack"):     # the same three levels, in the same loop
+            peer_times.append(sum(run(tools["gltfpack"] + ["-i", str(path), "-o", str(tmp / "gp-time.glb"), "-si",
+                                                           str(r), "-sa", "-noq"])[0] for r in RATIOS))
     rep = json.loads(report.read_text())
+    step = next(s for s in rep["run"]["steps"] if s["stage"] == "decimate")["report"]
     row = {"character": str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else path.name,
            "input_faces": rep["input_faces"], "frames": frames, "test_frames": test,
-           "example_poses": len(range(*[int(x) for x in rep["pipeline"]["poses"]["examples"].split(":")]))
-           if frames > 1 else 1, "locked_seam_vertices": rep["locked_seam_vertices"],
+           "example_poses": step.get("example_poses"), "locked_seam_vertices": rep["locked_seam_vertices"],
            "rigslim_process_seconds": min(times), "rigslim_process_seconds_all": times,
            "rigslim_command_seconds": min(command_times), "rigslim_command_seconds_all": command_times,
-           "levels": []}
-    for level, (ratio, _lv) in enumerate(zip(RATIOS, rep["levels"], strict=False), 1):
-        r = compare(path, out, test, level, samples)
-        entry = {"ratio": ratio, "rigslim": {"faces": r["faces"], "rms_pct": r["hausdorff_rms_pct"],
-                                             "max_pct": r["hausdorff_max_pct"], "rms_m": r["hausdorff_rms_m"]}}
-        if gltfpack:
-            for key, flags in (("gltfpack", []), ("gltfpack_sa", ["-sa"])):
-                gp = tmp / f"{stem}-{key}-{ratio:g}.glb"
-                gsecs, _ = run(gltfpack + ["-i", str(path), "-o", str(gp), "-si", str(ratio), "-noq"] + flags)
-                g = compare(path, gp, test, 0, samples)
-                entry[key] = {"faces": g["faces"], "rms_pct": g["hausdorff_rms_pct"], "max_pct": g["hausdorff_max_pct"],
-                              "rms_m": g["hausdorff_rms_m"], "seconds": gsecs,
-                              "rms_ratio": (r["hausdorff_rms_pct"] / g["hausdorff_rms_pct"]
-                                            if g["hausdorff_rms_pct"] > 0 else float("inf"))}
-            # no gltfpack result at rigslim's face count: also take rigslim at gltfpack -sa's count
-            rf, ga = r["faces"], entry["gltfpack_sa"]
-            if all(abs(entry[k]["faces"] - rf) > 0.05 * max(rf, 1) for k in ("gltfpack", "gltfpack_sa")) \
-                    and ga["faces"] < row["input_faces"]:
-                extra = tmp / f"{stem}-rigslim-at-{ga['faces']}.glb"
-                ratio = f"{ga['faces'] / row['input_faces']:.6f}"
-                run(RIGSLIM + ["lod", str(path), "-o", str(extra), "--ratios", ratio])
-                e = compare(path, extra, test, 1, samples)
-                entry["rigslim_at_gltfpack_sa"] = {"faces": e["faces"], "rms_pct": e["hausdorff_rms_pct"],
-                                                   "max_pct": e["hausdorff_max_pct"],
-                                                   "rms_ratio": (e["hausdorff_rms_pct"] / ga["rms_pct"]
-                                                                 if ga["rms_pct"] > 0 else float("inf"))}
+           "gltfpack_seconds": min(peer_times) if peer_times else None, "phases": step.get("seconds"),
+           "loop": step.get("loop"), "levels": []}
+    for ratio in RATIOS:
+        entry: dict = {"ratio": ratio}
+        for name, (file, secs) in peers(path, tmp, ratio, tools).items():
+            p = compare(path, file, test, 0, samples) | {"seconds": secs}
+            r = rigslim_at(path, tmp, p["faces"], row["input_faces"], test, samples)
+            entry[name] = p
+            entry[f"rigslim@{name}"] = r
         row["levels"].append(entry)
-        print(f"{row['character']:48s} {ratio:4g}: rigslim {r['faces']:6d} faces RMS {r['hausdorff_rms_pct']:.4f} %"
-              + "".join(f" | {k} {entry[k]['faces']:6d} faces RMS {entry[k]['rms_pct']:.4f} % ratio "
-                        f"{entry[k]['rms_ratio']:.2f}" for k in ("gltfpack", "gltfpack_sa") if k in entry), flush=True)
+        print(f"{row['character']:40s} {ratio:4g}: " + " | ".join(
+            f"{k} {v['faces']} f {v['rms_pct']:.4f}/{v['max_pct']:.3f}" for k, v in entry.items() if k != "ratio"),
+            flush=True)
     return row
+
+
+def verdict(lv: dict, input_faces: int) -> dict:
+    """rigslim against the peer that went furthest (fewest faces; the lower RMS among peers within 3 % of it).
+
+    Returns the peer, rigslim RMS / its RMS and rigslim max / its max, each at the peer's face count (rigslim
+    within 3 % of it), and whether the targets (<= 0.8, <= 1.0) are met; {} when no peer simplified.
+    """
+    done = [(lv[n]["faces"], lv[n]["rms_pct"], n) for n in ("gltfpack", "gltf-transform")
+            if lv.get(n) and lv.get(f"rigslim@{n}") and lv[n]["faces"] < input_faces]
+    if not done:
+        return {}
+    fewest = min(f for f, _, _ in done)
+    _, _, best = min((rms, f, n) for f, rms, n in done if f <= (1 + EQUAL) * fewest)
+    p, r = lv[best], lv[f"rigslim@{best}"]
+    out = {"best_peer": best, "faces": p["faces"], "equal_faces": abs(r["faces"] - p["faces"]) <= EQUAL * p["faces"],
+           "rms_ratio": r["rms_pct"] / p["rms_pct"] if p["rms_pct"] > 0 else float("inf"),
+           "max_ratio": r["max_pct"] / p["max_pct"] if p["max_pct"] > 0 else float("inf")}
+    out["met"] = bool(out["equal_faces"] and out["rms_ratio"] <= 0.8 and out["max_ratio"] <= 1.0)
+    return out
 
 
 def markdown(doc: dict) -> str:
     m = doc["machine"]
-    lines = ["# glTF levels of detail: `rigslim lod` against gltfpack", "",
-             f"Machine: {m['cpu']}, nproc {m['nproc']}, Python {m['python']} (shared 2-core machine; other jobs "
-             "ran at the same time, so timings are upper bounds). Written by `benchmarks/gltf_lod.py`.", "",
-             f"gltfpack: {doc['gltfpack'] or 'not run'} (`-si R -noq`). rigslim: `rigslim lod IN -o OUT --ratios "
-             "0.5,0.25` (quartic [S09], at most 4 bones per vertex, UV seams and material boundaries collapsed only "
-             "along themselves). "
-             "Errors: `rigslim compare` (two-sided Hausdorff, pymeshlab, "
-             f"{doc['samples']} samples per direction and frame) on the test frames, RMS averaged over them, as % of "
-             "the input's world-space bounding-box diagonal; ratio = rigslim RMS / gltfpack RMS (target <= 0.5). "
-             "Face counts differ where seam corners stop rigslim early or gltfpack stops at its error limit.", "",
-             "Two gltfpack runs per ratio: `-si R -noq` as the issue states (gltfpack stops at its error limit, "
-             "so it may keep more faces) and `-si R -sa -noq` (aggressive: ignores the limit, reaches R). The target "
-             "is judged against the gltfpack result with the same face count as rigslim's (within 5 %), when one has "
-             "it; otherwise rigslim is run again at gltfpack -sa's face count (shown in brackets: faces and RMS) and "
-             "judged there; `n/a` where no comparison at equal faces exists (neither tool simplified).", "",
-             "| character | faces | target | rigslim faces | rigslim RMS % | gltfpack faces | gltfpack RMS % | "
-             "gltfpack -sa faces | gltfpack -sa RMS % | ratio (equal faces) | <= 0.5 |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["# glTF levels of detail: `rigslim lod` against gltfpack and gltf-transform", "",
+             f"Machine: {m['cpu']}, nproc {m['nproc']}, Python {m['python']}, load {m.get('load', 0):.1f} at the "
+             "start (a shared 2-core machine: timings are upper bounds). Written by `benchmarks/gltf_lod.py`.", "",
+             f"Peers: {doc['tools']}. gltfpack `-si R -sa -noq`; gltf-transform `weld`, `simplify --ratio R "
+             "--error 1`. rigslim `lod --ratios F/F0` at each peer's face count F (quartic [S09], 4 bones, seams and "
+             "borders collapsing only along themselves, no error bound). Errors: `rigslim compare` (two-sided "
+             f"Hausdorff, pymeshlab, {doc['samples']} samples per direction and frame) on the test frames: RMS "
+             "averaged over the frames / max over them, % of the input's world diagonal. Ratios against the better "
+             "peer at its face count: the peer that went furthest (fewest faces; of two within 3 % of each other, the "
+             "lower RMS), rigslim within 3 % of its faces; targets RMS <= 0.8, max <= 1.0.", "",
+             "| character | faces | R | gltfpack | rigslim at its faces | gltf-transform | rigslim at its faces | "
+             "RMS ratio | max ratio | met |", "|---|---|---|---|---|---|---|---|---|---|"]
+
+    def cell(x):
+        return f"{x['faces']}: {x['rms_pct']:.4f} / {x['max_pct']:.3f}" if x else ""
+
     for row in doc["results"]:
         for lv in row["levels"]:
-            g, ga = lv.get("gltfpack"), lv.get("gltfpack_sa")
-            rf = lv["rigslim"]["faces"]
-            same = [x for x in (g, ga) if x and abs(x["faces"] - rf) <= 0.05 * max(rf, 1)]
-            ratio = min((x["rms_ratio"] for x in same), default=None)
-            extra = lv.get("rigslim_at_gltfpack_sa")
-            if ratio is None and extra and abs(extra["faces"] - ga["faces"]) <= 0.05 * max(ga["faces"], 1):
-                ratio = extra["rms_ratio"]
-                rf = f"{rf} ({extra['faces']}: {extra['rms_pct']:.4f})"
-            lv["rms_ratio_equal_faces"] = ratio
-            met = "n/a" if ratio is None else ("yes" if ratio <= 0.5 else "no")
-            if lv["rigslim"]["faces"] >= row["input_faces"] and (not g or g["faces"] >= row["input_faces"]):
-                met = "n/a (neither simplified)"
-            cells = [f"{x['faces']} | {x['rms_pct']:.4f}" if x else " | " for x in (g, ga)]
-            lines.append(f"| {row['character']} | {row['input_faces']} | {lv['ratio']:g} | {rf} | "
-                         f"{lv['rigslim']['rms_pct']:.4f} | {cells[0]} | {cells[1]} | "
-                         f"{'' if ratio is None else f'{ratio:.2f}'} | {met} |")
-    lines += ["", "## Time of `rigslim lod`", "",
-              "Process: the whole `rigslim lod` command line (Python start-up, imports, numba's cached kernels, "
-              "reading, decimation, writing). Command: the pipeline run inside it (`seconds` of `--report`). "
-              f"Fastest of {REPEATS} runs (all runs in brackets; the machine is shared, so the spread is load).", "",
-              "| character | faces | example poses | process (s) | command (s) |", "|---|---|---|---|---|"]
+            v = verdict(lv, row["input_faces"])
+            lv["verdict"] = v
+            ratios = (f"{v['rms_ratio']:.2f} | {v['max_ratio']:.2f} | {'yes' if v['met'] else 'no'}" if v
+                      else " | | n/a")
+            lines.append(f"| {row['character']} | {row['input_faces']} | {lv['ratio']:g} | "
+                         f"{cell(lv.get('gltfpack'))} | {cell(lv.get('rigslim@gltfpack'))} | "
+                         f"{cell(lv.get('gltf-transform'))} | {cell(lv.get('rigslim@gltf-transform'))} | {ratios} |")
+    judged = [lv["verdict"] for row in doc["results"] for lv in row["levels"] if lv.get("verdict")]
+    lines += ["", f"Met at {sum(v['met'] for v in judged)} of {len(judged)} levels.", "",
+              "## Time of `rigslim lod --ratios 0.5,0.25,0.1`", "",
+              "Process: the whole command line (Python start-up, imports, numba's cached kernels, reading, "
+              "decimation, writing); gltfpack: its three runs (`-si R -sa -noq`) in the same loop. Fastest of "
+              f"{REPEATS}. Phases of the decimate step and the compiled loop's cost per collapse from the step "
+              "report (the fastest run's).", "",
+              "| character | faces | example poses | process (s) | gltfpack (s) | ratio | quadrics / collapses (s) | "
+              "collapses | us per collapse |", "|---|---|---|---|---|---|---|---|---|"]
     for row in doc["results"]:
-        allp = ", ".join(f"{x:.2f}" for x in row["rigslim_process_seconds_all"])
-        allc = ", ".join(f"{x:.2f}" for x in row["rigslim_command_seconds_all"])
+        gp = row.get("gltfpack_seconds")
+        ratio = f"{row['rigslim_process_seconds'] / gp:.1f}" if gp else ""
+        ph, lp = row.get("phases") or {}, row.get("loop") or {}
         lines.append(f"| {row['character']} | {row['input_faces']} | {row['example_poses']} | "
-                     f"{row['rigslim_process_seconds']:.2f} ({allp}) | {row['rigslim_command_seconds']:.2f} ({allc}) |")
+                     f"{row['rigslim_process_seconds']:.2f} | {'' if gp is None else f'{gp:.2f}'} | "
+                     f"{ratio} | "
+                     f"{ph.get('quadrics', 0):.2f} / {ph.get('collapses', 0):.2f} | {lp.get('collapses', '')} | "
+                     f"{lp.get('loop_us_per_collapse', 0):.0f} |")
     lines.append("")
     return "\n".join(lines)
 
@@ -196,25 +261,35 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--gltfpack", default=str(ROOT / "tools/node/node_modules/gltfpack/cli.js"),
                     help="gltfpack: a binary, or the npm package's cli.js (run with node)")
+    ap.add_argument("--gltf-transform", default=str(ROOT / "tools/node/node_modules/.bin/gltf-transform"),
+                    help="the gltf-transform command line")
+    ap.add_argument("--suite", type=Path, help="a folder of suite characters (.glb/.gltf, searched recursively)")
+    ap.add_argument("--only", nargs="*", help="only characters whose file name contains one of these")
     ap.add_argument("--samples", type=int, default=20000)
     ap.add_argument("--out", default=str(OUT))
     args = ap.parse_args(argv)
-    gltfpack = None
-    version = None
+    tools, versions = {}, {}
     if args.gltfpack and Path(args.gltfpack).exists():
-        gltfpack = (["node", args.gltfpack] if args.gltfpack.endswith(".js") else [args.gltfpack])
-        p = subprocess.run(gltfpack + ["-h"], capture_output=True, text=True)
-        version = ((p.stdout or p.stderr).splitlines() or ["gltfpack"])[0]
+        tools["gltfpack"] = ["node", args.gltfpack] if args.gltfpack.endswith(".js") else [args.gltfpack]
+        p = subprocess.run(tools["gltfpack"] + ["-h"], capture_output=True, text=True)
+        versions["gltfpack"] = ((p.stdout or p.stderr).splitlines() or ["gltfpack"])[0]
+    if args.gltf_transform and Path(args.gltf_transform).exists():
+        tools["gltf-transform"] = [args.gltf_transform]
+        p = subprocess.run(tools["gltf-transform"] + ["--version"], capture_output=True, text=True)
+        versions["gltf-transform"] = "gltf-transform " + (p.stdout.strip() or "?")
     results = []
+    load = os.getloadavg()[0]
     with tempfile.TemporaryDirectory(prefix="rigslim-gltf-lod-") as tmp:
         tmp = Path(tmp)
         # warm-up: numba compiles (or loads its cache) once, outside the timed runs
         run(RIGSLIM + ["lod", str(GLTF / "huesitos.glb"), "-o", str(tmp / "warm.glb")])
-        paths = characters() + [export_elephant(tmp)]
+        paths = characters(args.suite) + assimp_characters(tmp) + [export_elephant(tmp)]
+        if args.only:
+            paths = [p for p in paths if any(k in p.name for k in args.only)]
         for path in paths:
-            results.append(bench(path, tmp, gltfpack, args.samples))
-    doc = {"machine": machine() | {"load": os.getloadavg()[0]}, "gltfpack": version, "samples": args.samples,
-           "ratios": list(RATIOS), "results": results}
+            results.append(bench(path, tmp, tools, args.samples))
+    doc = {"machine": machine() | {"load": load}, "tools": ", ".join(versions.values()) or "none",
+           "samples": args.samples, "ratios": list(RATIOS), "results": results}
     md = markdown(doc)
     write_results(Path(args.out) / "gltf_lod", doc, md)
     print(md)

@@ -44,7 +44,7 @@ OUT = ROOT / "docs" / "results"
 
 def errors(asset, reduced, frames=None):
     """Mean over frames of position RMS (% diag), normal RMS (rad) and the normal angle's p99 (rad)."""
-    from rigslim.blend import linear_blend, per_vertex_normals
+    from rigslim.numerics.blend import linear_blend, per_vertex_normals
     from rigslim.numerics.normal_error import normal_angles
 
     frames = asset.split.test if frames is None else frames
@@ -174,9 +174,11 @@ def part_ks(repeat):
 def pipeline_asset(yaml_name):
     from rich.console import Console
 
-    from rigslim.host import get_host
-    from rigslim.pipeline import _run_step, load_pipeline, read_inputs
-    from rigslim.progress import Reporter
+    from rigslim.plugin.host import get_host
+    from rigslim.runtime.document import load_pipeline
+    from rigslim.runtime.inputs import read_inputs
+    from rigslim.runtime.progress import Reporter
+    from rigslim.runtime.run import _run_step
 
     path = ROOT / "examples" / yaml_name
     host = get_host()

@@ -36,9 +36,11 @@ METHODS = [
 def main() -> None:
     from rich.console import Console
 
-    from rigslim.host import get_host
-    from rigslim.pipeline import _run_step, load_pipeline, read_inputs
-    from rigslim.progress import Reporter
+    from rigslim.plugin.host import get_host
+    from rigslim.runtime.document import load_pipeline
+    from rigslim.runtime.inputs import read_inputs
+    from rigslim.runtime.progress import Reporter
+    from rigslim.runtime.run import _run_step
 
     host = get_host()
     doc, steps = load_pipeline(PIPELINE, host=host)

@@ -41,7 +41,7 @@ VALIDATION = "2:457:7"
 
 def frame_errors(asset, reduced, frames):
     """Per-frame (position % of diagonal, normal rad) on the given frame numbers."""
-    from rigslim.blend import linear_blend, per_vertex_normals
+    from rigslim.numerics.blend import linear_blend, per_vertex_normals
     from rigslim.numerics.normal_error import normal_rms_angle
 
     V, F = asset.mesh.V, asset.mesh.F
@@ -66,8 +66,8 @@ def nnls_reference(asset):
     its rows do not sum to one, so the rest pose is not reproduced exactly."""
     from scipy.optimize import nnls
 
+    from rigslim.model.weights import ReducedWeights
     from rigslim.plugins.solvers.problem import pose_basis
-    from rigslim.weights import ReducedWeights
 
     t0 = time.perf_counter()
     B, Y = pose_basis(asset, asset.influences)
@@ -93,8 +93,8 @@ def solve(asset, method, **params):
 
 
 def main():
+    from rigslim.model.poses import parse_frames
     from rigslim.plugins.selection.k_largest import k_largest
-    from rigslim.poses import parse_frames
 
     asset = elephant(0)
     test = asset.split.test

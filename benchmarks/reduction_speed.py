@@ -66,7 +66,7 @@ def dem_bones_weights(asset, k):
     import py_dem_bones as pdb
     import scipy.sparse as sp
 
-    from rigslim.blend import linear_blend
+    from rigslim.numerics.blend import linear_blend
 
     V = asset.mesh.V
     T = asset.example_poses().T
@@ -114,7 +114,7 @@ def main():
     ap.add_argument("--sweeps-up-to", type=int, default=2,
                     help="run the plain local sweep rows (paper's solver) up to this subdivision level")
     args = ap.parse_args()
-    from rigslim.opencl import get_runtime
+    from rigslim.device.opencl import get_runtime
     from rigslim.plugins.selection.k_largest import k_largest
 
     try:

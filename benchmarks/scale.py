@@ -65,11 +65,11 @@ def write_tube(path: Path, triangles: int) -> dict:
     """The tube as a skinned .glb (rigslim's exporter), bent by bone 1 about z over 31 frames."""
     import scipy.sparse as sp
 
-    from rigslim.handles import Handles
-    from rigslim.io.gltf_write import export_skinned
+    from rigslim.model.handles import Handles
+    from rigslim.io.gltf.write import export_skinned
     from rigslim.io.transforms import trs_matrix
-    from rigslim.mesh import Mesh
-    from rigslim.poses import Poses
+    from rigslim.model.mesh import Mesh
+    from rigslim.model.poses import Poses
 
     V, F, W = tube(triangles)
     rows = np.repeat(np.arange(len(V)), 2)

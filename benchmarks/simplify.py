@@ -48,10 +48,10 @@ def armadillo(n_frames: int = 80, seed: int = 7, amplitude: tuple[float, float] 
     frames ``0:80:8`` and test frames ``4:80:8`` are disjoint samples of one
     smooth motion.
     """
-    from rigslim.asset import Asset
     from rigslim.io import read_dmat, read_mesh
-    from rigslim.poses import FrameSplit, Poses
-    from rigslim.weights import validate_weights
+    from rigslim.model.asset import Asset
+    from rigslim.model.poses import FrameSplit, Poses
+    from rigslim.model.weights import validate_weights
 
     mesh = read_mesh(DATA / "armadillo.obj")
     W = validate_weights(read_dmat(DATA / "armadillo-weights.dmat"), mesh.n_vertices, normalize=True)
@@ -87,11 +87,11 @@ def warm_up(backend: str) -> float:
     import igl
     import scipy.sparse as sp
 
-    from rigslim.asset import Asset
-    from rigslim.host import get_host
-    from rigslim.mesh import Mesh
+    from rigslim.model.asset import Asset
+    from rigslim.model.mesh import Mesh
+    from rigslim.model.poses import FrameSplit, Poses
     from rigslim.plugin import StepContext
-    from rigslim.poses import FrameSplit, Poses
+    from rigslim.plugin.host import get_host
 
     V = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
     F = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
@@ -112,10 +112,10 @@ def warm_up(backend: str) -> float:
 
 def run_method(asset, method: str, min_faces: int, max_bones, test_stride: int, samples: int,
                backend: str = "numba"):
-    from rigslim.evaluation import Evaluation
-    from rigslim.host import get_host
     from rigslim.numerics.surface_distance import metro_distance
     from rigslim.plugin import StepContext
+    from rigslim.plugin.evaluation import Evaluation
+    from rigslim.plugin.host import get_host
 
     host = get_host()
     plugin = host.get("articulated-decimation", method)
@@ -164,14 +164,14 @@ def gltfpack_comparison(gltfpack: str, samples: int, ratios=(0.1, 0.02)):
     import scipy.sparse as sp
     from scipy.spatial import cKDTree
 
-    from rigslim.evaluation import Evaluation
-    from rigslim.hierarchy import SimplifiedLevel
-    from rigslim.host import get_host
-    from rigslim.io.gltf import load_gltf, read_accessor
-    from rigslim.io.gltf_write import export_skinned
-    from rigslim.mesh import Mesh
+    from rigslim.io.gltf.document import load_gltf, read_accessor
+    from rigslim.io.gltf.write import export_skinned
+    from rigslim.model.hierarchy import SimplifiedLevel
+    from rigslim.model.mesh import Mesh
     from rigslim.numerics.surface_distance import metro_distance
     from rigslim.plugin import StepContext
+    from rigslim.plugin.evaluation import Evaluation
+    from rigslim.plugin.host import get_host
     from rigslim.plugins.decimation.articulated import limited_weights
     from rigslim.plugins.decimation.static_qslim import nearest_vertex_weights
 

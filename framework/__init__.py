@@ -10,6 +10,11 @@ imported by the plugins that need them, when they run. The Python API
     rigslim.registry()["weight-solver"]                  # plugins by stage
     result = rigslim.Pipeline.from_yaml("examples/elephant-k4.yaml").run()
     reduced = rigslim.reduce_weights(mesh, weights, poses, k=4, solve="poisson")
+
+The subpackages, by purpose (docs/layout.md): :mod:`rigslim.model`, :mod:`rigslim.numerics`,
+:mod:`rigslim.io`, :mod:`rigslim.plugin`, :mod:`rigslim.runtime`, :mod:`rigslim.report`,
+:mod:`rigslim.batch`, :mod:`rigslim.commands`, and :mod:`rigslim.device` beside them. The module paths
+from before that layout (``rigslim.mesh``, ``rigslim.pipeline``...) still import (:mod:`rigslim.compat`).
 """
 
 from importlib.metadata import PackageNotFoundError
@@ -21,18 +26,22 @@ try:
 except PackageNotFoundError:  # running from a source tree that is not installed
     __version__ = "0.0.0+unknown"
 
+from rigslim.compat import install as _install_old_paths  # noqa: E402
+
+_install_old_paths()
+
+from rigslim.device.numba_threads import configure as _configure_numba_threads  # noqa: E402
 from rigslim.errors import RigslimError  # noqa: E402
-from rigslim.numba_threads import configure as _configure_numba_threads  # noqa: E402
 
-_configure_numba_threads()  # before numba is imported: a new-enough TBB, or none (rigslim.numba_threads)
+_configure_numba_threads()  # before numba is imported: a new-enough TBB, or none (rigslim.device.numba_threads)
 
-from rigslim.hookspecs import hookimpl  # noqa: E402
+from rigslim.plugin.hookspecs import hookimpl  # noqa: E402
 
 __all__ = ["__version__", "RigslimError", "hookimpl", "Pipeline", "RunResult", "reduce_weights", "registry",
            "simplify"]
 
 _API = {"Pipeline": "rigslim.api", "reduce_weights": "rigslim.api", "registry": "rigslim.api",
-        "simplify": "rigslim.api", "RunResult": "rigslim.pipeline"}
+        "simplify": "rigslim.api", "RunResult": "rigslim.runtime.run"}
 
 
 def __getattr__(name: str) -> Any:

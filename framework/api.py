@@ -20,15 +20,16 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from rigslim.asset import Asset
 from rigslim.errors import InputError
-from rigslim.handles import Handles
-from rigslim.host import PluginHost, PluginInfo, get_host
-from rigslim.mesh import Mesh
-from rigslim.pipeline import PipelineDoc, RunResult, Step, load_pipeline, run_pipeline
-from rigslim.plugin import Decimation, Decimator, StepContext
-from rigslim.poses import FrameSplit, Poses
-from rigslim.weights import ReducedWeights, validate_weights
+from rigslim.model.asset import Asset
+from rigslim.model.handles import Handles
+from rigslim.model.mesh import Mesh
+from rigslim.model.poses import FrameSplit, Poses
+from rigslim.model.weights import ReducedWeights, validate_weights
+from rigslim.plugin.contract import Decimation, Decimator, StepContext
+from rigslim.plugin.host import PluginHost, PluginInfo, get_host
+from rigslim.runtime.document import PipelineDoc, Step, load_pipeline
+from rigslim.runtime.run import RunResult, run_pipeline
 
 __all__ = ["Pipeline", "reduce_weights", "registry", "simplify"]
 
@@ -44,7 +45,7 @@ def registry(host: PluginHost | None = None) -> dict[str, dict[str, PluginInfo]]
     Returns
     -------
     dict
-        ``{stage: {name: PluginInfo}}``; a :class:`rigslim.host.PluginInfo` has ``stage``,
+        ``{stage: {name: PluginInfo}}``; a :class:`rigslim.plugin.host.PluginInfo` has ``stage``,
         ``name``, ``package``, ``version``, ``summary``, the ``plugin`` object, and
         ``params_schema`` (the JSON schema of its ``Params``).
     """
@@ -121,7 +122,7 @@ def _asset(mesh: Mesh | tuple[np.ndarray, np.ndarray], weights: Any, poses: Pose
            handles: Handles | None) -> Asset:
     if not isinstance(mesh, Mesh):
         if not (isinstance(mesh, tuple) and len(mesh) == 2):
-            raise InputError("mesh must be a rigslim.mesh.Mesh or a (V, F) pair", field="mesh",
+            raise InputError("mesh must be a rigslim.model.mesh.Mesh or a (V, F) pair", field="mesh",
                              fix="pass Mesh(V, F) or (V, F)")
         mesh = Mesh(*mesh, source="mesh")
     W = validate_weights(weights if sp.issparse(weights) else sp.csr_matrix(np.asarray(weights, dtype=np.float64)),

@@ -20,10 +20,10 @@ def data_dir() -> Path:
 @pytest.fixture(scope="session")
 def elephant():
     """The elephant asset: mesh, skeleton, weights, all 457 poses and the issue's split."""
-    from rigslim.asset import Asset
     from rigslim.io import read_dmat, read_mesh, read_stacked_animation, read_tgf
-    from rigslim.poses import FrameSplit
-    from rigslim.weights import validate_weights
+    from rigslim.model.asset import Asset
+    from rigslim.model.poses import FrameSplit
+    from rigslim.model.weights import validate_weights
 
     mesh = read_mesh(DATA / "elephant.obj")
     handles = read_tgf(DATA / "elephant.tgf")

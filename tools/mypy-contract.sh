@@ -18,5 +18,6 @@ MYPY=${MYPY:-mypy}
 [ -x "$root/.venv/bin/mypy" ] && MYPY="$root/.venv/bin/mypy"
 cd "$tmp"
 "$MYPY" --config-file "$root/pyproject.toml" --cache-dir /dev/null --follow-imports=silent \
-    -m rigslim.plugin -m rigslim.hookspecs -m rigslim.host -m rigslim.asset -m rigslim.evaluation \
-    -m rigslim.api -m rigslim.metrics_document -m rigslim.numerics.k_largest "$@"
+    -m rigslim.plugin -m rigslim.plugin.contract -m rigslim.plugin.hookspecs -m rigslim.plugin.host \
+    -m rigslim.plugin.evaluation -m rigslim.model.asset -m rigslim.api -m rigslim.runtime.metrics_document \
+    -m rigslim.numerics.k_largest -m rigslim.compat "$@"

@@ -1,7 +1,7 @@
 """Which OpenCL CPU devices can build and run a kernel here (used by tools/setup-pocl.sh).
 
 Prints one line per CPU device (its platform and whether the compile probe of
-rigslim.opencl passed, or why not); exits 0 when at least one passed, 1 when
+rigslim.device.opencl passed, or why not); exits 0 when at least one passed, 1 when
 none did (or pyopencl is missing), so that setup-pocl.sh knows to install
 Debian's PoCL.
 """
@@ -15,7 +15,7 @@ def main() -> int:
     try:
         import pyopencl as cl
 
-        from rigslim.opencl import cpu_model, describe, list_devices, probe_device
+        from rigslim.device.opencl import cpu_model, describe, list_devices, probe_device
     except ImportError as e:
         print(f"probe-opencl: cannot import pyopencl/rigslim ({e})")
         return 1

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Headless Chromium for the report browser test (tests/test_report_browser.py):
+# Headless Chromium for the report browser test (tests/framework/report/test_report_browser.py):
 # Debian's 'chromium' package and a font for the page text. Idempotent: does
 # nothing when a chromium binary is already on PATH.
 set -euo pipefail

@@ -2,7 +2,7 @@
 # An OpenCL CPU device for the OpenCL tests. PyPI's PoCL (bundled with pyopencl's wheel,
 # pocl-binary-distribution) cannot compile for CPUs newer than its LLVM ("unknown target CPU");
 # then this installs Debian's pocl-opencl-icd, which the wheel's ICD loader finds in
-# /etc/OpenCL/vendors, and rigslim.opencl picks whichever device passes its compile probe.
+# /etc/OpenCL/vendors, and rigslim.device.opencl picks whichever device passes its compile probe.
 # Idempotent: does nothing when a CPU device already builds kernels.
 # Usage: tools/setup-pocl.sh [--force]   (--force installs Debian's PoCL even when PyPI's works)
 set -euo pipefail

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Test characters and peers for the glTF commands (tests/test_gltf_commands.py, benchmarks/gltf_lod.py):
+# Test characters and peers for the glTF commands (tests/framework/commands/test_gltf_commands.py, benchmarks/gltf_lod.py):
 #   - Debian's assimp-testmodels (assimp's test scenes, ~21 MB) and assimp-utils (the `assimp` converter):
 #     the FBX characters are converted to .glb with `assimp export IN.fbx OUT.glb -fglb2`;
 #   - gltfpack (npm package "gltfpack", meshoptimizer's glTF simplifier, pinned) into tools/node/,

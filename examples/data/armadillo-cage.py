@@ -58,10 +58,10 @@ def main():
     sys.path.insert(0, str(HERE.parents[1]))
     import igl
 
-    from rigslim.handles import cage_transforms
     from rigslim.io import read_mesh, write_dmat
     from rigslim.io.animation import transforms_to_stacked
     from rigslim.io.atomic import atomic_path
+    from rigslim.model.handles import cage_transforms
     from rigslim.plugins.generators.cage import build_cage, enclosure
 
     mesh = read_mesh(HERE / "armadillo.obj")

@@ -12,7 +12,7 @@ import numpy as np
 
 from rigslim.errors import InputError
 from rigslim.io.dmat import read_dmat
-from rigslim.poses import Poses
+from rigslim.model.poses import Poses
 
 
 def stacked_to_transforms(D: np.ndarray, *, source=None) -> np.ndarray:

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from rigslim.errors import InputError
-from rigslim.mesh import Mesh
+from rigslim.model.mesh import Mesh
 
 MESH_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".mesh")
 
@@ -38,7 +38,7 @@ def read_mesh(path) -> Mesh:
         return Mesh(V, F, source=str(path))
     import igl
 
-    from rigslim.native import native_stderr
+    from rigslim.device.native import native_stderr
 
     _check_polygons(path, suffix)
     with native_stderr() as said:
@@ -204,7 +204,7 @@ def read_medit_surface(path):
     _check_file(path)
     import igl
 
-    from rigslim.native import native_stderr
+    from rigslim.device.native import native_stderr
 
     with native_stderr() as said:
         try:

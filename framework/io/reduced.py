@@ -12,7 +12,7 @@ import numpy as np
 
 from rigslim.errors import InputError
 from rigslim.io.atomic import atomic_path
-from rigslim.weights import ReducedWeights
+from rigslim.model.weights import ReducedWeights
 
 FORMAT = "rigslim.reduced-weights/1"
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from rigslim.errors import InputError
-from rigslim.handles import Handles
+from rigslim.model.handles import Handles
 
 
 def read_tgf(path) -> Handles:

@@ -1,7 +1,7 @@
 """Rotations of glTF nodes: quaternions ``(x, y, z, w)``, TRS matrices, slerp, and rigid parts of 3x4 transforms.
 
 The reader (:mod:`rigslim.io.gltf`) turns node TRS and animation channels into matrices; the writer
-(:mod:`rigslim.io.gltf_write`) turns rigid 3x4 handle transforms back into rotations and translations.
+(:mod:`rigslim.io.gltf.write`) turns rigid 3x4 handle transforms back into rotations and translations.
 Both directions live here so that they stay each other's inverse (glTF 2.0 specification, section 3.5.2
 "Transformations", and Appendix C for spherical linear interpolation).
 """

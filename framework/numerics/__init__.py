@@ -1,5 +1,7 @@
 """Numerics that more than one stage (or the core) uses; each module is one job, named after it.
 
+- :mod:`~rigslim.numerics.blend`: the linear blend ``v' = sum_i a_i T_i [v; 1]`` and blended matrices (the
+  numpy reference of every deformer);
 - :mod:`~rigslim.numerics.k_largest`: the k largest entries of each row (influence sets, [P10] section 3);
 - :mod:`~rigslim.numerics.small_qp`: batches of small equality- and bound-constrained QPs (the local
   solver's per-vertex solve, docs/algorithms.md section 2);

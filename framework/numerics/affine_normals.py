@@ -18,8 +18,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from rigslim.errors import StepError
+from rigslim.model.weights import ReducedWeights
 from rigslim.numerics.blended_normals import normalize_rows
-from rigslim.weights import ReducedWeights
 
 #: A vertex whose weighted rest handles (nearly) span less than 3 dimensions
 #: (``lambda_min(P) < DEGENERATE * lambda_max(P)``) gets a ridge term. At a

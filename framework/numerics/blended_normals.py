@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rigslim.blend import blended_matrices
+from rigslim.numerics.blend import blended_matrices
 
 
 def _cofactor_apply_det(R: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

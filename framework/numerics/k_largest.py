@@ -11,7 +11,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from rigslim.errors import StepError
-from rigslim.weights import InfluenceSets
+from rigslim.model.weights import InfluenceSets
 
 __all__ = ["check_k", "k_largest"]
 

@@ -112,9 +112,10 @@ def _reduced_from_outputs(folder: Path, asset):
     """Reduced weights (sparse, m x n) from the asset's outputs, or (None, reason)."""
     import scipy.sparse as sp
 
-    from rigslim.host import get_host
-    from rigslim.pipeline import PipelineDoc, read_inputs
-    from rigslim.plugin import StepContext
+    from rigslim.plugin.contract import StepContext
+    from rigslim.plugin.host import get_host
+    from rigslim.runtime.document import PipelineDoc
+    from rigslim.runtime.inputs import read_inputs
 
     m, n = asset.mesh.n_vertices, asset.handles.n
     tried = []
@@ -156,12 +157,13 @@ def render_asset(folder: Path, width: int = 320, height: int = 270, backend: str
     (renders, note)
         ``renders`` is a list of (caption, PNG bytes); ``note`` says why there are none.
     """
-    from rigslim.blend import linear_blend
-    from rigslim.host import get_host
-    from rigslim.pipeline import load_pipeline, read_inputs
-    from rigslim.plugin import StepContext
-    from rigslim.render import Camera, png_bytes, render_mesh
+    from rigslim.numerics.blend import linear_blend
+    from rigslim.plugin.contract import StepContext
+    from rigslim.plugin.host import get_host
+    from rigslim.report.render import Camera, png_bytes, render_mesh
     from rigslim.report.renders import HEAT_CMAP, heat_colors
+    from rigslim.runtime.document import load_pipeline
+    from rigslim.runtime.inputs import read_inputs
 
     try:
         metrics = json.loads((folder / "metrics.json").read_text())
@@ -340,7 +342,7 @@ def cmd_report_batch(args) -> int:
     """``rigslim report DIR/summary.csv -o batch.html``: dispatched by the report command for .csv inputs."""
     from rich.console import Console
 
-    from rigslim.progress import Reporter
+    from rigslim.runtime.progress import Reporter
 
     if len(args.metrics) != 1:
         raise InputError("a batch report takes one summary.csv", field="METRICS", fix="give one DIR/summary.csv "

@@ -51,11 +51,12 @@ def load_render_data(document: dict, json_path=None) -> RenderData:
     """
     from types import SimpleNamespace
 
-    from rigslim.host import get_host
     from rigslim.io import read_reduced_npz
-    from rigslim.pipeline import load_pipeline, read_inputs
-    from rigslim.plugin import StepContext
-    from rigslim.poses import FrameSplit
+    from rigslim.model.poses import FrameSplit
+    from rigslim.plugin.contract import StepContext
+    from rigslim.plugin.host import get_host
+    from rigslim.runtime.document import load_pipeline
+    from rigslim.runtime.inputs import read_inputs
 
     json_path = Path(json_path) if json_path else None
     notes = []
@@ -133,7 +134,7 @@ def _mismatch(asset, R, evaluation: dict, solve_step: dict, tolerance: float = 1
     deformers), so that an ``.npz`` overwritten by a later run is not
     rendered under the wrong name.
     """
-    from rigslim.blend import linear_blend
+    from rigslim.numerics.blend import linear_blend
 
     if asset.mesh is None or R.n_vertices != asset.mesh.n_vertices:
         return "has another vertex count than the mesh"

@@ -35,8 +35,8 @@ def reduced_from_gltf(path, asset):
         None when the input was not glTF (an export from OBJ/TGF/DMAT keeps the mesh order:
         then the file's weights are read unwelded).
     """
-    from rigslim.io.gltf import read_gltf_skin
-    from rigslim.io.gltf_write import fixed_width_weights
+    from rigslim.io.gltf.skin import read_gltf_skin
+    from rigslim.io.gltf.write import fixed_width_weights
 
     source = asset.extras.get("gltf")
     weld = source is not None and source.vertex_map is not None
@@ -50,8 +50,8 @@ def reduced_from_gltf(path, asset):
 def lod_rows(path) -> list[dict]:
     """One row per (original node, level): ``node``, ``level``, ``level_node``, ``mesh``, ``primitives``,
     ``materials``, ``triangles``, ``vertices``; level 0 is the original mesh."""
-    from rigslim.io.gltf import load_gltf
-    from rigslim.io.gltf_lod import lod_nodes
+    from rigslim.io.gltf.document import load_gltf
+    from rigslim.io.gltf.lod import lod_nodes
 
     js = load_gltf(path).json
     rows = []
@@ -121,8 +121,8 @@ def world_diagonal(path) -> float:
     """Bounding-box diagonal of a skinned glTF posed at t = 0 in world space (``G(joint) IBM v``; glTF: metres)."""
     import numpy as np
 
-    from rigslim.blend import linear_blend
-    from rigslim.io.gltf import read_gltf_skin
+    from rigslim.io.gltf.skin import read_gltf_skin
+    from rigslim.numerics.blend import linear_blend
 
     skin = read_gltf_skin(path, weld=True, times=[0.0])
     P = linear_blend(skin.mesh.V, skin.weights, skin.poses.T[0])

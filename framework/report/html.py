@@ -9,7 +9,7 @@ self-contained HTML page (every image a ``data:`` URI):
 - matplotlib figures (:mod:`rigslim.report.plots`): per-frame error curves,
   error against k when runs with several k are given, and weight-count
   histograms before and after reduction;
-- renders of chosen test frames (:mod:`rigslim.render`, OpenGL through EGL):
+- renders of chosen test frames (:mod:`rigslim.report.render`, OpenGL through EGL):
   the deformation with the full input weights, with each run's reduced
   weights, and the reduced deformation coloured by normal deviation.
 
@@ -274,7 +274,7 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
 
 
 def _png_of(image) -> bytes:
-    from rigslim.render import png_bytes
+    from rigslim.report.render import png_bytes
 
     return png_bytes(image)
 

@@ -22,7 +22,7 @@ from typing import Annotated
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from rigslim.errors import InputError, brief
-from rigslim.jsonsafe import finite_copy
+from rigslim.io.jsonsafe import finite_copy
 
 #: Largest metrics JSON read (bytes).
 MAX_BYTES = 256 << 20

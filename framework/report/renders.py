@@ -1,4 +1,5 @@
-"""The report's renders: full, reduced and normal-deviation images of chosen test frames (:mod:`rigslim.render`)."""
+"""The report's renders: full, reduced and normal-deviation images of chosen test frames
+(:mod:`rigslim.report.render`)."""
 
 from __future__ import annotations
 
@@ -95,8 +96,8 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
     the two, the per-vertex term of ``normal_rms_rad``.
     All images of one frame share one camera fitted to the full deformation.
     """
-    from rigslim.blend import linear_blend, per_vertex_normals
-    from rigslim.render import Camera, render_mesh
+    from rigslim.numerics.blend import linear_blend, per_vertex_normals
+    from rigslim.report.render import Camera, render_mesh
 
     out = RenderSet()
     jobs = []
@@ -163,12 +164,12 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
 
 def _estimated_normals(asset, R, T, Xr, estimator) -> np.ndarray:
     """Unit normals of a reduced deformation from the named normal estimator (default recomputed)."""
-    from rigslim.blend import per_vertex_normals
+    from rigslim.numerics.blend import per_vertex_normals
 
     name, params = estimator or ("recomputed", {})
     if name == "recomputed" and not params:
         return per_vertex_normals(Xr, asset.mesh.F)
-    from rigslim.host import get_host
+    from rigslim.plugin.host import get_host
 
     plugin = get_host().get("normal-estimator", name)
     N = np.asarray(plugin.estimate(asset.mesh, R, asset.handles, T, Xr, plugin.parse_params(params)),

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rigslim.metrics_document import upgrade
+from rigslim.runtime.metrics_document import upgrade
 
 #: Reduction stages whose seconds count as the evaluation's reduction time.
 TIMED_STAGES = ("generate", "select", "solve", "decimate")
@@ -119,7 +119,7 @@ def summarize(document: dict, source: str = "") -> list[EvaluationRow]:
     the evaluation (``steps[i]`` is step i; ``steps[0]`` is reading the
     inputs); the time is the sum of the reduction steps' seconds since the
     previous evaluation. Documents of either schema version are read
-    (:func:`rigslim.metrics_document.upgrade`).
+    (:func:`rigslim.runtime.metrics_document.upgrade`).
     """
     original, document = document, upgrade(document)
     steps = document.get("steps") or []

@@ -1,6 +1,6 @@
 """Articulated decimation plugins on the shared collapse loop: ``quartic``, ``mohr-gleicher``, ``decoro-rusinkiewicz``.
 
-Each builds a :class:`rigslim.hierarchy.ProgressiveHierarchy` of the rest
+Each builds a :class:`rigslim.model.hierarchy.ProgressiveHierarchy` of the rest
 mesh with per-vertex skin weights, fitted to the asset's example poses, and
 extracts the levels the step asks for (``targets``: fractions of the input
 faces or face counts; ``error_targets``: collapse-error thresholds). Results
@@ -15,9 +15,10 @@ import numpy as np
 import scipy.sparse as sp
 from pydantic import Field
 
-from rigslim.asset import Asset
 from rigslim.errors import StepError
+from rigslim.model.asset import Asset
 from rigslim.plugin import Decimation, Decimator, Params, StepContext
+from rigslim.plugins.decimation.levels import choose_levels, collapse_distances, parse_max_error, target_name
 
 
 class AdaptiveTarget(Params):
@@ -57,10 +58,16 @@ class DecimationParams(Params):
     (``TEXCOORD_0``) or family (``TEXCOORD``, ``COLOR``, ``NORMAL``, ``TANGENT``); see :func:`attribute_term`."""
     lock_seams: bool = True
     """For a mesh read from glTF: never move a vertex on a UV/colour seam or a material (primitive) boundary
-    (:func:`rigslim.io.gltf_lod.seam_vertices`), so every level keeps them exactly."""
+    (:func:`rigslim.io.gltf.seams.seam_vertices`), so every level keeps them exactly."""
     seams_collapse_along: bool = True
     """With ``lock_seams``: seam vertices may still collapse with each other along their seam (both
-    sides keep their own attributes; :func:`rigslim.io.gltf_lod.seam_structure`); false keeps every seam vertex."""
+    sides keep their own attributes; :func:`rigslim.io.gltf.seams.seam_structure`); false keeps every seam vertex."""
+    max_error: float | str | None = None
+    """Error bound of every level (:mod:`rigslim.plugins.decimation.levels`): a number or ``"E%"`` is % of
+    the bounding-box diagonal of the first test pose, ``"Em"`` metres (world units); ``none`` (default) turns
+    it off.
+    A level whose next collapse would move the surface farther than this (meshoptimizer's normalised
+    quadric error, over every example pose) stops there, short of its target."""
     min_normal_cos: float = Field(default=0.0, ge=-1.0, le=1.0)
     """Refuse collapses that turn a surviving face's normal by more than arccos(this), in any pose."""
     area_weighted: bool = True
@@ -80,7 +87,28 @@ def target_faces(targets, n_faces: int) -> list[int]:
 
 
 def target_label(method: str, t: float, faces: int) -> str:
-    return f"{method}-{t * 100:g}pct" if t < 1 else f"{method}-{faces}f"
+    return target_name(method, t, faces)
+
+
+def error_bound(asset, max_error) -> float | None:
+    """``max_error`` in the units of the positions: % of the first test pose's bounding-box diagonal, or metres."""
+    from rigslim.numerics.blend import linear_blend
+
+    parsed = parse_max_error(max_error)
+    if parsed is None:
+        return None
+    value, unit = parsed
+    if unit == "m":
+        return value
+    T = asset.test_poses().T
+    X = linear_blend(asset.mesh.V, asset.weights, T[0]) if len(T) else asset.mesh.V
+    return value / 100.0 * float(np.linalg.norm(X.max(axis=0) - X.min(axis=0)))
+
+
+def target_record(c, bound: float | None) -> dict:
+    """The report's record of one face target: what was asked, what was reached, and why it stopped."""
+    return {"target": c.target, "target_faces": c.target_faces, "faces": c.faces, "label": c.label,
+            "error": c.error, "max_error": bound, "stopped": c.stopped, "same_as": c.same_as}
 
 
 def limited_weights(A, max_bones: int | None) -> np.ndarray:
@@ -107,7 +135,7 @@ def attribute_term(asset, weights: dict[str, float], Q, T, X):
 
     Notes
     -----
-    :func:`rigslim.io.gltf_lod.attribute_quadrics` gives per vertex
+    :func:`rigslim.io.gltf.seams.attribute_quadrics` gives per vertex
     ``sum lambda_a area (s_a(p) - s_a,i)^2`` (attribute units). It is scaled by
     ``P D^2`` (P example poses, D the first example pose's bounding-box
     diagonal), so that an attribute displacement of 1 (a whole texture) costs
@@ -117,7 +145,7 @@ def attribute_term(asset, weights: dict[str, float], Q, T, X):
     whatever its weights: the quartic error gains ``E_attr(v)`` and the weight
     step is unchanged, in both decimation backends.
     """
-    from rigslim.io.gltf_lod import attribute_quadrics
+    from rigslim.io.gltf.seams import attribute_quadrics
 
     source = asset.extras.get("gltf")
     if source is None or source.mesh is not asset.mesh or not any(w > 0 for w in weights.values()):
@@ -140,7 +168,7 @@ def seam_lock(asset, along: bool = True):
     :func:`rigslim.plugins.decimation.collapse.simplify` (None when ``along`` is false), or
     ``(None, None)`` for other inputs, or when a step replaced the mesh the glTF reader made.
     """
-    from rigslim.io.gltf_lod import seam_structure
+    from rigslim.io.gltf.seams import seam_structure
 
     source = asset.extras.get("gltf")
     if source is None or source.mesh is not asset.mesh:
@@ -158,42 +186,101 @@ class ArticulatedDecimator(Decimator):
         raise NotImplementedError
 
     def decimate(self, asset: Asset, params: DecimationParams, ctx: StepContext) -> Decimation:
-        from rigslim.plugins.decimation.collapse import simplify
-        from rigslim.plugins.decimation.quadrics import per_pose_quadrics
-
-        step = f"decimate: {self.name}"
-        asset.require("mesh", "weights", "poses", "split", step=step)
-        mesh = asset.mesh
-        T = asset.example_poses().T
-        faces = target_faces(params.targets, mesh.n_faces)
+        """Quadrics of the example poses, the collapse loop, the levels; each phase timed in the report."""
+        asset.require("mesh", "weights", "poses", "split", step=f"decimate: {self.name}")
+        clock = PhaseClock()
+        faces = target_faces(params.targets, asset.mesh.n_faces)
         min_faces = params.min_faces if params.min_faces is not None else (min(faces) if faces else 70)
-        Q, X = per_pose_quadrics(mesh.V, mesh.F, asset.weights, T, params.area_weighted)
-        Q, T, X = attribute_term(asset, params.attribute_weights, Q, T, X)
-        W = limited_weights(asset.weights, params.max_bones)
-        model = self.model(Q, W, T, params)
-        locked, seams = seam_lock(asset, params.seams_collapse_along) if params.lock_seams else (None, None)
-        hier = simplify(mesh.V, mesh.F, W, T, X, model, min_faces=min_faces, keep_boundary=params.keep_boundary,
-                        border_collapses=params.border_collapses,
-                        min_normal_cos=params.min_normal_cos, progress=ctx.progress, method=self.name,
-                        params=params.model_dump(), backend=params.backend, locked=locked, seams=seams)
-        levels = [hier.at_faces(f, target_label(self.name, t, f)) for t, f in zip(params.targets, faces, strict=False)]
-        levels += [hier.at_error(e, f"{self.name}-err{e:g}") for e in params.error_targets]
-        levels += [hier.adaptive(a.budget(mesh.V), a.label or f"{self.name}-adaptive{i + 1}")
-                   for i, a in enumerate(params.adaptive_targets)]
-        levels.sort(key=lambda lv: -lv.n_faces)
-        if locked is not None:
-            ctx.report["locked_seam_vertices"] = int(locked.sum())
-            ctx.report["seam_vertices_collapsing_along"] = int(seams[0].sum()) if seams is not None else 0
-        ctx.report.update({
-            "collapses": hier.n_collapses, "input_faces": mesh.n_faces,
-            "final_faces": hier.faces_after(hier.n_collapses), "example_poses": len(asset.example_poses().T),
-            "attribute_term": len(T) > len(asset.example_poses().T),
-            "levels": [{"label": lv.label, "faces": lv.n_faces, "vertices": lv.n_vertices,
-                        "max_bones": int(lv.weights.influence_counts().max()), "error": lv.error}
-                       for lv in levels]})
+        with clock("quadrics"):
+            Q, W, T, X, model = self.setup(asset, params)
+        with clock("seams"):
+            locked, seams = seam_lock(asset, params.seams_collapse_along) if params.lock_seams else (None, None)
+        with clock("collapses"):
+            hier = self.collapse(asset, params, W, T, X, model, min_faces, locked, seams, ctx)
+        with clock("levels"):
+            bound = error_bound(asset, params.max_error)
+            distances = collapse_distances(hier, Q[:, :len(asset.example_poses().T)])
+            choices = choose_levels(hier, list(params.targets), faces, distances, bound, self.name)
+            levels = self.levels(asset, params, hier, choices)
+        self.report(asset, params, ctx, hier, levels, choices, bound, locked, seams, len(T))
+        ctx.report["seconds"] = clock.seconds
         if hier.faces_after(hier.n_collapses) > min_faces:
             ctx.log(f"stopped at {hier.faces_after(hier.n_collapses)} faces: no valid collapse is left")
         return Decimation(levels, hier)
+
+    def setup(self, asset: Asset, params: DecimationParams):
+        """Per-pose quadrics (and the attribute term), bone-limited weights, the edge cost model."""
+        from rigslim.plugins.decimation.quadrics import per_pose_quadrics
+
+        mesh = asset.mesh
+        T = asset.example_poses().T
+        Q, X = per_pose_quadrics(mesh.V, mesh.F, asset.weights, T, params.area_weighted)
+        Q, T, X = attribute_term(asset, params.attribute_weights, Q, T, X)
+        W = limited_weights(asset.weights, params.max_bones)
+        return Q, W, T, X, self.model(Q, W, T, params)
+
+    def collapse(self, asset, params, W, T, X, model, min_faces, locked, seams, ctx):
+        """The greedy collapse loop (:func:`rigslim.plugins.decimation.collapse.simplify`)."""
+        from rigslim.plugins.decimation.collapse import simplify
+
+        mesh = asset.mesh
+        return simplify(mesh.V, mesh.F, W, T, X, model, min_faces=min_faces, keep_boundary=params.keep_boundary,
+                        border_collapses=params.border_collapses, min_normal_cos=params.min_normal_cos,
+                        progress=ctx.progress, method=self.name, params=params.model_dump(), backend=params.backend,
+                        locked=locked, seams=seams)
+
+    def levels(self, asset, params, hier, choices) -> list:
+        """The face-target levels (:func:`choose_levels`), error-target and adaptive levels, finest first."""
+        levels = [hier.prefix(c.collapses, c.label) for c in choices if c.same_as is None]
+        levels += [hier.at_error(e, f"{self.name}-err{e:g}") for e in params.error_targets]
+        levels += [hier.adaptive(a.budget(asset.mesh.V), a.label or f"{self.name}-adaptive{i + 1}")
+                   for i, a in enumerate(params.adaptive_targets)]
+        levels.sort(key=lambda lv: -lv.n_faces)
+        return levels
+
+    def report(self, asset, params, ctx, hier, levels, choices, bound, locked, seams, n_poses) -> None:
+        """The step report: seams, targets (what was asked and reached), the loop's counts, the levels."""
+        if locked is not None:
+            ctx.report["locked_seam_vertices"] = int(locked.sum())
+            ctx.report["seam_vertices_collapsing_along"] = int(seams[0].sum()) if seams is not None else 0
+        ctx.report["targets"] = [target_record(c, bound) for c in choices]
+        if getattr(hier, "loop_stats", None):
+            ctx.report["loop"] = hier.loop_stats
+        for c in choices:
+            if c.stopped == "max_error" and c.same_as is None:
+                ctx.log(f"level {c.label} stopped at {c.faces} faces (target {c.target_faces}): the next collapse "
+                        f"exceeds max_error {params.max_error}")
+            elif c.same_as is not None:
+                ctx.log(f"target {c.target:g} ({c.target_faces} faces) ends at the same {c.faces} faces as "
+                        f"level {c.same_as}: no level of its own")
+        ctx.report.update({
+            "collapses": hier.n_collapses, "input_faces": asset.mesh.n_faces,
+            "final_faces": hier.faces_after(hier.n_collapses), "example_poses": len(asset.example_poses().T),
+            "attribute_term": n_poses > len(asset.example_poses().T),
+            "levels": [{"label": lv.label, "faces": lv.n_faces, "vertices": lv.n_vertices,
+                        "max_bones": int(lv.weights.influence_counts().max()), "error": lv.error}
+                       for lv in levels]})
+
+
+class PhaseClock:
+    """Wall seconds of named phases: ``with clock("name"): ...``, then ``clock.seconds``."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = {}
+
+    def __call__(self, name: str):
+        from contextlib import contextmanager
+        from time import perf_counter
+
+        @contextmanager
+        def phase():
+            t0 = perf_counter()
+            try:
+                yield
+            finally:
+                self.seconds[name] = self.seconds.get(name, 0.0) + perf_counter() - t0
+
+        return phase()
 
 
 class QuarticParams(DecimationParams):

@@ -5,7 +5,7 @@ they differ only in their :class:`EdgeCostModel` (where the new vertex goes,
 which weights it gets, what the collapse costs).
 
 Every collapse is recorded, so the result is a
-:class:`rigslim.hierarchy.ProgressiveHierarchy`. Guards: the link condition
+:class:`rigslim.model.hierarchy.ProgressiveHierarchy`. Guards: the link condition
 (no non-manifold results), no fold-over of any surviving face in the rest
 pose or any example pose, boundary vertices kept.
 
@@ -20,10 +20,12 @@ from __future__ import annotations
 
 import heapq
 import logging
+import time
 
 import numpy as np
 
-from rigslim.hierarchy import ProgressiveHierarchy
+from rigslim.model.hierarchy import ProgressiveHierarchy
+from rigslim.model.weights import ReducedWeights
 from rigslim.plugins.decimation.setup import (
     BEST,
     BLOCKED,
@@ -40,7 +42,6 @@ from rigslim.plugins.decimation.setup import (
     placements,
     zero_cost,
 )
-from rigslim.weights import ReducedWeights
 
 log = logging.getLogger(__name__)
 
@@ -183,11 +184,11 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     locked : (m,) bool array, optional
         Vertices no collapse may move (like boundary vertices, whatever
         ``keep_boundary`` says): e.g. a glTF file's UV seams and material
-        boundaries (:func:`rigslim.io.gltf_lod.seam_vertices`).
+        boundaries (:func:`rigslim.io.gltf.seams.seam_vertices`).
     seams : (along, charts), optional
         ``along`` (m,) bool: locked vertices that may collapse with each
         other along a seam edge, an edge whose two faces have different
-        ``charts`` (f,) labels (:func:`rigslim.io.gltf_lod.seam_structure`).
+        ``charts`` (f,) labels (:func:`rigslim.io.gltf.seams.seam_structure`).
         The merged vertex stays locked for every other edge, so seams are
         simplified only along themselves.
 
@@ -434,11 +435,17 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     hsize = 1 << int(np.ceil(np.log2(4 * cap)))
     hk, hv = np.full(hsize, -1, np.int64), np.zeros(hsize, np.int64)
     eq.init_table(edges, N, ea, eb, estamp, hk, hv)
+    t0 = time.perf_counter()           # load (or compile) the kernels first, so that the timings below are work
+    edge_costs(kind, edges[:0, 0].copy(), edges[:0, 1].copy(), st.V, st.W, Qv, st.T, ip, fp)
+    kernels = time.perf_counter() - t0
+    first_costs = 0.0
     if n_edges:
         b0 = setup.boundary
         place = placements(b0[edges[:, 0]], b0[edges[:, 1]], setup.along[edges[:, 0]], setup.along[edges[:, 1]])
+        t0 = time.perf_counter()
         v, w, E = edge_costs(kind, edges[:, 0].copy(), edges[:, 1].copy(), st.V, st.W, Qv, st.T, ip, fp,
                              place=place)
+        first_costs = time.perf_counter() - t0
         ecost[:n_edges], ev[:n_edges], ew[:n_edges] = E, v, w
     estate[:n_edges] = CLEAN
     estamp[:n_edges] += 1
@@ -460,7 +467,12 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     total = max(0, (f - min_faces + 1) // 2)
     chunk = max(256, -(-total // 100))
     n_chunks = -(-total // chunk)
+    t0 = time.perf_counter()
+    cc.collapse_chunk(0, min_faces, float(min_normal_cos), tiny, cost_model, mesh, verts, table, queue, record,
+                      scratch)
+    kernels += time.perf_counter() - t0
     finished = False
+    t0 = time.perf_counter()
     for _ in progress(range(n_chunks), total=n_chunks, description=f"{method} collapses"):
         finished = cc.collapse_chunk(chunk, min_faces, float(min_normal_cos), tiny, cost_model, mesh, verts, table,
                                      queue, record, scratch)
@@ -469,8 +481,13 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     while not finished:         # collapses along a border remove one face: a few more chunks may be left
         finished = cc.collapse_chunk(chunk, min_faces, float(min_normal_cos), tiny, cost_model, mesh, verts, table,
                                      queue, record, scratch)
+    loop = time.perf_counter() - t0
     k = int(cnt[eq.C_COLLAPSES])
-    stats = {"pops": int(cnt[eq.C_POPS]), "attempts": int(cnt[eq.C_TRIES]),
-             "evaluations": n_edges + int(cnt[eq.C_EVALS])}
+    stats = {"collapses": k, "pops": int(cnt[eq.C_POPS]), "attempts": int(cnt[eq.C_TRIES]),
+             "evaluations": n_edges + int(cnt[eq.C_EVALS]), "kernel_load_seconds": kernels,
+             "first_costs_seconds": first_costs,
+             "loop_seconds": loop, "loop_us_per_collapse": 1e6 * loop / max(k, 1)}
     log.debug("%s: %d collapses, %s", method, k, stats)
-    return _hierarchy(st.V, st.W, F, record.col[:k], record.errs[:k], record.nfaces[:k], method, params)
+    hier = _hierarchy(st.V, st.W, F, record.col[:k], record.errs[:k], record.nfaces[:k], method, params)
+    hier.loop_stats = stats          # type: ignore[attr-defined]  (the decimate step reports it)
+    return hier

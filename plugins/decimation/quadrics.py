@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from rigslim.blend import linear_blend
+from rigslim.numerics.blend import linear_blend
 
 
 def homogeneous(T: np.ndarray) -> np.ndarray:

@@ -16,13 +16,13 @@ import numpy as np
 from pydantic import Field
 
 from rigslim.errors import StepError
-from rigslim.hierarchy import SimplifiedLevel
+from rigslim.model.hierarchy import SimplifiedLevel
+from rigslim.model.weights import ReducedWeights
 from rigslim.plugin import Decimation, Decimator, Params
 from rigslim.plugins.decimation.articulated import limited_weights, target_faces, target_label
-from rigslim.weights import ReducedWeights
 
 if TYPE_CHECKING:
-    from rigslim.asset import Asset
+    from rigslim.model.asset import Asset
     from rigslim.plugin import Decimation, Params, StepContext
 
 
@@ -75,7 +75,7 @@ class StaticQSlim(Decimator):
                 preservenormal=params.preserve_normal, optimalplacement=True, autoclean=True)
             cur = ms.current_mesh()
             V2, F2 = np.asarray(cur.vertex_matrix(), float), np.asarray(cur.face_matrix(), np.int64)
-            from rigslim.mesh import Mesh
+            from rigslim.model.mesh import Mesh
 
             levels.append(SimplifiedLevel(Mesh(V2, F2, source="static-qslim"), nearest_vertex_weights(mesh.V, W, V2),
                                           target_label(self.name, params.targets[i], faces[i]), None,

@@ -1,7 +1,7 @@
 """Writers of simplification results: the progressive hierarchy (``.npz``) and the extracted levels.
 
-``hierarchy``: :meth:`rigslim.hierarchy.ProgressiveHierarchy.save` (load it
-back with ``ProgressiveHierarchy.load``).
+``hierarchy``: :func:`rigslim.io.hierarchy.write_hierarchy` (read it
+back with :func:`rigslim.io.hierarchy.read_hierarchy`).
 ``levels``: a folder with, per level, ``<label>.obj`` (rest mesh),
 ``<label>-weights.dmat`` (dense m x n skin weights, as libigl reads them) and
 ``<label>.npz`` (fixed-k indices/values), plus ``levels.json`` listing them.
@@ -17,12 +17,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from rigslim.errors import StepError
+from rigslim.io.hierarchy import write_hierarchy
 from rigslim.plugin import Params, Writer
 
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from rigslim.asset import Asset
+    from rigslim.model.asset import Asset
     from rigslim.plugin import StepContext
 
 
@@ -65,7 +66,7 @@ class HierarchyWriter(Writer):
             raise StepError("there is no progressive hierarchy to write", field="write",
                             fix="use a decimate step with quartic, mohr-gleicher or decoro-rusinkiewicz "
                                 "(static-qslim records none) before it")
-        hier.save(path)
+        write_hierarchy(path, hier)
 
 
 class LevelsWriter(Writer):

@@ -2,7 +2,7 @@
 
 ``Deformer.bind(mesh, weights, params)`` returns a :class:`BoundDeformer`:
 calling it with one pose's (n, 3, 4) transforms gives (m, 3) positions
-(what :class:`rigslim.evaluation.Evaluation` needs), and
+(what :class:`rigslim.plugin.evaluation.Evaluation` needs), and
 ``bound.deform(T, normals=True)`` gives ``(positions, normals)``. Back ends
 that can estimate normals in the same pass take ``normals:`` in their
 parameters and an optional ``handles=`` at bind (cages need the rest
@@ -26,10 +26,10 @@ from typing import Literal
 import numpy as np
 import scipy.sparse as sp
 
-from rigslim.blend import per_vertex_normals
 from rigslim.errors import InputError, StepError
+from rigslim.model.weights import ReducedWeights
+from rigslim.numerics.blend import per_vertex_normals
 from rigslim.plugin import Params
-from rigslim.weights import ReducedWeights
 
 NormalsMode = Literal["auto", "none", "blended-matrix", "approximate-affine"]
 Layout = Literal["auto", "fixed", "compact", "csr"]

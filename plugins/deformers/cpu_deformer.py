@@ -27,6 +27,7 @@ from typing import Literal
 import numpy as np
 
 from rigslim.errors import StepError
+from rigslim.model.weights import ReducedWeights
 from rigslim.plugin import Deformer
 from rigslim.plugins.deformers.base import (
     COMPACT_MAX_HANDLES,
@@ -38,7 +39,6 @@ from rigslim.plugins.deformers.base import (
     resolve_normals,
     rest_normal_data,
 )
-from rigslim.weights import ReducedWeights
 
 
 class CPUBound(DeviceBound):

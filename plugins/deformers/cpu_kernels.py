@@ -19,7 +19,7 @@ writes the position and, optionally, the normal:
 Weights are vertex-major (m, k): fixed (int32 index, float32 weight) or
 compact (uint16 index, float16 weight stored as its uint16 bits and decoded
 exactly by :func:`half_tables`: ``w = ((h & 1023) + offset[h >> 10]) * scale[h >> 10]``).
-The numpy references are :func:`rigslim.blend.linear_blend` and the
+The numpy references are :func:`rigslim.numerics.blend.linear_blend` and the
 estimators' math in :mod:`rigslim.numerics.blended_normals` and :mod:`rigslim.numerics.affine_normals`.
 """
 

@@ -1,6 +1,6 @@
 """The numpy reference deformer: sparse (or fixed-k) blend of 3x4 handle transforms.
 
-Positions are ``v' = (sum_l w_l T_{i_l}) [v; 1]`` (as :func:`rigslim.blend.linear_blend`, with
+Positions are ``v' = (sum_l w_l T_{i_l}) [v; 1]`` (as :func:`rigslim.numerics.blend.linear_blend`, with
 fixed-k weights turned into a sparse matrix at bind, which scipy multiplies faster than a gather);
 normals, when asked for, come from the same references the normal
 estimators use (blended-matrix for skeletons, approximate-affine for cages).
@@ -12,10 +12,10 @@ import time
 
 import numpy as np
 
-from rigslim.blend import blended_matrices, per_vertex_normals
+from rigslim.model.weights import ReducedWeights
+from rigslim.numerics.blend import blended_matrices, per_vertex_normals
 from rigslim.plugin import Deformer
 from rigslim.plugins.deformers.base import BoundDeformer, DeformerParams, check_weights, n_handles_of, resolve_normals
-from rigslim.weights import ReducedWeights
 
 
 class NumpyBound(BoundDeformer):
@@ -60,7 +60,7 @@ class NumpyBound(BoundDeformer):
     def bytes_per_frame(self, normals):
         import scipy.sparse as sp
 
-        from rigslim.weights import ReducedWeights
+        from rigslim.model.weights import ReducedWeights
 
         w = self.weights
         nnz = w.indices.size if isinstance(w, ReducedWeights) else sp.csr_matrix(w).nnz

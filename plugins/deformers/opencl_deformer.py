@@ -40,7 +40,7 @@ class OpenCLBound(DeviceBound):
                  local_size: int | None, fit_precision: str = "auto"):
         import pyopencl as cl
 
-        from rigslim.opencl import get_runtime
+        from rigslim.device.opencl import get_runtime
 
         n = n_handles_of(weights)
         super().__init__(mesh.n_vertices, n, normals_mode)
@@ -86,7 +86,7 @@ class OpenCLBound(DeviceBound):
         """The kernel for this layout and normal mode, built (and normal data uploaded) on first use."""
         import pyopencl as cl
 
-        from rigslim.opencl import build_program
+        from rigslim.device.opencl import build_program
 
         if normals and self._normal_data is None:
             data = rest_normal_data(self.normals_mode, self._mesh, self._weights_in, self._handles_in)

@@ -6,7 +6,7 @@ uint16/float16 in the compact layout) and the handle transforms are a
 texture buffer. Rasterisation is switched off; ``glDrawArrays(GL_POINTS)``
 runs the shader once per vertex and transform feedback captures positions
 (and normals) into buffers that are read back. The context is headless EGL
-(:func:`rigslim.egl.shared_context`): llvmpipe on a CPU machine, the NVIDIA
+(:func:`rigslim.device.egl.shared_context`): llvmpipe on a CPU machine, the NVIDIA
 driver on a GPU one. Device time per frame comes from a ``GL_TIME_ELAPSED``
 query (``last_seconds``), except on software renderers (llvmpipe), whose
 query does not cover the vertex shading done inside the draw call: there
@@ -22,7 +22,7 @@ from typing import Literal
 
 import numpy as np
 
-import rigslim.egl  # noqa: F401  (light; sets PYOPENGL_PLATFORM=egl unless set, before anything imports OpenGL)
+import rigslim.device.egl  # noqa: F401  (light; sets PYOPENGL_PLATFORM=egl unless set, before anything imports OpenGL)
 from rigslim.errors import StepError
 from rigslim.plugin import Deformer
 from rigslim.plugins.deformers.base import (
@@ -76,7 +76,7 @@ class OpenGLBound(DeviceBound):
     backend = "opengl"
 
     def __init__(self, mesh, weights, normals_mode, handles, layout: str, fit_precision: str = "auto"):
-        from rigslim.egl import shared_context
+        from rigslim.device.egl import shared_context
         from rigslim.kernels import source
 
         n = n_handles_of(weights)

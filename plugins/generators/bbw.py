@@ -16,7 +16,7 @@ from rigslim.errors import StepError
 from rigslim.plugin import Params, WeightGenerator
 
 if TYPE_CHECKING:
-    from rigslim.asset import Asset
+    from rigslim.model.asset import Asset
     from rigslim.plugin import StepContext
 
 

@@ -20,7 +20,7 @@ from rigslim.errors import StepError
 from rigslim.plugin import Params, WeightGenerator
 
 if TYPE_CHECKING:
-    from rigslim.asset import Asset
+    from rigslim.model.asset import Asset
     from rigslim.plugin import StepContext
 
 
@@ -116,7 +116,7 @@ def bone_heat_weights(mesh, joints: np.ndarray, bones: np.ndarray, *, heat: floa
 
     Parameters
     ----------
-    mesh : rigslim.mesh.Mesh
+    mesh : rigslim.model.mesh.Mesh
         Closed surface; its cotangent Laplacian and Voronoi mass matrix are used.
     joints : (J, 3) array
     bones : (n, 2) int array

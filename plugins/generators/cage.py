@@ -6,8 +6,8 @@
 - :func:`transfer_weights`: a mesh's skin weights at other points (the cage
   vertices), by barycentric interpolation at the closest surface point.
 - :func:`skinned_cage_poses`: the cage deformed by linear blend skinning in
-  every pose of a skeleton animation, as cage :class:`rigslim.poses.Poses`
-  (``T_i^j = [0 | c_i^j]``, :func:`rigslim.handles.cage_transforms`).
+  every pose of a skeleton animation, as cage :class:`rigslim.model.poses.Poses`
+  (``T_i^j = [0 | c_i^j]``, :func:`rigslim.model.handles.cage_transforms`).
 """
 
 from __future__ import annotations
@@ -18,11 +18,11 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from rigslim.blend import linear_blend
 from rigslim.errors import StepError
-from rigslim.handles import cage_transforms
-from rigslim.mesh import Mesh
-from rigslim.poses import Poses
+from rigslim.model.handles import cage_transforms
+from rigslim.model.mesh import Mesh
+from rigslim.model.poses import Poses
+from rigslim.numerics.blend import linear_blend
 
 
 @dataclass(frozen=True)

@@ -17,8 +17,8 @@ import numpy as np
 from pydantic import Field
 
 from rigslim.errors import StepError
-from rigslim.handles import Handles
-from rigslim.mesh import Mesh
+from rigslim.model.handles import Handles
+from rigslim.model.mesh import Mesh
 from rigslim.plugin import Params
 
 

@@ -22,7 +22,7 @@ from rigslim.plugin import WeightGenerator
 from rigslim.plugins.generators.cage_setup import CageParams, prepare_cage
 
 if TYPE_CHECKING:
-    from rigslim.asset import Asset
+    from rigslim.model.asset import Asset
     from rigslim.plugin import Params, StepContext
 
 #: Offsets of the 7-point stencil's neighbours.

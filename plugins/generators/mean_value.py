@@ -21,7 +21,7 @@ from rigslim.plugin import WeightGenerator
 from rigslim.plugins.generators.cage_setup import CageParams, prepare_cage
 
 if TYPE_CHECKING:
-    from rigslim.asset import Asset
+    from rigslim.model.asset import Asset
     from rigslim.plugin import Params, StepContext
 
 #: A point closer than ``PLANE_EPS * sqrt(2 * area)`` to a face's plane is "in the plane"
@@ -166,7 +166,7 @@ def mean_value_coordinates_opencl(P, V, F, *, device: str | None = None, precisi
     P, V, F
         As in :func:`mean_value_coordinates`.
     device : str, optional
-        ``auto``, ``gpu``, ``cpu`` or part of a device name (see :mod:`rigslim.opencl`).
+        ``auto``, ``gpu``, ``cpu`` or part of a device name (see :mod:`rigslim.device.opencl`).
     precision : {"auto", "double", "single"}
         ``auto`` uses float64 where the device supports it.
 
@@ -183,7 +183,7 @@ def mean_value_coordinates_opencl(P, V, F, *, device: str | None = None, precisi
     """
     import pyopencl as cl
 
-    from rigslim.opencl import build_program, get_runtime
+    from rigslim.device.opencl import build_program, get_runtime
 
     V, F = _check_cage(V, F)
     P = np.ascontiguousarray(P, dtype=np.float64).reshape(-1, 3)

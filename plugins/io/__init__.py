@@ -3,7 +3,7 @@
 Readers: OBJ/OFF/PLY/STL and MEDIT ``.mesh`` (libigl), DMAT weights, TGF
 skeletons, libigl's stacked-transform DMAT animation, a closed cage mesh.
 Writers: DMAT (dense reduced weights) and ``.npz`` (fixed-k reduced weights).
-glTF 2.0 reader and writer: :mod:`rigslim.plugins.io.gltf`.
+glTF 2.0 reader and writer: :mod:`rigslim.plugins.io.gltf`; USD / UsdSkel: :mod:`rigslim.plugins.io.usd`.
 """
 
 from __future__ import annotations
@@ -14,6 +14,8 @@ from rigslim import hookimpl
 from rigslim.plugins.io.gltf import READERS as GLTF_READERS
 from rigslim.plugins.io.gltf import WRITERS as GLTF_WRITERS
 from rigslim.plugins.io.readers import READERS
+from rigslim.plugins.io.usd import READERS as USD_READERS
+from rigslim.plugins.io.usd import WRITERS as USD_WRITERS
 from rigslim.plugins.io.writers import WRITERS
 
 if TYPE_CHECKING:
@@ -22,9 +24,9 @@ if TYPE_CHECKING:
 
 @hookimpl
 def rigslim_readers() -> list[Reader]:
-    return [cls() for cls in READERS + GLTF_READERS]
+    return [cls() for cls in READERS + GLTF_READERS + USD_READERS]
 
 
 @hookimpl
 def rigslim_writers() -> list[Writer]:
-    return [cls() for cls in WRITERS + GLTF_WRITERS]
+    return [cls() for cls in WRITERS + GLTF_WRITERS + USD_WRITERS]

@@ -15,7 +15,7 @@ from rigslim.plugin import Params, Reader, Writer
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from rigslim.asset import Asset
+    from rigslim.model.asset import Asset
     from rigslim.plugin import Params, StepContext
 
 
@@ -36,7 +36,7 @@ class GltfReader(Reader):
         allow_external_uris: bool | None = None  # None: RIGSLIM_ALLOW_EXTERNAL_URIS / --allow-external-uris
 
     def read(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
-        from rigslim.io.gltf import read_gltf_skin
+        from rigslim.io.gltf.skin import read_gltf_skin
 
         skin = read_gltf_skin(path, animation=params.animation, fps=params.fps, mesh=params.mesh,
                               skin=params.skin, normalize=params.normalize, weld=params.weld,
@@ -68,12 +68,12 @@ class GltfWriter(Writer):
         clamp_negative: bool = False
 
     def write(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
-        from rigslim.io.gltf_write import export_skinned, fixed_width_weights, write_gltf
+        from rigslim.io.gltf.write import export_skinned, fixed_width_weights, write_gltf
 
         levels = (asset.levels or None) if params.levels else None
         source = asset.extras.get("gltf")
         if source is not None:
-            from rigslim.io.gltf_lod import input_weights_normalized
+            from rigslim.io.gltf.lod import input_weights_normalized
 
             reduced = asset.reduced
             renormalised = False

@@ -6,14 +6,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from rigslim.errors import InputError
-from rigslim.handles import Handles
 from rigslim.io import read_dmat, read_medit_surface, read_mesh, read_stacked_animation, read_tgf
 from rigslim.io.meshfile import MESH_SUFFIXES
+from rigslim.model.handles import Handles
+from rigslim.model.weights import validate_weights
 from rigslim.plugin import Params, Reader
-from rigslim.weights import validate_weights
 
 if TYPE_CHECKING:
-    from rigslim.asset import Asset
+    from rigslim.model.asset import Asset
     from rigslim.plugin import Params, StepContext
 
 
@@ -26,7 +26,7 @@ class MeshReader(Reader):
     def read(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
         if path.suffix.lower() == ".mesh":
             V, F, volume = read_medit_surface(path)
-            from rigslim.mesh import Mesh
+            from rigslim.model.mesh import Mesh
 
             asset.mesh = Mesh(V, F, source=str(path))
             asset.extras["volume"] = volume

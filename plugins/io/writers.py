@@ -11,7 +11,7 @@ from rigslim.plugin import Params, Writer
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from rigslim.asset import Asset
+    from rigslim.model.asset import Asset
     from rigslim.plugin import Params, StepContext
 
 

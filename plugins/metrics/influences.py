@@ -6,14 +6,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from rigslim.model.weights import influence_counts
 from rigslim.plugin import Metric
-from rigslim.weights import influence_counts
 
 if TYPE_CHECKING:
     from typing import Any
 
-    from rigslim.evaluation import Evaluation
     from rigslim.plugin import Params, StepContext
+    from rigslim.plugin.evaluation import Evaluation
 
 
 class MaxInfluences(Metric):

@@ -21,8 +21,8 @@ from rigslim.plugin import Metric, Params, aggregate
 if TYPE_CHECKING:
     from typing import Any
 
-    from rigslim.evaluation import Evaluation
     from rigslim.plugin import Params, StepContext
+    from rigslim.plugin.evaluation import Evaluation
 
 __all__ = ["Metro", "metro_distance"]
 

@@ -30,8 +30,8 @@ from rigslim.plugin import Metric, aggregate
 if TYPE_CHECKING:
     from typing import Any
 
-    from rigslim.evaluation import Evaluation
     from rigslim.plugin import Params, StepContext
+    from rigslim.plugin.evaluation import Evaluation
 
 __all__ = ["NormalDeviation", "normal_angles", "normal_rms_angle", "normal_statistics"]
 

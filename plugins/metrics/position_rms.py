@@ -13,8 +13,8 @@ from rigslim.plugin import Metric, aggregate
 if TYPE_CHECKING:
     from typing import Any
 
-    from rigslim.evaluation import Evaluation
     from rigslim.plugin import Params, StepContext
+    from rigslim.plugin.evaluation import Evaluation
 
 
 def position_rms(X: np.ndarray, Xhat: np.ndarray) -> float:

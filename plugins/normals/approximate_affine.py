@@ -9,21 +9,21 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from rigslim.blend import per_vertex_normals
 from rigslim.numerics.affine_normals import (
     AffineFitRest,
     affine_fit_rest,
     approximate_affine_normals,
     cage_rest_positions,
 )
+from rigslim.numerics.blend import per_vertex_normals
 from rigslim.plugin import NormalEstimator, Params
 from rigslim.plugins.normals.backends import Backend, normals_from_backend
 
 if TYPE_CHECKING:
-    from rigslim.handles import Handles
-    from rigslim.mesh import Mesh
+    from rigslim.model.handles import Handles
+    from rigslim.model.mesh import Mesh
+    from rigslim.model.weights import ReducedWeights
     from rigslim.plugin import StepContext
-    from rigslim.weights import ReducedWeights
 
 
 class ApproximateAffineNormals(NormalEstimator):

@@ -26,7 +26,7 @@ def bound_deformer(backend: str, mode: str, mesh, weights, handles, device: str 
         return entry[3]
     if entry is not None:
         entry[3].close()
-    from rigslim.host import get_host
+    from rigslim.plugin.host import get_host
 
     # the deformer plugin of that name, through the host: no plugin package imports another
     deformer = get_host().get("deformer", backend)

@@ -9,17 +9,17 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from rigslim.blend import per_vertex_normals
 from rigslim.errors import StepError
+from rigslim.numerics.blend import per_vertex_normals
 from rigslim.numerics.blended_normals import blended_matrix_normals
 from rigslim.plugin import NormalEstimator, Params
 from rigslim.plugins.normals.backends import Backend, normals_from_backend
 
 if TYPE_CHECKING:
-    from rigslim.handles import Handles
-    from rigslim.mesh import Mesh
+    from rigslim.model.handles import Handles
+    from rigslim.model.mesh import Mesh
+    from rigslim.model.weights import ReducedWeights
     from rigslim.plugin import StepContext
-    from rigslim.weights import ReducedWeights
 
 
 class BlendedMatrixNormals(NormalEstimator):

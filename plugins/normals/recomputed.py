@@ -6,14 +6,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from rigslim.blend import per_vertex_normals
+from rigslim.numerics.blend import per_vertex_normals
 from rigslim.plugin import NormalEstimator
 
 if TYPE_CHECKING:
-    from rigslim.handles import Handles
-    from rigslim.mesh import Mesh
+    from rigslim.model.handles import Handles
+    from rigslim.model.mesh import Mesh
+    from rigslim.model.weights import ReducedWeights
     from rigslim.plugin import Params, StepContext
-    from rigslim.weights import ReducedWeights
 
 
 class RecomputedNormals(NormalEstimator):

@@ -38,13 +38,13 @@ import scipy.sparse as sp
 from numba import njit, prange
 from pydantic import Field
 
+from rigslim.model.weights import InfluenceSets
 from rigslim.plugin import InfluenceSelector, Params
 from rigslim.plugins.selection.k_largest import check_k
 from rigslim.plugins.selection.sparse_fit import sparse_fit
-from rigslim.weights import InfluenceSets
 
 if TYPE_CHECKING:
-    from rigslim.asset import Asset
+    from rigslim.model.asset import Asset
     from rigslim.plugin import Params, StepContext
 
 

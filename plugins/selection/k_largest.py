@@ -10,9 +10,9 @@ from rigslim.numerics.k_largest import check_k, k_largest
 from rigslim.plugin import InfluenceSelector, Params
 
 if TYPE_CHECKING:
-    from rigslim.asset import Asset
+    from rigslim.model.asset import Asset
+    from rigslim.model.weights import InfluenceSets
     from rigslim.plugin import StepContext
-    from rigslim.weights import InfluenceSets
 
 __all__ = ["KLargestSelector", "check_k", "k_largest"]
 

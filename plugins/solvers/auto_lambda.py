@@ -35,10 +35,10 @@ import dataclasses
 
 import numpy as np
 
-from rigslim.blend import linear_blend, per_vertex_normals
 from rigslim.errors import StepError
+from rigslim.model.poses import FrameSplit
+from rigslim.numerics.blend import linear_blend, per_vertex_normals
 from rigslim.numerics.normal_error import normal_rms_angle
-from rigslim.poses import FrameSplit
 
 #: Default lambda grid (dimensionless; see :func:`rigslim.plugins.solvers.problem.build_problem`).
 GRID = (1e-3, 1e-2, 1e-1, 1.0, 10.0)

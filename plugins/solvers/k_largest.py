@@ -8,11 +8,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from rigslim.errors import StepError
+from rigslim.model.weights import InfluenceSets, ReducedWeights
 from rigslim.plugin import WeightSolver
-from rigslim.weights import InfluenceSets, ReducedWeights
 
 if TYPE_CHECKING:
-    from rigslim.asset import Asset
+    from rigslim.model.asset import Asset
     from rigslim.plugin import Params, StepContext
 
 

@@ -175,7 +175,7 @@ def local_solve(prob, adjacency, alpha=None, *, tolerance: float = 1e-8, max_swe
     max_sweeps : int
     backend : {"numpy", "opencl"}
     device : str, optional
-        OpenCL device spec (see :mod:`rigslim.opencl`).
+        OpenCL device spec (see :mod:`rigslim.device.opencl`).
     progress : callable, optional
         ``progress(iterable, total=, description=)`` wrapper of the sweep loop.
     relaxation : float

@@ -34,6 +34,7 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from rigslim.errors import StepError
+from rigslim.model.weights import ReducedWeights
 from rigslim.numerics.small_qp import solve_small_qps
 from rigslim.plugin import Params, WeightSolver
 from rigslim.plugins.solvers.auto_lambda import GRID, choose_position_weight
@@ -42,10 +43,9 @@ from rigslim.plugins.solvers.global_solver import global_solve
 from rigslim.plugins.solvers.local_solver import feasible_start, kkt_residual, local_solve
 from rigslim.plugins.solvers.multilevel_solver import multilevel_solve
 from rigslim.plugins.solvers.problem import RIDGE, build_problem, default_nonnegative, initial_weights
-from rigslim.weights import ReducedWeights
 
 if TYPE_CHECKING:
-    from rigslim.asset import Asset
+    from rigslim.model.asset import Asset
     from rigslim.plugin import Params, StepContext
 
 

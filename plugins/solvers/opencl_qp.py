@@ -21,13 +21,13 @@ class BatchedQP:
         One problem per row, in the order ranges will address them.
     nonneg : bool
     device : str, optional
-        OpenCL device spec (:func:`rigslim.opencl.get_runtime`).
+        OpenCL device spec (:func:`rigslim.device.opencl.get_runtime`).
     """
 
     def __init__(self, H, C, d, *, nonneg: bool, device: str | None = None):
         import pyopencl as cl
 
-        from rigslim.opencl import OpenCLUnavailable, build_program, get_runtime
+        from rigslim.device.opencl import OpenCLUnavailable, build_program, get_runtime
 
         self.cl = cl
         self.runtime = get_runtime(device)

@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from rigslim.blend import basis_positions, linear_blend
 from rigslim.errors import StepError
+from rigslim.numerics.blend import basis_positions, linear_blend
 from rigslim.plugins.solvers.k_largest import gather
 
 #: Default ridge, relative to the mean diagonal of the local Hessians.

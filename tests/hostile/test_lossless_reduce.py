@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from support.hostile_gltf import build_gltf, posed_file_positions, random_parts, rigid_parts
 
-from rigslim.cli import main
+from rigslim.commands.cli import main
 
 TIMES = np.linspace(0.0, 1.0, 13)
 

@@ -93,7 +93,7 @@ _WORKER_LIKE = textwrap.dedent("""
     from pathlib import Path
     from rich.console import Console
     def work():
-        from rigslim.pipeline import run_pipeline
+        from rigslim.runtime.run import run_pipeline
         run_pipeline(Path(r"{yaml}"), console=Console(quiet=True))
         return "ok"
     with ThreadPoolExecutor(1) as pool:          # a Dask worker's task thread: it ends before the process

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from support.hostile_gltf import build_gltf, posed_file_positions, random_parts
 
-from rigslim.pipeline import run_pipeline
+from rigslim.runtime.run import run_pipeline
 
 PIPELINE = """
 inputs:

@@ -1,4 +1,4 @@
-"""Run ``rigslim ARGS`` with one fault hook, for tests/test_faults.py (never used outside the tests).
+"""Run ``rigslim ARGS`` with one fault hook, for tests/hostile/test_faults.py (never used outside the tests).
 
     python tests/support/fault_driver.py MODE MARKER ARGS...
 
@@ -27,7 +27,7 @@ def _pause(marker: Path, what: str) -> None:
 def main() -> int:
     mode, marker, args = sys.argv[1], Path(sys.argv[2]), sys.argv[3:]
     if mode == "solve":
-        from rigslim.host import get_host
+        from rigslim.plugin.host import get_host
 
         for name in get_host().plugins("weight-solver"):
             plugin = get_host().get("weight-solver", name)
@@ -63,7 +63,7 @@ def main() -> int:
         atomic._write_through = write_through
     elif mode != "none":
         raise SystemExit(f"unknown mode {mode}")
-    from rigslim.cli import main as cli
+    from rigslim.commands.cli import main as cli
 
     return cli(args)
 

@@ -26,10 +26,10 @@ def tube_asset(rings: int = 16, segments: int = 10, bones: int = 4, poses: int =
 
     Poses ``0..poses-3`` are examples, the last two are test poses.
     """
-    from rigslim.asset import Asset
-    from rigslim.handles import Handles
-    from rigslim.mesh import Mesh
-    from rigslim.poses import FrameSplit, Poses
+    from rigslim.model.asset import Asset
+    from rigslim.model.handles import Handles
+    from rigslim.model.mesh import Mesh
+    from rigslim.model.poses import FrameSplit, Poses
 
     rng = np.random.default_rng(seed)
     length = float(bones)
@@ -69,12 +69,12 @@ def cage_asset(levels: int = 2, poses: int = 6, seed: int = 0):
     cage vertices moved randomly; poses ``0..poses-3`` are examples, the last two test poses."""
     import igl
 
-    from rigslim.asset import Asset
-    from rigslim.handles import Handles, cage_transforms
-    from rigslim.mesh import Mesh
+    from rigslim.model.asset import Asset
+    from rigslim.model.handles import Handles, cage_transforms
+    from rigslim.model.mesh import Mesh
+    from rigslim.model.poses import FrameSplit, Poses
+    from rigslim.model.weights import validate_weights
     from rigslim.plugins.generators.mean_value import mean_value_coordinates
-    from rigslim.poses import FrameSplit, Poses
-    from rigslim.weights import validate_weights
 
     rng = np.random.default_rng(seed)
     Vo = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=float)

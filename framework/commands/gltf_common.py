@@ -1,0 +1,207 @@
+"""What the one-command glTF front ends share: input checks, clip frames, the pipeline run, the ``--report``
+document."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from rigslim.errors import InputError
+
+#: Version of the ``--report`` / ``--json`` documents of these commands.
+REPORT_SCHEMA = "rigslim-gltf-command"
+
+
+REPORT_SCHEMA_VERSION = 1
+
+
+DEFAULT_FPS = 30.0
+
+
+def _check_input(path, what: str = "input") -> Path:
+    p = Path(path)
+    if p.suffix.lower() not in (".glb", ".gltf"):
+        raise InputError(f"'{p.suffix or p.name}' is not a glTF file", source=p, field=what,
+                         fix="give a .glb or .gltf file")
+    if not p.is_file():
+        raise InputError("file not found", source=p, field=what, fix="check the path")
+    return p.resolve()
+
+
+def _check_output(path) -> Path:
+    p = Path(path)
+    if p.suffix.lower() not in (".glb", ".gltf"):
+        raise InputError(f"output '{p.name}' is not a .glb or .gltf", source=p, field="-o",
+                         fix="write to OUT.glb or OUT.gltf")
+    return p.resolve()
+
+
+def clip_frames(path: Path, clip, fps: float) -> tuple[int, str | None, float]:
+    """Frame count of a clip sampled at ``fps`` (1 without animation), its name and its duration."""
+    from rigslim.io.gltf.document import load_gltf
+    from rigslim.io.gltf.scene import animation_duration, find_animation
+
+    doc = _json_only(path)
+    light = doc is not None
+    if not light:
+        doc = load_gltf(path)
+    anim = find_animation(doc, clip)
+    if anim is None:
+        return 1, None, 0.0
+    if light:           # the largest key time, from the accessors' max (the reader checks the keys themselves)
+        acc = doc.json["accessors"]
+        duration = max([float(acc[smp["input"]]["max"][0]) for smp in doc.json["animations"][anim]["samplers"]],
+                       default=0.0)
+    else:
+        duration = animation_duration(doc, anim)
+    name = doc.json["animations"][anim].get("name", str(anim))
+    return int(np.floor(duration * fps + 1e-3)) + 1, name, duration
+
+
+def _json_only(path: Path):
+    """The document's JSON without its buffers or pygltflib's typed parse (0.5 s on a 12k-face file), when
+    every animation sampler's input accessor has its ``max``; else None (the caller loads it fully; the
+    pipeline's reader checks the whole file anyway)."""
+    from rigslim.io.gltf.document import GltfDocument, _parse_glb
+
+    try:
+        data = path.read_bytes()
+        js = _parse_glb(data, path)[0] if data[:4] == b"glTF" else json.loads(data)
+        for anim in js.get("animations", []):
+            for smp in anim.get("samplers", []):
+                if "max" not in js["accessors"][smp["input"]]:
+                    return None
+        return GltfDocument(path, js, [])
+    except Exception:        # anything odd: the full reader gives the proper one-line error
+        return None
+
+
+def skins_used(js: dict) -> list[int]:
+    """Skins that mesh nodes of the default scene use, in depth-first order of first use."""
+    nodes = js.get("nodes", [])
+    scenes = js.get("scenes", [])
+    if scenes:
+        scene = scenes[js.get("scene", 0)] if isinstance(js.get("scene", 0), int) else scenes[0]
+        order, stack = [], list(reversed(scene.get("nodes", [])))
+        while stack:
+            i = stack.pop()
+            order.append(i)
+            stack.extend(reversed(nodes[i].get("children", [])))
+    else:
+        order = range(len(nodes))
+    out = []
+    for i in order:
+        n = nodes[i]
+        if "skin" in n and "mesh" in n and n["skin"] not in out:
+            out.append(n["skin"])
+    return out
+
+
+def _gltf_input(path: Path, clip, fps: float, frames: int, skin: int | None = None) -> dict:
+    spec = {"path": str(path), "fps": fps}
+    if skin is not None:
+        spec["skin"] = skin
+    if clip is not None:
+        spec["animation"] = clip
+    if frames < 2:
+        spec["times"] = [0.0, 0.0]      # rest pose only: one example and one (identical) test frame
+    return spec
+
+
+#: Most example poses the commands fit to (long clips are subsampled evenly).
+MAX_EXAMPLE_POSES = 24
+
+
+def _poses(frames: int) -> dict:
+    """Example frames ``0, s, 2s, ...`` (at most :data:`MAX_EXAMPLE_POSES`) and test frames halfway between."""
+    if frames < 2:
+        return {"examples": "0", "test": "1"}
+    step = max(2, -(-frames // MAX_EXAMPLE_POSES))
+    return {"examples": f"0:{frames}:{step}", "test": f"{max(1, step // 2)}:{frames}:{step}"}
+
+
+def _run(pipeline: dict, args, console) -> tuple[object, float]:
+    """Write the pipeline as YAML (temporary, or --save-pipeline) and run it."""
+    from rigslim.runtime.run import run_pipeline
+
+    text = yaml.safe_dump(pipeline, sort_keys=False)
+    if getattr(args, "save_pipeline", None):
+        Path(args.save_pipeline).write_text(text)
+    with tempfile.TemporaryDirectory(prefix="rigslim-cmd-") as tmp:
+        yml = Path(tmp) / f"{pipeline['name']}.yaml"
+        yml.write_text(text)
+        t0 = time.perf_counter()
+        result = run_pipeline(yml, console=console)
+        return result, time.perf_counter() - t0
+
+
+def _chain(src: Path, out: Path, make, args, console, tmp: Path):
+    """Run ``make(input, output, skin)`` pipelines once per skin, each reading the previous one's output.
+
+    One skin: one run, ``skin`` None (the reader's default). Returns ``[(pipeline, result, seconds), ...]``.
+    """
+    from rigslim.io.gltf.document import load_gltf
+
+    skins = skins_used(load_gltf(src).json)
+    if len(skins) <= 1:
+        pipeline = make(src, out, None)
+        return [(pipeline, *_run(pipeline, args, console))]
+    runs, inp = [], src
+    for i, s in enumerate(skins):
+        dst = out if i == len(skins) - 1 else tmp / f"skin{s}{out.suffix}"
+        pipeline = make(inp, dst, s)
+        runs.append((pipeline, *_run(pipeline, args, console)))
+        inp = dst
+    return runs
+
+
+def _console(args):
+    from rich.console import Console
+
+    return Console(stderr=True, quiet=not args.verbose)
+
+
+def _emit_report(args, doc: dict) -> None:
+    if getattr(args, "report", None):
+        from rigslim.io.atomic import atomic_path
+
+        with atomic_path(args.report) as tmp:
+            Path(tmp).write_text(json.dumps(doc, indent=2, default=_jsonable) + "\n")
+
+
+def _jsonable(x):
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    return str(x)
+
+
+def _header(command: str) -> dict:
+    import rigslim
+
+    return {"schema": REPORT_SCHEMA, "schema_version": REPORT_SCHEMA_VERSION, "command": command,
+            "rigslim_version": rigslim.__version__}
+
+
+def _joint_count(path: Path) -> int:
+    from rigslim.io.gltf.document import load_gltf
+
+    skins = load_gltf(path).json.get("skins", [])
+    if not skins:
+        raise InputError("the file has no skin", source=path, field="skins", fix="give a skinned glTF")
+    return max(len(s.get("joints", [])) for s in skins)
+
+
+def _common(p: argparse.ArgumentParser, clip: bool = True) -> None:
+    if clip:
+        p.add_argument("--clip", metavar="NAME", help="animation clip (name or index; default the first)")
+        p.add_argument("--fps", type=float, default=DEFAULT_FPS, help="frame rate the clip is sampled at (30)")
+    p.add_argument("-v", "--verbose", action="store_true", help="step details on stderr")
+    p.add_argument("--report", metavar="FILE.json", help=f"write the {REPORT_SCHEMA} document here")

@@ -1,0 +1,91 @@
+"""``rigslim inspect IN.glb``: skins, joints, clips, primitives and influences."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from rigslim.commands.gltf_common import _check_input, _emit_report, _header, _jsonable
+
+
+def inspect(path: Path) -> dict:
+    """Skins, joints, clips, meshes, primitives, attributes, influences and weight-sum defects of a file."""
+    from rigslim.io.gltf.document import load_gltf, read_accessor
+    from rigslim.io.gltf.lod import lod_nodes
+    from rigslim.io.gltf.scene import animation_duration
+    from rigslim.io.gltf.skin import skinning_sets
+
+    doc = load_gltf(path)
+    js = doc.json
+    out = _header("inspect") | {"path": str(path), "generator": js.get("asset", {}).get("generator"),
+                                 "extensions_used": js.get("extensionsUsed", [])}
+    out["skins"] = [{"index": i, "name": s.get("name"), "joints": len(s.get("joints", [])),
+                     "joint_names": [js["nodes"][j].get("name") for j in s.get("joints", [])]}
+                    for i, s in enumerate(js.get("skins", []))]
+    out["animations"] = [{"index": i, "name": a.get("name"), "channels": len(a.get("channels", [])),
+                          "seconds": animation_duration(doc, i)} for i, a in enumerate(js.get("animations", []))]
+    meshes = []
+    for mi, mesh in enumerate(js.get("meshes", [])):
+        prims = []
+        for pi, prim in enumerate(mesh.get("primitives", [])):
+            attrs = prim.get("attributes", {})
+            info = {"index": pi, "mode": prim.get("mode", 4), "material": prim.get("material"),
+                    "attributes": {k: {"count": js["accessors"][a]["count"], "type": js["accessors"][a]["type"],
+                                       "componentType": js["accessors"][a]["componentType"],
+                                       "normalized": js["accessors"][a].get("normalized", False)}
+                                   for k, a in sorted(attrs.items())},
+                    "targets": len(prim.get("targets", []))}
+            if "indices" in prim:
+                info["triangles"] = js["accessors"][prim["indices"]]["count"] // 3
+            sets = skinning_sets(attrs)
+            if sets and "POSITION" in attrs:
+                count = js["accessors"][attrs["POSITION"]]["count"]
+                total, nz = np.zeros(count), np.zeros(count, np.int64)
+                for s in sets:
+                    W = np.asarray(read_accessor(doc, attrs[f"WEIGHTS_{s}"]), float).reshape(count, -1)
+                    total += W.sum(axis=1)
+                    nz += (W != 0).sum(axis=1)
+                dev = np.abs(total - 1.0)
+                info["influences_histogram"] = np.bincount(nz).tolist()
+                info["weight_sums"] = {"min": float(total.min(initial=1.0)), "max": float(total.max(initial=1.0)),
+                                       "off_by_more_than_1e-3": int((dev > 1e-3).sum())}
+            prims.append(info)
+        meshes.append({"index": mi, "name": mesh.get("name"), "primitives": prims})
+    out["meshes"] = meshes
+    out["nodes_with_skin"] = [{"node": i, "name": n.get("name"), "mesh": n.get("mesh"), "skin": n["skin"]}
+                              for i, n in enumerate(js.get("nodes", [])) if "skin" in n and "mesh" in n]
+    out["lod"] = {str(i): ids for i, ids in lod_nodes(js).items()}
+    out["materials"] = [m.get("name") for m in js.get("materials", [])]
+    return out
+
+
+def cmd_inspect(args) -> int:
+    info = inspect(_check_input(args.input))
+    _emit_report(args, info)
+    if args.json:
+        print(json.dumps(info, indent=2, default=_jsonable))
+        return 0
+    print(f"{info['path']} (generator: {info['generator']})")
+    for s in info["skins"]:
+        print(f"skin {s['index']} '{s['name']}': {s['joints']} joints")
+    for a in info["animations"]:
+        print(f"clip {a['index']} '{a['name']}': {a['seconds']:.3f} s, {a['channels']} channels")
+    if not info["animations"]:
+        print("no animations")
+    for m in info["meshes"]:
+        print(f"mesh {m['index']} '{m['name']}': {len(m['primitives'])} primitive(s)")
+        for p in m["primitives"]:
+            print(f"  primitive {p['index']}: material {p['material']}, {p.get('triangles', '?')} triangles, "
+                  f"attributes {', '.join(p['attributes'])}" + (f", {p['targets']} morph targets" if p["targets"]
+                                                                 else ""))
+            if "influences_histogram" in p:
+                h = p["influences_histogram"]
+                ws = p["weight_sums"]
+                print("    influences per vertex: " + ", ".join(f"{i}: {c}" for i, c in enumerate(h) if c)
+                      + f"; weight sums {ws['min']:.4g}..{ws['max']:.4g}, "
+                        f"{ws['off_by_more_than_1e-3']} vertices off by more than 1e-3")
+    for node, ids in info["lod"].items():
+        print(f"node {node}: MSFT_lod levels {ids}")
+    return 0

@@ -1,0 +1,109 @@
+"""``rigslim lod IN.glb -o OUT.glb``: a skinned LOD chain in one command."""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+from pathlib import Path
+
+from rigslim.commands.gltf_common import (
+    _chain,
+    _check_input,
+    _check_output,
+    _console,
+    _emit_report,
+    _gltf_input,
+    _header,
+    _poses,
+    clip_frames,
+)
+from rigslim.errors import InputError
+from rigslim.runtime.metrics_document import flat_metrics
+
+
+def parse_ratios(text: str) -> list[float]:
+    try:
+        ratios = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        ratios = []
+    if not ratios or any(not 0 < r < 1 for r in ratios) or sorted(ratios, reverse=True) != ratios:
+        raise InputError(f"--ratios '{text}' is not a decreasing list of fractions in (0, 1)", field="--ratios",
+                         fix="write e.g. --ratios 0.5,0.25")
+    return ratios
+
+
+def split_names(out: Path, ratios) -> list[Path]:
+    """``OUT-50.glb``, ``OUT-25.glb``: one file per level, named after the percentage of faces."""
+    return [out.with_name(f"{out.stem}-{r * 100:g}{out.suffix}") for r in ratios]
+
+
+def lod_pipeline(src: Path, out: Path, *, ratios, max_bones: int, clip, fps: float, frames: int, quantize: str,
+                 method: str = "quartic", measure: bool = False, skin: int | None = None) -> dict:
+    """The pipeline ``rigslim lod`` runs: a decimation step with a bone limit, then the LOD writer."""
+    steps = [{"decimate": method, "targets": list(ratios), "max_bones": max_bones}]
+    if measure:
+        steps.append({"evaluate": ["metro", "max-influences"]})
+    steps.append({"write": str(out), "quantize": quantize, "lod": True, "clamp_negative": True})
+    return {"name": f"lod-{src.stem}", "inputs": {"gltf": _gltf_input(src, clip, fps, frames, skin)},
+            "poses": _poses(frames), "steps": steps}
+
+
+def cmd_lod(args) -> int:
+    from rigslim.io.gltf.write import split_levels
+
+    src, out = _check_input(args.input), _check_output(args.output)
+    ratios = parse_ratios(args.ratios)
+    if not 1 <= args.max_bones <= 8:
+        raise InputError(f"--max-bones {args.max_bones}: glTF holds 1 to 8 influences per vertex",
+                         field="--max-bones", fix="give 1..8 (4 for three.js and most engines)")
+    frames, clip, duration = clip_frames(src, args.clip, args.fps)
+    if frames < 2:
+        print(f"rigslim lod: {src.name} has no animation: simplifying for the rest pose only", file=sys.stderr)
+    console = _console(args)
+    with tempfile.TemporaryDirectory(prefix="rigslim-lod-", dir=out.parent if out.parent.exists() else None) as tmp:
+        target = Path(tmp) / f"lod{out.suffix}" if args.split else out
+        runs = _chain(src, target, lambda i, o, s: lod_pipeline(
+            i, o, ratios=ratios, max_bones=args.max_bones, clip=args.clip, fps=args.fps, frames=frames,
+            quantize=args.quantize, method=args.method, measure=args.measure, skin=s), args, console, Path(tmp))
+        pipeline, result, _ = runs[0]
+        seconds = sum(r[2] for r in runs)
+        outputs = [out]
+        if args.split:
+            outputs = split_names(out, ratios)
+            split_levels(target, outputs)
+    levels = result.asset.levels
+    step = next(s for s in result.document["steps"] if s["stage"] == "decimate")
+    write = result.document["steps"][-1].get("report", {})
+    rows = []
+    for r, lv in zip(ratios, levels, strict=False):
+        rows.append({"ratio": r, "label": lv.label, "faces": lv.n_faces, "vertices": lv.n_vertices,
+                     "max_bones": int(lv.weights.influence_counts().max())})
+    per_prim = {x["label"]: x["primitive_faces"] for x in write.get("level_primitives", [])}
+    for row in rows:
+        row["primitive_faces"] = per_prim.get(row["label"])
+    doc = _header("lod") | {"input": str(src), "outputs": [str(p) for p in outputs], "clip": clip,
+                             "clip_seconds": duration, "frames": frames, "ratios": ratios,
+                             "max_bones": args.max_bones, "method": args.method, "split": args.split,
+                             "input_faces": step.get("report", {}).get("input_faces"),
+                             "locked_seam_vertices": step.get("report", {}).get("locked_seam_vertices"),
+                             "levels": rows, "seconds": seconds,
+                             # the command report keeps KEY@LEVEL names (rigslim-gltf-command v1)
+                             "metrics": flat_metrics(result.evaluations[-1]) if result.evaluations else {},
+                             "pipeline": pipeline, "run": result.document}
+    if len(runs) > 1:          # one decimation per skin; the top-level levels are the first skin's
+        doc["per_skin"] = []
+        for p, r, t in runs:
+            st = next(x for x in r.document["steps"] if x["stage"] == "decimate").get("report", {})
+            doc["per_skin"].append({"skin": p["inputs"]["gltf"].get("skin"), "seconds": t, "pipeline": p,
+                                    "input_faces": st.get("input_faces"),
+                                    "levels": [lv["faces"] for lv in st.get("levels", [])]})
+    _emit_report(args, doc)
+    faces = ", ".join(f"{r['faces']}" for r in rows)
+    print(f"wrote {', '.join(str(p) for p in outputs)}: {len(rows)} levels ({faces} faces of "
+          f"{doc['input_faces']}), at most {args.max_bones} bones per vertex, {seconds:.2f} s")
+    for r in rows:
+        if r["faces"] > 1.05 * r["ratio"] * (doc["input_faces"] or 0):
+            print(f"rigslim lod: level {r['label']} stopped at {r['faces']} faces: no valid collapse was left "
+                  f"(seam corners and mesh boundaries stay fixed; {doc['locked_seam_vertices']} seam vertices)",
+                  file=sys.stderr)
+    return 0

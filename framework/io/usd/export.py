@@ -1,0 +1,269 @@
+"""A new UsdSkel character from a rigslim asset (a glTF skin, a libigl mesh + TGF skeleton + animation).
+
+The stage written by :func:`build_stage`::
+
+    /NAME              SkelRoot (defaultPrim, kind = component; upAxis, metersPerUnit on the layer)
+      Skeleton         joints, bindTransforms, restTransforms, skel:animationSource -> Animation
+      Animation        SkelAnimation: translations, rotations, scales per frame (time code = frame)
+      MESH             Mesh: points, triangles, skel:skeleton, jointIndices/jointWeights (elementSize k)
+
+Handle ``b`` becomes joint ``b`` (joints are listed parents first, as UsdSkel
+requires; when that reorders them, the mesh's ``skel:joints`` lists them in
+handle order so that ``jointIndices`` are the handle numbers). Its bind transform ``B_b`` (skeleton space)
+is the glTF joint's ``IBM_b^{-1}`` when the asset was read from glTF, else the
+translation to the bone's start ``joints[bones[b, 0]]``. A pose's handle
+transform ``T_b`` (rigslim's ``v' = sum_b a_b T_b v``) becomes the joint's
+skeleton-space transform ``S_b = T_b B_b``, so that UsdSkel's
+``S_b B_b^{-1} = T_b`` reproduces the asset's deformation, and its local
+transform ``L_b = S_{parent(b)}^{-1} S_b`` is stored as translation, rotation
+(quatf) and scale (half3), the only form ``SkelAnimation`` has: a transform
+with shear is refused with one line.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from rigslim.errors import StepError
+from rigslim.io.usd.stage import matrix_rows, pxr_modules, to_rows
+
+#: Largest |R^T R - I| (after taking the scales out) a local joint transform may have: beyond it, it has shear.
+SHEAR_TOLERANCE = 1e-4
+
+
+def usd_identifier(name: str, taken: set[str]) -> str:
+    """A valid, unused USD prim/joint name from ``name`` (letters, digits, ``_``; not starting with a digit)."""
+    base = re.sub(r"[^A-Za-z0-9_]", "_", str(name)) or "joint"
+    if base[0].isdigit():
+        base = "_" + base
+    out, i = base, 1
+    while out in taken:
+        out, i = f"{base}_{i}", i + 1
+    taken.add(out)
+    return out
+
+
+def joint_tokens(names: list[str], parents: np.ndarray) -> list[str]:
+    """UsdSkel joint paths (``"Hips/Spine/Chest"``) from names and parent indices (parents listed first)."""
+    taken: dict[int, set[str]] = {}
+    leaf = [""] * len(names)
+    tokens = [""] * len(names)
+    for j in _parents_first(parents):
+        p = int(parents[j])
+        leaf[j] = usd_identifier(names[j], taken.setdefault(p, set()))
+        tokens[j] = leaf[j] if p < 0 else f"{tokens[p]}/{leaf[j]}"
+    return tokens
+
+
+def _parents_first(parents: np.ndarray) -> list[int]:
+    order, seen = [], set()
+    children: dict[int, list[int]] = {}
+    for j, p in enumerate(parents):
+        children.setdefault(int(p), []).append(j)
+    stack = list(reversed(children.get(-1, [])))
+    while stack:
+        j = stack.pop()
+        if j in seen:
+            continue
+        seen.add(j)
+        order.append(j)
+        stack.extend(reversed(children.get(j, [])))
+    if len(order) != len(parents):
+        raise StepError("the skeleton's parent links form a cycle", field="handles.parents",
+                        fix="give a tree of bones")
+    return order
+
+
+def bind_transforms(handles, gltf_skin=None) -> np.ndarray:
+    """(n, 4, 4) skeleton-space bind transforms (column convention) of the handles (module docstring)."""
+    n = handles.n
+    if gltf_skin is not None:
+        ibm = gltf_inverse_bind_matrices(gltf_skin)
+        if ibm is not None and len(ibm) == n:
+            return np.linalg.inv(ibm)
+    B = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
+    if handles.joints is not None and handles.bones is not None:
+        B[:, :3, 3] = np.asarray(handles.joints)[np.asarray(handles.bones)[:, 0]]
+    return B
+
+
+def gltf_inverse_bind_matrices(skin) -> np.ndarray | None:
+    """The (n, 4, 4) inverse bind matrices of a :class:`rigslim.io.gltf.skin.GltfSkin` (identity when unauthored)."""
+    from rigslim.io.gltf.document import read_accessor
+
+    sk = skin.document.json["skins"][skin.skin]
+    n = len(skin.joints)
+    if "inverseBindMatrices" not in sk:
+        return np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
+    M = read_accessor(skin.document, sk["inverseBindMatrices"]).reshape(-1, 4, 4).transpose(0, 2, 1)
+    return np.asarray(M[:n], np.float64)
+
+
+def decompose(L: np.ndarray, *, where: str = "animation"):
+    """Translations (n, 3), quaternions (n, 4; w, x, y, z) and scales (n, 3) of local transforms ``L = T R S``.
+
+    The scales are the column norms of the 3x3 part (one made negative when
+    its determinant is); a remaining non-orthogonal part is shear, which a
+    ``SkelAnimation`` cannot hold.
+    """
+    from rigslim.io.transforms import matrix_quaternion
+
+    M = L[:, :3, :3]
+    s = np.linalg.norm(M, axis=1)
+    if (s <= 0).any():
+        raise StepError("a joint transform has a zero scale", field=where, fix="give invertible bone transforms")
+    s[:, 0] *= np.where(np.linalg.det(M) < 0, -1.0, 1.0)
+    R = M / s[:, None, :]
+    err = np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)).max(axis=(1, 2))
+    if err.size and err.max() > SHEAR_TOLERANCE:
+        j = int(np.argmax(err))
+        raise StepError(f"the transform of joint {j} has shear (|R^T R - I| = {err.max():.2g}); a SkelAnimation "
+                        "holds translation, rotation and scale only", field=where,
+                        fix="give bone transforms without shear (or write glTF, which has the same limit)")
+    s = np.where(np.abs(s - 1) < 1e-6, 1.0, s)
+    q = matrix_quaternion(R)                       # x, y, z, w
+    return L[:, :3, 3].copy(), np.concatenate([q[:, 3:], q[:, :3]], axis=1), s
+
+
+def local_transforms(T: np.ndarray, bind: np.ndarray, parents: np.ndarray) -> np.ndarray:
+    """(p, n, 4, 4) ``L = S_parent^{-1} S`` with ``S = T B`` (module docstring), from (p, n, 3, 4) handle transforms."""
+    p, n = T.shape[:2]
+    T4 = np.zeros((p, n, 4, 4))
+    T4[..., :3, :] = T
+    T4[..., 3, 3] = 1.0
+    S = T4 @ bind[None]
+    L = S.copy()
+    child = np.flatnonzero(parents >= 0)
+    L[:, child] = np.linalg.inv(S[:, parents[child]]) @ S[:, child]
+    return L
+
+
+def build_stage(mesh, handles, weights, poses=None, *, fps: float = 30.0, bind=None, name: str = "Character",
+                mesh_name: str = "Body", normals: bool = True):
+    """An in-memory UsdSkel stage of one skinned mesh (module docstring).
+
+    Parameters
+    ----------
+    mesh : Mesh
+        Rest mesh (skeleton space at bind time: ``geomBindTransform`` is the identity).
+    handles : Handles
+        A skeleton (a cage cannot be UsdSkel joints).
+    weights : scipy.sparse (m, n) or ReducedWeights
+        Written with ``elementSize`` = the most influences of any vertex (ReducedWeights: its k).
+    poses : Poses, optional
+        Frame f becomes time code f; ``timeCodesPerSecond = fps``.
+    bind : (n, 4, 4) array, optional
+        Bind transforms; default :func:`bind_transforms`.
+
+    Returns
+    -------
+    pxr.Usd.Stage
+    """
+    Usd, UsdGeom, UsdSkel, Sdf, Gf, Vt = pxr_modules()
+    if handles is None or handles.is_cage:
+        raise StepError("USD skins are skeletons: a cage cannot become UsdSkel joints", field="handles",
+                        fix="write the cage result as .npz or .dmat")
+    n = handles.n
+    parents = np.asarray(handles.parents if handles.parents is not None else np.full(n, -1), np.int64)
+    bind = bind_transforms(handles) if bind is None else np.asarray(bind, np.float64)
+    tokens = joint_tokens(list(handles.names), parents)
+    order = np.array(_parents_first(parents), np.int64)    # UsdSkel lists every parent before its children
+    skel_tokens = [tokens[j] for j in order]
+    stage = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    root_name = usd_identifier(name, set())
+    root = UsdSkel.Root.Define(stage, f"/{root_name}")
+    stage.SetDefaultPrim(root.GetPrim())
+    Usd.ModelAPI(root.GetPrim()).SetKind("component")
+    skel = UsdSkel.Skeleton.Define(stage, f"/{root_name}/Skeleton")
+    skel.CreateJointsAttr(Vt.TokenArray(skel_tokens))
+    skel.CreateJointNamesAttr(Vt.TokenArray([str(handles.names[j]) for j in order]))
+    skel.CreateBindTransformsAttr(to_rows(bind[order]))
+    rest = local_transforms(np.broadcast_to(np.eye(4)[:3], (1, n, 3, 4)), bind, parents)[0]
+    skel.CreateRestTransformsAttr(to_rows(rest[order]))
+    if poses is not None and len(poses):
+        L = local_transforms(poses.T, bind, parents)[:, order]
+        _animation(stage, skel, f"/{root_name}/Animation", skel_tokens, L, fps)
+    geom = UsdGeom.Mesh.Define(stage, f"/{root_name}/{usd_identifier(mesh_name, {'Skeleton', 'Animation'})}")
+    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
+    geom.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(V.astype(np.float32)))
+    geom.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(F), 3, np.int32)))
+    geom.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(F.astype(np.int32).ravel()))
+    geom.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    geom.CreateExtentAttr(UsdGeom.PointBased.ComputeExtent(geom.GetPointsAttr().Get()))
+    if normals:
+        from rigslim.numerics.area_weighted_normals import area_weighted_normals
+
+        N = area_weighted_normals(V, F)
+        geom.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(np.asarray(N, np.float32)))
+        geom.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    binding = UsdSkel.BindingAPI.Apply(geom.GetPrim())
+    binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
+    binding.CreateGeomBindTransformAttr(matrix_rows(np.eye(4)))
+    if not np.array_equal(order, np.arange(n)):      # the weights index handles: name them in that order
+        binding.CreateJointsAttr(Vt.TokenArray(tokens))
+    set_influences(geom.GetPrim(), *fixed_width(weights))
+    return stage
+
+
+def _animation(stage, skel, path: str, tokens: list[str], L: np.ndarray, fps: float) -> None:
+    """A SkelAnimation with one time sample per frame of the (p, n, 4, 4) local transforms."""
+    Usd, _, UsdSkel, _, Gf, Vt = pxr_modules()
+    anim = UsdSkel.Animation.Define(stage, path)
+    anim.CreateJointsAttr(Vt.TokenArray(tokens))
+    tr, ro, sc = anim.CreateTranslationsAttr(), anim.CreateRotationsAttr(), anim.CreateScalesAttr()
+    for f in range(len(L)):
+        t, q, s = decompose(L[f], where=f"poses (frame {f})")
+        tr.Set(Vt.Vec3fArray.FromNumpy(t.astype(np.float32)), Usd.TimeCode(f))
+        ro.Set(Vt.QuatfArray([Gf.Quatf(*map(float, x)) for x in q]), Usd.TimeCode(f))
+        sc.Set(Vt.Vec3hArray.FromNumpy(s.astype(np.float16)), Usd.TimeCode(f))
+    UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
+    stage.SetTimeCodesPerSecond(float(fps))
+    stage.SetFramesPerSecond(float(fps))
+    stage.SetStartTimeCode(0)
+    stage.SetEndTimeCode(max(len(L) - 1, 0))
+
+
+def fixed_width(weights) -> tuple[np.ndarray, np.ndarray]:
+    """(m, k) joint indices and weights of a sparse matrix or ReducedWeights (k = the most per row)."""
+    import scipy.sparse as sp
+
+    if hasattr(weights, "indices") and hasattr(weights, "values") and not sp.issparse(weights):
+        return np.asarray(weights.indices, np.int64), np.asarray(weights.values, np.float64)
+    from rigslim.io.gltf.write import fixed_width_weights
+
+    reduced = fixed_width_weights(sp.csr_matrix(weights))
+    return np.asarray(reduced.indices, np.int64), np.asarray(reduced.values, np.float64)
+
+
+def set_influences(prim, indices: np.ndarray, values: np.ndarray, *, clamp_negative: bool = False) -> dict:
+    """Author ``primvars:skel:jointIndices``/``jointWeights`` (vertex, elementSize = k) on a mesh prim.
+
+    Weights are written as float32 rows that sum to one (the largest of each
+    row absorbs the rounding: :func:`rigslim.io.gltf.write.quantize_weights`);
+    negative weights are refused, or with ``clamp_negative`` set to zero and
+    the row renormalised. Slots past a vertex's last influence hold joint 0
+    with weight 0.
+    """
+    _, _, UsdSkel, _, _, Vt = pxr_modules()
+    from rigslim.io.gltf.write import clamp_negative_weights, quantize_weights
+
+    stats: dict = {}
+    values = np.asarray(values, np.float64)
+    if clamp_negative:
+        values, stats = clamp_negative_weights(values)
+    if not np.isfinite(values).all():
+        raise StepError("the weights to write contain NaN or inf", field="weights", fix="check the solve step")
+    Q = quantize_weights(values, "float")
+    I = np.where(Q > 0, np.asarray(indices, np.int64), 0).astype(np.int32)
+    k = Q.shape[1]
+    api = UsdSkel.BindingAPI.Apply(prim)
+    for name in ("primvars:skel:jointIndices", "primvars:skel:jointWeights"):
+        if prim.HasAttribute(name):     # a different elementSize cannot be set on an existing primvar's value alone
+            prim.RemoveProperty(name)
+    api.CreateJointIndicesPrimvar(False, k).Set(Vt.IntArray.FromNumpy(I.ravel()))
+    api.CreateJointWeightsPrimvar(False, k).Set(Vt.FloatArray.FromNumpy(Q.astype(np.float32).ravel()))
+    return stats

@@ -1,0 +1,145 @@
+"""Poses: stacks of handle transforms, and the example/test split of frames.
+
+Example poses describe plausible motion and are used for fitting; test
+poses are other frames, never used in fitting, on which quality is measured.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rigslim.errors import InputError
+
+
+@dataclass(frozen=True, eq=False)
+class Poses:
+    """A stack of handle transforms, one per frame.
+
+    Parameters
+    ----------
+    T : (p, n, 3, 4) float64 array
+        ``T[j, i]`` is handle i's affine transform in pose j.
+    frames : (p,) int array, optional
+        Frame number of each pose (defaults to ``0..p-1``).
+    source : str, optional
+    """
+
+    T: np.ndarray
+    frames: np.ndarray | None = None
+    source: str | None = field(default=None, compare=False)
+
+    def __post_init__(self):
+        T = np.ascontiguousarray(self.T, dtype=np.float64)
+        where = self.source or "poses"
+        if T.ndim != 4 or T.shape[2:] != (3, 4):
+            raise InputError(f"transform stack has shape {T.shape}, expected (poses, handles, 3, 4)",
+                             source=where, field="transforms", fix="give one 3x4 transform per handle and pose")
+        if not np.isfinite(T).all():
+            raise InputError("transforms contain NaN or inf", source=where, field="transforms",
+                             fix="repair or re-export the animation")
+        frames = np.arange(len(T)) if self.frames is None else np.asarray(self.frames, dtype=np.int64)
+        object.__setattr__(self, "T", T)
+        object.__setattr__(self, "frames", frames)
+
+    def __len__(self) -> int:
+        return len(self.T)
+
+    @property
+    def n_handles(self) -> int:
+        return self.T.shape[1]
+
+    def select(self, frames) -> Poses:
+        """The poses of the given frame numbers, in that order."""
+        index = {int(f): j for j, f in enumerate(self.frames)}
+        rows = [index[int(f)] for f in frames]
+        return Poses(self.T[rows], np.asarray(frames, dtype=np.int64), source=self.source)
+
+
+def parse_frames(spec, count: int, *, source: str | None = None, field_name: str = "poses") -> list[int]:
+    """Frame numbers from a spec.
+
+    Parameters
+    ----------
+    spec : str, int or list
+        ``"start:stop:step"`` (Python slice semantics, as in ``"0:457:45"``),
+        ``"a,b,c"``, a single int, or a list of ints/specs.
+    count : int
+        Number of frames available; every frame must be in ``0..count-1``.
+
+    Returns
+    -------
+    list of int
+        Sorted unique frame numbers.
+    """
+    def bad(msg, fix):
+        return InputError(msg, source=source, field=field_name, fix=fix)
+
+    if isinstance(spec, bool) or spec is None:
+        raise bad(f"frame spec {spec!r} is not understood", 'write "start:stop:step", "a,b,c" or a list')
+    if isinstance(spec, (list, tuple)):
+        out = []
+        for s in spec:
+            out += parse_frames(s, count, source=source, field_name=field_name)
+        frames = out
+    elif isinstance(spec, (int, np.integer)):
+        frames = [int(spec)]
+    elif isinstance(spec, str):
+        s = spec.strip()
+        if ":" in s:
+            parts = s.split(":")
+            if len(parts) > 3:
+                raise bad(f"frame spec {spec!r} has too many ':'", 'write "start:stop:step"')
+            try:
+                nums = [int(p) if p.strip() else None for p in parts]
+            except ValueError:
+                raise bad(f"frame spec {spec!r} is not start:stop:step", 'write e.g. "0:457:45"') from None
+            if len(nums) == 3 and nums[2] is not None and nums[2] <= 0:
+                raise bad(f"frame spec {spec!r} has a step <= 0", "use a positive step")
+            start, stop = nums[0], nums[1]
+            if (start is not None and start >= count) or (stop is not None and stop > count):
+                raise bad(f"frame spec {spec!r} runs past the last frame ({count - 1})",
+                          f"keep frames within 0..{count - 1}")
+            frames = list(range(count))[slice(*nums)]
+        else:
+            try:
+                frames = [int(p) for p in s.split(",") if p.strip()]
+            except ValueError:
+                raise bad(f"frame spec {spec!r} is not understood", 'write "start:stop:step" or "a,b,c"') from None
+    else:
+        raise bad(f"frame spec {spec!r} is not understood", 'write "start:stop:step", "a,b,c" or a list')
+    for f in frames:
+        if f < 0 or f >= count:
+            raise bad(f"frame {f} is out of range 0..{count - 1}", f"keep frames within 0..{count - 1}")
+    if not frames:
+        raise bad(f"frame spec {spec!r} selects no frame", "choose at least one frame")
+    return sorted(set(frames))
+
+
+@dataclass(frozen=True)
+class FrameSplit:
+    """Example frames (for fitting) and test frames (for measuring), disjoint.
+
+    ``dropped`` lists test frames that were also example frames and so were
+    removed from the test set. ``clips`` is set when the frames come from named
+    clips (fitting on one clip, testing on another).
+    """
+
+    examples: list[int]
+    test: list[int]
+    dropped: list[int]
+    #: Two-clip splits (:mod:`rigslim.runtime.clips`): ``{"examples": {"clip", "frames"}, "test": {...}}`` with
+    #: each clip's own frame numbers; the lists above number the stacked poses.
+    clips: dict | None = None
+
+    @staticmethod
+    def from_specs(examples, test, count: int, *, source: str | None = None) -> FrameSplit:
+        ex = parse_frames(examples, count, source=source, field_name="poses.examples")
+        te = parse_frames(test, count, source=source, field_name="poses.test")
+        dropped = sorted(set(ex) & set(te))
+        te = [f for f in te if f not in set(ex)]
+        if not te:
+            raise InputError("every test frame is also an example frame", source=source,
+                             field="poses.test", fix="choose test frames that are not example frames")
+        return FrameSplit(ex, te, dropped)

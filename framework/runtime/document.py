@@ -1,0 +1,240 @@
+"""The pipeline document: the YAML validated, its steps parsed, ``--set`` overrides applied."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
+
+from rigslim.errors import PipelineError, brief, closest
+from rigslim.errors import PluginNotFoundError as PluginNotFound
+from rigslim.io.yamlio import load_yaml_file
+from rigslim.plugin.contract import STEP_STAGES
+from rigslim.plugin.host import PluginHost, get_host
+
+
+class ClipFrames(BaseModel):
+    """One side of a two-clip ``poses:`` (:mod:`rigslim.runtime.clips`)."""
+
+    model_config = ConfigDict(extra="forbid")
+    clip: str | int
+    frames: str | int | list[str | int] | None = None
+
+
+class PoseSpec(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    examples: str | int | list[str | int] | ClipFrames
+    test: str | int | list[str | int] | ClipFrames
+
+
+class PipelineDoc(BaseModel):
+    """The validated YAML document."""
+
+    model_config = ConfigDict(extra="forbid")
+    name: str | None = None
+    description: str | None = None
+    inputs: dict[str, Any] = {}
+    poses: PoseSpec | None = None
+    steps: list[dict[str, Any]]
+
+    @field_validator("steps")
+    @classmethod
+    def _nonempty(cls, v):
+        if not v:
+            raise ValueError("a pipeline needs at least one step")
+        return v
+
+
+@dataclass
+class Step:
+    """One parsed step."""
+
+    index: int           # 1-based
+    key: str             # stage key in YAML ("solve")
+    stage: str           # stage name ("weight-solver")
+    plugin: Any          # plugin name, or for evaluate a list of (name, params)
+    params: dict
+    name: str
+
+
+def _format_validation(err: ValidationError) -> tuple[str, str]:
+    e = err.errors()[0]
+    loc = ".".join(str(x) for x in e["loc"])
+    return loc, e["msg"]
+
+
+def load_pipeline(path, overrides: list[str] = (), host: PluginHost | None = None, *,
+                  raw: dict | None = None) -> tuple[PipelineDoc, list[Step]]:
+    """Read, validate and parse a pipeline file.
+
+    Parameters
+    ----------
+    path : path to the YAML file
+    overrides : list of "STEP.PARAM=VALUE"
+        STEP is a step's ``name``, its stage key, its plugin name or its
+        1-based index; VALUE is parsed as YAML.
+    raw : dict, optional
+        The document itself (as YAML would load it); ``path`` then only names
+        it in messages, and its folder is where relative paths resolve.
+    """
+    host = host or get_host()
+    path = Path(path)
+    if raw is None:
+        raw = load_yaml_file(path)  # UTF-8, no repeated keys, bounded aliases and nesting
+    if not isinstance(raw, dict):
+        raise PipelineError("the document is not a mapping", source=path, field="top level",
+                            fix="start with 'inputs:', 'poses:' and 'steps:'")
+    odd = next((k for k in raw if not isinstance(k, str)), None)
+    if odd is not None or any(not isinstance(k, str) for k in raw):
+        raise PipelineError(f"top-level key {brief(odd)} is not a name", source=path, field="top level",
+                            fix="the top-level keys are " + ", ".join(PipelineDoc.model_fields))
+    try:
+        doc = PipelineDoc.model_validate(raw)
+    except ValidationError as err:
+        loc, msg = _format_validation(err)
+        top = loc.split(".")[0]
+        fix = closest(top, PipelineDoc.model_fields) if "extra" in err.errors()[0]["type"] else \
+            "see docs/pipelines.md"
+        raise PipelineError(msg, source=path, field=loc, fix=fix) from None
+    steps = [_parse_step(i, s, path, host) for i, s in enumerate(doc.steps, 1)]
+    for item in overrides:
+        _apply_override(item, steps, path, host)
+    return doc, steps
+
+
+def _parse_step(index: int, raw: dict, path: Path, host: PluginHost) -> Step:
+    if not isinstance(raw, dict):
+        raise PipelineError(f"step {index} is not a mapping", source=path, field=f"steps[{index}]",
+                            fix="write each step as '- solve: poisson' with its parameters below")
+    keys = [k for k in raw if k in STEP_STAGES]
+    if len(keys) != 1:
+        unknown = [k for k in raw if k not in STEP_STAGES and k != "name"]
+        hint = closest(unknown[0], STEP_STAGES) if unknown and not keys else \
+            "give exactly one of " + ", ".join(STEP_STAGES)
+        what = f"unknown stage '{unknown[0]}'" if unknown and not keys else \
+            f"step has {len(keys)} stage keys ({', '.join(keys) or 'none'})"
+        raise PipelineError(what, source=path, field=f"steps[{index}]", fix=hint)
+    key = keys[0]
+    stage = STEP_STAGES[key]
+    params = {k: v for k, v in raw.items() if k not in (key, "name")}
+    value = raw[key]
+    if key == "evaluate":
+        plugin = _parse_metrics(value, index, path, host)
+        name = raw.get("name") or f"evaluate{index}"
+    elif key in ("write", "report"):
+        if not isinstance(value, str):
+            raise PipelineError(f"{key} needs an output path", source=path, field=f"steps[{index}].{key}",
+                                fix="write e.g. 'write: out/weights.npz' or 'report: out/report.html'")
+        plugin = value
+        name = raw.get("name") or f"{key}{index}"
+    else:
+        if not isinstance(value, str):
+            raise PipelineError(f"'{key}' needs a plugin name", source=path, field=f"steps[{index}].{key}",
+                                fix=closest("", host.plugins(stage)))
+        try:
+            plugin_obj = host.get(stage, value)
+        except PluginNotFound as e:
+            raise PipelineError(e.problem, source=path, field=f"steps[{index}].{key}", fix=e.fix) from None
+        _check_params(plugin_obj, params, path, f"steps[{index}]")
+        plugin = value
+        name = raw.get("name") or value
+    return Step(index, key, stage, plugin, params, str(name))
+
+
+def _parse_metrics(value, index, path, host) -> list[tuple[str, dict]]:
+    if isinstance(value, str):
+        items = [(value, {})]
+    elif isinstance(value, list):
+        items = []
+        for v in value:
+            if isinstance(v, str):
+                items.append((v, {}))
+            elif isinstance(v, dict) and len(v) == 1:
+                (n, p), = v.items()
+                items.append((n, p or {}))
+            else:
+                raise PipelineError(f"cannot read metric entry {brief(v)}", source=path,
+                                    field=f"steps[{index}].evaluate", fix="list metric names")
+    elif isinstance(value, dict):
+        items = [(n, p or {}) for n, p in value.items()]
+    else:
+        raise PipelineError("evaluate needs metric names", source=path, field=f"steps[{index}].evaluate",
+                            fix="write e.g. 'evaluate: [position-rms, normal-deviation]'")
+    for n, p in items:
+        if not isinstance(n, str) or not isinstance(p, dict):
+            raise PipelineError(f"metric entry {brief(n)}: {brief(p)} is not 'name: {{parameters}}'", source=path,
+                                field=f"steps[{index}].evaluate", fix="write e.g. 'evaluate: {position-rms: {}}' "
+                                "or a list of metric names")
+    for n, p in items:
+        try:
+            metric = host.get("metric", n)
+        except PluginNotFound as e:
+            raise PipelineError(e.problem, source=path, field=f"steps[{index}].evaluate", fix=e.fix) from None
+        _check_params(metric, p, path, f"steps[{index}].evaluate.{n}")
+    return items
+
+
+def _check_params(plugin, params: dict, path, where: str):
+    try:
+        return plugin.parse_params(params)
+    except ValidationError as err:
+        # An unknown name usually explains a "missing" one too (a typo): report it first.
+        e = sorted(err.errors(), key=lambda x: x["type"] != "extra_forbidden")[0]
+        loc = ".".join(str(x) for x in e["loc"])
+        if e["type"] == "extra_forbidden":
+            fields = plugin.Params.model_fields
+            fix = closest(loc, fields) if fields else f"'{plugin.name}' takes no parameters"
+            raise PipelineError(f"unknown parameter '{loc}' for {plugin.stage} '{plugin.name}'", source=path,
+                                field=f"{where}.{loc}", fix=fix) from None
+        fields = ", ".join(plugin.Params.model_fields) or "none"
+        raise PipelineError(f"{e['msg'].lower()} (got {brief(e.get('input'))})" if e["type"] != "missing"
+                            else "required parameter is missing", source=path, field=f"{where}.{loc}",
+                            fix=f"{plugin.stage} '{plugin.name}' takes: {fields}") from None
+
+
+def _apply_override(item: str, steps: list[Step], path: Path, host: PluginHost) -> None:
+    """One ``--set``: ``STEP.PARAM=VALUE`` sets a parameter; ``STEP=PLUGIN`` (or ``STEP.KEY=PLUGIN``,
+    KEY the step's stage key) replaces the step's plugin, keeping the parameters the new plugin takes."""
+    lhs = item.split("=", 1)[0]
+    if "=" not in item or not lhs.strip():
+        raise PipelineError(f"--set '{item}' is not STEP.PARAM=VALUE or STEP=PLUGIN", source=path, field="--set",
+                            fix="write e.g. --set select.k=6 or --set solve=poisson")
+    value = item.split("=", 1)[1]
+    target, param = lhs.rsplit(".", 1) if "." in lhs else (lhs, None)
+    matches = [s for s in steps if target in (s.name, s.key, str(s.index)) or
+               (isinstance(s.plugin, str) and s.plugin == target)]
+    if not matches:
+        names = [s.name for s in steps] + [s.key for s in steps]
+        raise PipelineError(f"--set names no step '{target}'", source=path, field="--set", fix=closest(target, names))
+    try:
+        parsed = yaml.safe_load(value)
+    except yaml.YAMLError:
+        parsed = value
+    for step in matches:
+        if step.key == "evaluate":
+            raise PipelineError("--set cannot change evaluate steps", source=path, field="--set",
+                                fix="edit the pipeline file")
+        if param is None or param == step.key:
+            if not isinstance(parsed, str) or not parsed.strip():
+                what = "an output path" if step.key in ("write", "report") else "a plugin name"
+                raise PipelineError(f"--set '{item}' gives {parsed!r}, not {what}", source=path, field="--set",
+                                    fix=f"write e.g. --set {target}=NAME (rigslim plugins lists the names)"
+                                    if what == "a plugin name" else f"write e.g. --set {target}=out/file")
+            if step.key not in ("write", "report") and step.name == step.plugin:
+                step.name = parsed  # a default name (the plugin's) follows the plugin
+            step.plugin = parsed
+            if step.key not in ("write", "report"):
+                try:
+                    plugin = host.get(step.stage, parsed)
+                except PluginNotFound as e:
+                    raise PipelineError(e.problem, source=path, field="--set", fix=e.fix) from None
+                # Parameters of the old plugin that the new one does not take are dropped.
+                step.params = {k: v for k, v in step.params.items() if k in plugin.Params.model_fields}
+                _check_params(plugin, step.params, path, f"steps[{step.index}]")
+            continue
+        step.params[param] = parsed
+        if step.key not in ("write", "report"):
+            _check_params(host.get(step.stage, step.plugin), step.params, path, f"steps[{step.index}]")

@@ -1,0 +1,194 @@
+"""Running a pipeline: the steps in order, the outputs committed together, the metrics document written."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+import rigslim
+from rigslim.errors import PipelineError, RigslimError
+from rigslim.io.atomic import atomic_path, check_output, output_transaction
+from rigslim.model.asset import Asset
+from rigslim.model.weights import influence_counts
+from rigslim.plugin.contract import StepContext
+from rigslim.plugin.evaluation import Evaluation
+from rigslim.plugin.host import PluginHost, get_host
+from rigslim.runtime.document import Step, _check_params, load_pipeline
+from rigslim.runtime.inputs import read_inputs
+from rigslim.runtime.metrics_document import SCHEMA_VERSION, UNITS, merge_levels
+
+
+@dataclass
+class RunResult:
+    """What :func:`run_pipeline` returns: the final asset and the metrics document."""
+
+    asset: Asset
+    document: dict
+    evaluations: list = field(default_factory=list)
+
+
+def run_pipeline(path, *, overrides: list[str] = (), metrics_path=None, host: PluginHost | None = None,
+                 console=None, on_evaluation: Callable | None = None, raw: dict | None = None) -> RunResult:
+    """Run a pipeline file (or the document ``raw``, see :func:`load_pipeline`); return the asset and metrics.
+
+    Outputs are committed together at the end: ``write``/``report`` steps and
+    the metrics JSON (if asked for) stage temporary files, which are renamed
+    into place only after the last step and the metrics succeeded; a failed or
+    interrupted run leaves every output as it was (docs/pipelines.md, Guarantees).
+    """
+    with output_transaction():
+        return _run_pipeline(path, overrides=overrides, metrics_path=metrics_path, host=host, console=console,
+                             on_evaluation=on_evaluation, raw=raw)
+
+
+def _run_pipeline(path, *, overrides, metrics_path, host, console, on_evaluation, raw=None) -> RunResult:
+    from rigslim.runtime.progress import Reporter
+
+    host = host or get_host()
+    path = Path(path)
+    doc, steps = load_pipeline(path, overrides, host, raw=raw)
+    if metrics_path is not None:
+        check_output(metrics_path)
+    base = path.parent.resolve()
+    reporter = Reporter(console)
+    t0 = time.perf_counter()
+    with reporter.status("reading inputs"):
+        asset = read_inputs(doc, base, host, reporter.context(base), path)
+    document = {
+        "schema_version": SCHEMA_VERSION,
+        "units": dict(UNITS),
+        "rigslim_version": rigslim.__version__,
+        "pipeline": str(path),
+        "pipeline_file": str(path.resolve()),
+        "name": doc.name or path.stem,
+        "inputs": asset.provenance.get("inputs", {}),
+        "mesh": ({"vertices": asset.mesh.n_vertices, "faces": asset.mesh.n_faces,
+                  "bbox_diagonal": asset.mesh.bbox_diagonal} if asset.mesh is not None else None),
+        "handles": ({"kind": asset.handles.kind, "count": asset.handles.n} if asset.handles else None),
+        "frames": ({"examples": asset.split.examples, "test": asset.split.test,
+                    "dropped_from_test": asset.split.dropped,
+                    **({"clips": asset.split.clips} if asset.split.clips else {})} if asset.split else None),
+        "steps": [{"stage": "read", "plugin": "inputs", "seconds": time.perf_counter() - t0}],
+        "evaluations": [],
+    }
+    if asset.split and asset.split.dropped:
+        reporter.note(f"test frames {asset.split.dropped} are also example frames: dropped from the test set")
+    for step in steps:
+        ctx = reporter.context(base)
+        t = time.perf_counter()
+        with reporter.status(f"step {step.index}: {step.key} {step.plugin if isinstance(step.plugin, str) else ''}"):
+            try:
+                entry = _run_step(step, asset, host, ctx, base, path, document)
+            except RigslimError as e:
+                if not e.source:
+                    e.source = f"{path} steps[{step.index}] ({step.key})"
+                    e.args = (e.one_line(),)
+                raise
+        entry.update({"seconds": time.perf_counter() - t})
+        if ctx.report:
+            entry.setdefault("report", ctx.report)
+            if step.key == "solve":
+                entry["solver"] = ctx.report
+        document["steps"].append(entry)
+        if step.key == "evaluate" and on_evaluation:
+            on_evaluation(document["evaluations"][-1])
+    if asset.handles is not None:  # a generate step may have replaced the skeleton by a cage
+        document["handles"] = {"kind": asset.handles.kind, "count": asset.handles.n}
+    document["seconds"] = time.perf_counter() - t0
+    if metrics_path is not None:
+        write_metrics(metrics_path, document)
+    return RunResult(asset, document, document["evaluations"])
+
+
+def _run_step(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base: Path, source: Path,
+              document: dict) -> dict:
+    """Run one step; return its entry of the metrics document.
+
+    ``evaluate`` (several metrics) and ``write``/``report`` (a writer chosen by the output path) have runners
+    of their own; every other step runs its plugin's :meth:`rigslim.plugin.Plugin.apply`, which stores the
+    stage's result in the asset.
+    """
+    entry = {"stage": step.key, "plugin": step.plugin if isinstance(step.plugin, str) else "metrics",
+             "name": step.name}
+    runner = _STEP_RUNNERS.get(step.key)
+    if runner is not None:
+        return runner(step, asset, host, ctx, base, source, document, entry)
+    plugin = host.get(step.stage, step.plugin)
+    entry.update(plugin.apply(asset, plugin.parse_params(step.params), ctx))
+    return entry
+
+
+def _run_evaluate(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base: Path, source: Path,
+                  document: dict, entry: dict) -> dict:
+    evaluation = Evaluation(asset, host, ctx)
+    metrics: dict = {}
+    levels: list[dict] = []
+    for name, p in step.plugin:
+        metric = host.get("metric", name)
+        with np.errstate(over="ignore", invalid="ignore"):  # non-finite results: null + note in the JSON
+            values = dict(metric.compute(evaluation, metric.parse_params(p), ctx))
+        merge_levels(levels, values.pop("levels", None) or [])
+        metrics.update(values)
+    label = step.name if step.name != f"evaluate{step.index}" else _default_label(document, asset)
+    evaluation_entry = {"name": label, "step": step.index, "metrics": metrics}
+    if levels:
+        evaluation_entry["levels"] = levels
+    if asset.weights is not None and asset.reduced is not None:
+        # how many vertices have 0, 1, 2... non-zero weights before and after (report histograms)
+        evaluation_entry["influence_histogram"] = {
+            "input": np.bincount(influence_counts(asset.weights)).tolist(),
+            "reduced": np.bincount(asset.reduced.influence_counts()).tolist()}
+        # the weights this evaluation measured, for report steps that render several evaluations
+        asset.extras.setdefault("evaluated_reduced", {})[step.index] = asset.reduced
+        asset.extras.setdefault("evaluated_normals", {})[step.index] = (asset.normal_estimator,
+                                                                        dict(asset.normal_params))
+    document["evaluations"].append(evaluation_entry)
+    entry["plugin"] = ",".join(n for n, _ in step.plugin)
+    return entry
+
+
+def _run_write(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base: Path, source: Path,
+               document: dict, entry: dict) -> dict:
+    out = Path(step.plugin)
+    out = out if out.is_absolute() else base / out
+    params = dict(step.params)
+    name = params.pop("writer", "report" if step.key == "report" else None)
+    ctx.document = document
+    writers = host.plugins("writer")
+    if name is None:
+        fitting = [w for w in writers.values() if out.suffix.lower() in w.suffixes]
+        if not fitting:
+            sufs = sorted({s for w in writers.values() for s in w.suffixes})
+            raise PipelineError(f"no writer for '{out.suffix}' files", source=source,
+                                field=f"steps[{step.index}].write", fix="use one of " + ", ".join(sufs))
+        writer = fitting[0]
+    else:
+        writer = host.get("writer", name)
+    writer.write(out, asset, _check_params(writer, params, source, f"steps[{step.index}]"), ctx)
+    entry.update({"plugin": writer.name, "path": str(out)})
+    return entry
+
+
+#: Steps whose value is not one plugin's name: evaluate (a list of metrics), write/report (an output path).
+_STEP_RUNNERS: dict[str, Callable[..., dict]] = {"evaluate": _run_evaluate, "write": _run_write,
+                                                  "report": _run_write}
+
+
+def _default_label(document, asset) -> str:
+    if asset.reduced is None and asset.levels:
+        return f"{asset.provenance.get('decimator', 'decimate')}-levels"
+    solver = asset.provenance.get("solver", "input")
+    k = asset.reduced.k if asset.reduced is not None else None
+    return f"{solver}-k{k}" if k else solver
+
+
+def write_metrics(path, document: dict) -> None:
+    """Write the metrics JSON atomically, strict JSON (non-finite values as null, noted: rigslim.io.jsonsafe)."""
+    from rigslim.io.jsonsafe import dumps_strict
+
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(dumps_strict(document, indent=2) + "\n")

@@ -1,0 +1,130 @@
+"""USD / UsdSkel reader and writer plugins (role ``usd``; ``.usd`` / ``.usda`` / ``.usdc`` / ``.usdz``).
+
+The reader fills the mesh (every mesh bound to one skeleton), the skeleton
+(one handle per joint), the weights and the poses of one ``SkelAnimation`` at
+once; the writer puts reduced weights (``elementSize = k``) and simplified
+levels (a ``LOD`` variant set, or ``UsdLod`` items) back into the source
+stage, or exports a new UsdSkel character from any other input (a glTF skin,
+a libigl mesh + skeleton + animation). See docs/usd.md. Needs ``usd-core``
+(``pip install 'rigslim[usd]'``).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Literal
+
+from rigslim.plugin import Params, Reader, Writer
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from rigslim.model.asset import Asset
+    from rigslim.plugin import StepContext
+
+USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+
+
+class UsdReader(Reader):
+    name = "usd"
+    summary = ("UsdSkel character (.usd/.usda/.usdc/.usdz): meshes bound to one Skeleton, joints as handles, "
+               "jointIndices/jointWeights, one SkelAnimation sampled at fps")
+    role = "usd"
+    suffixes = USD_SUFFIXES
+
+    class Params(Params):
+        skeleton: str | None = None
+        mesh: str | None = None
+        animation: str | None = None
+        fps: float = 30.0
+        times: list[float] | None = None
+        normalize: bool = True
+
+    def read(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
+        from rigslim.io.usd.read import read_usd_skin
+
+        skin = read_usd_skin(path, skeleton=params.skeleton, mesh=params.mesh, animation=params.animation,
+                             fps=params.fps, times=params.times, normalize=params.normalize)
+        asset.mesh, asset.handles, asset.weights, asset.poses = skin.mesh, skin.handles, skin.weights, skin.poses
+        asset.extras["usd"] = skin
+        for note in skin.notes:
+            ctx.log(note)
+        asset.provenance["usd"] = {"path": str(path), "skeleton": skin.skeleton, "meshes": [p.path for p in skin.parts],
+                                   "element_sizes": [p.element_size for p in skin.parts],
+                                   "animation": skin.animation or "rest pose only", "fps": skin.fps,
+                                   "frames": len(skin.poses), "vertices": skin.mesh.n_vertices, "notes": skin.notes}
+
+
+class UsdWriter(Writer):
+    name = "usd"
+    summary = ("UsdSkel (.usd/.usda/.usdc/.usdz): the source stage with reduced weights (elementSize = k) and "
+               "levels (LOD variant set or UsdLod prims), or a new UsdSkel character from any skeleton input")
+    suffixes = USD_SUFFIXES
+
+    class Params(Params):
+        levels: bool = True
+        lod: Literal["variant", "prims"] = "variant"
+        """Layout of levels: a ``LOD`` variant set on the model prim, or ``UsdLod`` items (docs/usd.md)."""
+        fps: float = 30.0
+        keep_input_weights: bool = True
+        """With no solve step, keep the file's influences (else write the weights as read, normalised)."""
+        clamp_negative: bool = False
+
+    def write(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
+        from rigslim.io.usd.write import write_usd
+
+        levels = (asset.levels or None) if params.levels else None
+        source = asset.extras.get("usd")
+        reduced = asset.reduced
+        if source is not None and source.mesh is asset.mesh:
+            if reduced is None and not params.keep_input_weights:
+                from rigslim.io.gltf.write import fixed_width_weights
+
+                asset.require("weights", step="write: usd")
+                reduced = fixed_width_weights(asset.weights)
+            stats = write_usd(path, source, reduced, levels=levels, hierarchy=asset.hierarchy, lod=params.lod,
+                              clamp_negative=params.clamp_negative)
+            mode = "rewrite"
+        else:
+            stats = self._export(path, asset, params, levels)
+            mode = "export"
+        if stats.get("clamped_vertices"):
+            ctx.log(f"{stats['clamped_vertices']} vertices had negative weights (down to "
+                    f"{stats['most_negative']:.3g}): set to zero and renormalised")
+        ctx.report.update(stats)
+        ctx.report.update({"mode": mode, "k": asset.reduced.k if asset.reduced is not None else None})
+
+    @staticmethod
+    def _export(path: Path, asset: Asset, params: Params, levels) -> dict:
+        """A new UsdSkel stage from the asset, then levels through the same writer as a USD source."""
+        from rigslim.io.usd.export import bind_transforms, build_stage
+        from rigslim.io.usd.read import usd_skin_of_stage
+        from rigslim.io.usd.write import save_stage, write_usd
+
+        asset.require("mesh", "handles", step="write: usd")
+        assert asset.mesh is not None and asset.handles is not None
+        weights = asset.reduced if asset.reduced is not None else asset.weights
+        if weights is None:
+            asset.require("weights", step="write: usd")
+        gltf = asset.extras.get("gltf")
+        bind = bind_transforms(asset.handles, gltf if gltf is not None and gltf.mesh is asset.mesh else None)
+        name = getattr(asset.mesh, "source", None) or "Character"
+        stage = build_stage(asset.mesh, asset.handles, weights, asset.poses, fps=params.fps, bind=bind,
+                            name=_stem(name))
+        if not levels:
+            save_stage(stage, path)
+            k = asset.reduced.k if asset.reduced is not None else None
+            return {"element_size": k, "levels": 0, "lod": None, "meshes": 1}
+        skin = usd_skin_of_stage(stage, asset.mesh, asset.handles, asset.weights, asset.poses, path)
+        return write_usd(path, skin, None, levels=levels, hierarchy=asset.hierarchy, lod=params.lod,
+                         clamp_negative=params.clamp_negative)
+
+
+def _stem(source: str) -> str:
+    from pathlib import Path
+
+    stem = Path(str(source).split(" ")[0]).stem
+    return stem or "Character"
+
+
+READERS = [UsdReader]
+WRITERS = [UsdWriter]

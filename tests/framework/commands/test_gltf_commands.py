@@ -1,0 +1,353 @@
+"""The one-command glTF front ends: rigslim reduce, lod, compare, inspect (rigslim.commands)."""
+
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+from support.gltf_validator import validate_gltf, validation_errors, validator_available
+
+from rigslim.commands.cli import main
+from rigslim.io.gltf.document import load_gltf, read_accessor
+from rigslim.io.gltf.skin import skinning_sets
+
+GLTF = Path(__file__).resolve().parents[3] / "examples" / "data" / "gltf"
+#: Every skinned glTF character bundled in examples/data/gltf (assimp conversions, Khronos samples, the tube).
+CHARACTERS = sorted(p for p in list(GLTF.glob("*.gl*")) + list(GLTF.glob("*/*.gltf")))
+
+
+@pytest.fixture(scope="module")
+def valid():
+    if not validator_available():
+        pytest.fail("glTF-Validator missing: run tools/setup-gltf-validator.sh (make test-tools)")
+
+    def check(path):
+        errors = validation_errors(validate_gltf(path))
+        assert not errors, f"{path}: {errors[:5]}"
+
+    return check
+
+
+def _skin_rows(doc, prim) -> tuple[np.ndarray, np.ndarray]:
+    """Decoded weights (v, 4 * sets) and the integer codes' row sums check of one primitive."""
+    attrs = prim["attributes"]
+    Ws = [np.asarray(read_accessor(doc, attrs[f"WEIGHTS_{s}"]), float) for s in skinning_sets(attrs)]
+    raw = [np.asarray(read_accessor(doc, attrs[f"WEIGHTS_{s}"], normalize=False)) for s in skinning_sets(attrs)]
+    return np.hstack(Ws), np.hstack(raw)
+
+
+def check_lod_structure(source: Path, out: Path, levels: int) -> None:
+    """Each original node links its own level nodes; each level mesh keeps the primitives, materials, UVs."""
+    src, doc = load_gltf(source).json, load_gltf(out)
+    js = doc.json
+    skinned = [i for i, n in enumerate(js["nodes"]) if "skin" in n and "mesh" in n and i < len(src["nodes"])]
+    seen = set()
+    for i in skinned:
+        node = js["nodes"][i]
+        ids = node["extensions"]["MSFT_lod"]["ids"]
+        assert len(ids) == levels
+        assert not seen & set(ids), "a level node is shared between two original nodes"
+        seen |= set(ids)
+        assert len(node["extras"]["MSFT_screencoverage"]) == levels + 1
+        orig = js["meshes"][node["mesh"]]
+        for j in ids:
+            lvl_node = js["nodes"][j]
+            assert lvl_node["skin"] == node["skin"]
+            mesh = js["meshes"][lvl_node["mesh"]]
+            assert len(mesh["primitives"]) == len(orig["primitives"])
+            for p_src, p in zip(orig["primitives"], mesh["primitives"], strict=False):
+                assert p.get("material") == p_src.get("material")
+                assert set(p_src["attributes"]) <= set(p["attributes"]) | {"JOINTS_1", "WEIGHTS_1"}
+                assert len(p.get("targets", [])) == len(p_src.get("targets", []))
+                W, raw = _skin_rows(doc, p)
+                assert (W >= 0).all() and ((W > 0).sum(axis=1) <= 4).all()
+                if raw.dtype == np.uint8:
+                    assert (raw.astype(int).sum(axis=1) == 255).all()          # exactly one after decoding
+                elif raw.dtype == np.uint16:
+                    assert (raw.astype(int).sum(axis=1) == 65535).all()
+    assert "MSFT_lod" in js["extensionsUsed"]
+
+
+@pytest.mark.parametrize("path", CHARACTERS, ids=lambda p: p.name)
+def test_lod_on_every_bundled_character(path, tmp_path, valid):
+    out = tmp_path / "lod.glb"
+    assert main(["lod", str(path), "-o", str(out), "--ratios", "0.5,0.25", "--report", str(tmp_path / "r.json")]) == 0
+    valid(out)            # the sources' unnormalised weights are written normalised: 0 errors
+    report = json.loads((tmp_path / "r.json").read_text())
+    step = next(s for s in report["run"]["steps"] if s["stage"] == "decimate")["report"]
+    distinct = [t for t in step["targets"] if t["same_as"] is None]
+    check_lod_structure(path, out, len(distinct))       # a target that ends where a finer one did: no level
+    assert report["schema"] == "rigslim-gltf-command" and report["schema_version"] == 1
+    assert [r["ratio"] for r in report["levels"]] == [0.5, 0.25][:len(distinct)]
+    assert report["pipeline"]["steps"][0]["decimate"] == "quartic"
+    faces = [r["faces"] for r in report["levels"]]
+    assert all(a > b for a, b in zip(faces, faces[1:], strict=False))          # strictly decreasing
+    assert faces[0] < report["input_faces"] or report["input_faces"] <= 12
+    for t in step["targets"]:                           # unreached targets are named by their real faces
+        assert (t["label"].endswith(f"-{t['faces']}f")) == (t["faces"] > 1.03 * t["target_faces"])
+
+
+def test_lod_split_writes_one_pruned_file_per_level(tmp_path, valid):
+    src = GLTF / "tube_two_materials.glb"
+    out = tmp_path / "tube.glb"
+    assert main(["lod", str(src), "-o", str(out), "--ratios", "0.5,0.25", "--split"]) == 0
+    assert not out.exists()
+    sizes = []
+    for name in ("tube-50.glb", "tube-25.glb"):
+        f = tmp_path / name
+        valid(f)
+        js = load_gltf(f).json
+        assert "MSFT_lod" not in json.dumps(js)
+        assert len(js["meshes"]) == 2 and [len(m["primitives"]) for m in js["meshes"]] == [1, 2]
+        assert len(js["nodes"]) == len(load_gltf(src).json["nodes"])
+        sizes.append(f.stat().st_size)
+    assert sizes[0] > sizes[1]
+
+
+def test_tube_levels_keep_seams_materials_and_morph_targets(tmp_path):
+    """Per primitive: level UVs come from the source's range, seam vertices keep both UVs, morphs carried."""
+    src = GLTF / "tube_two_materials.glb"
+    out = tmp_path / "tube.glb"
+    assert main(["lod", str(src), "-o", str(out), "--ratios", "0.5"]) == 0
+    doc = load_gltf(out)
+    js = doc.json
+    level_mesh = js["meshes"][js["nodes"][js["nodes"][1]["extensions"]["MSFT_lod"]["ids"][0]]["mesh"]]
+    assert level_mesh["weights"] == [0.0] and level_mesh["extras"]["targetNames"] == ["bulge"]
+    for p_src, p in zip(js["meshes"][1]["primitives"], level_mesh["primitives"], strict=False):
+        uv_src = read_accessor(doc, p_src["attributes"]["TEXCOORD_0"])
+        uv = read_accessor(doc, p["attributes"]["TEXCOORD_0"])
+        assert uv[:, 0].min() >= uv_src[:, 0].min() - 1e-6 and uv[:, 0].max() <= uv_src[:, 0].max() + 1e-6
+        P = read_accessor(doc, p["attributes"]["POSITION"])
+        # a vertex on the tube's surface: radius 0.3 (collapses stay near the surface)
+        assert np.abs(np.hypot(P[:, 0], P[:, 2]) - 0.3).max() < 0.02
+        # the UV seam (u = 0 and u = 1 at the same position) survives: both ends of u are present
+        assert np.isclose(uv[:, 0].min(), uv_src[:, 0].min()) and np.isclose(uv[:, 0].max(), uv_src[:, 0].max())
+        # the morph target moves the level like the source: bulge at y = 1.5 is 0.1 outwards
+        d = read_accessor(doc, p["targets"][0]["POSITION"])
+        assert np.abs(d).max() <= 0.1 + 1e-6 and np.abs(d).max() > 0.05
+        N = read_accessor(doc, p["attributes"]["NORMAL"])
+        assert np.allclose(np.linalg.norm(N, axis=1), 1, atol=1e-5)
+    # the morph weights animation plays on the level nodes too
+    targets = [c["target"] for c in js["animations"][0]["channels"] if c["target"]["path"] == "weights"]
+    assert len(targets) == 2
+
+
+@pytest.mark.parametrize("path", [GLTF / "animation_with_skeleton.glb", GLTF / "RiggedFigure" / "RiggedFigure.gltf",
+                                  GLTF / "tube_two_materials.glb"], ids=lambda p: p.name)
+def test_reduce(path, tmp_path, valid):
+    out = tmp_path / "k2.glb"
+    assert main(["reduce", str(path), "-o", str(out), "-k", "2", "--solve", "k-largest",
+                 "--report", str(tmp_path / "r.json")]) == 0
+    valid(out)
+    doc = load_gltf(out)
+    for mesh in doc.json["meshes"]:
+        for prim in mesh["primitives"]:
+            W, raw = _skin_rows(doc, prim)
+            assert ((W > 0).sum(axis=1) <= 2).all()
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert report["command"] == "reduce" and report["world"]["position_rms_m"] >= 0
+
+
+def test_reduce_without_animation_falls_back_to_k_largest(tmp_path, valid, capsys):
+    """RiggedSimple-like input without clips: a file with its animations removed."""
+    src = load_gltf(GLTF / "huesitos.glb")
+    js = dict(src.json)
+    js.pop("animations")
+    f = tmp_path / "still.glb"
+    text = json.dumps(js).encode()
+    text += b" " * ((-len(text)) % 4)
+    binary = src.buffers[0]
+    binary += b"\0" * ((-len(binary)) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(binary), 0x004E4942) + binary
+    f.write_bytes(struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body)
+    assert main(["reduce", str(f), "-o", str(tmp_path / "o.glb"), "-k", "2"]) == 0
+    assert "falling back to k-largest" in capsys.readouterr().err
+    valid(tmp_path / "o.glb")
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["lod", "missing.glb", "-o", "x.glb"], "file not found"),
+    (["lod", "{src}", "-o", "x.obj"], "not a .glb"),
+    (["lod", "{src}", "-o", "x.glb", "--ratios", "0.25,0.5"], "decreasing"),
+    (["lod", "{src}", "-o", "x.glb", "--max-bones", "9"], "1 to 8"),
+    (["reduce", "{src}", "-o", "x.glb", "-k", "0"], "1 to 8"),
+    (["reduce", "{src}", "-o", "x.glb", "--clip", "nope"], "no animation named"),
+    (["compare", "{src}", "{src}", "--level", "1"], "no LOD level 1"),
+    (["compare", "{src}", "{src}", "--frames", "x:y"], "--frames"),
+    (["inspect", "README.md"], "not a glTF"),
+])
+def test_bad_input_is_one_line_and_exit_2(argv, match, tmp_path, capsys):
+    src = str(GLTF / "huesitos.glb")
+    argv = [a.replace("{src}", src) for a in argv]
+    argv = [str(tmp_path / a) if a in ("x.glb", "x.obj") else a for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert match in err and "\n" not in err and "Traceback" not in err
+    assert not (tmp_path / "x.glb").exists()
+
+
+def test_inspect_json(capsys):
+    assert main(["inspect", str(GLTF / "animation_with_skeleton.glb"), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["schema_version"] == 1 and info["skins"][0]["joints"] == 14
+    assert info["animations"][0]["name"] == "Armature|ArmatureAction" and info["animations"][0]["seconds"] > 0.8
+    prim = info["meshes"][0]["primitives"][0]
+    assert sum(prim["influences_histogram"]) == 2464 and "TEXCOORD_0" in prim["attributes"]
+    assert prim["weight_sums"]["off_by_more_than_1e-3"] > 0 and prim["weight_sums"]["max"] > 1.2
+
+
+# --------------------------------------------------------------------------- compare against a known answer
+
+
+def _sheet_glb(path: Path, offset: float) -> None:
+    """A hand-made skinned sheet (5x5 grid, z = offset), one joint that rotates it about x over 1 s."""
+    xs = np.linspace(-1.0, 1.0, 5)
+    X, Y = np.meshgrid(xs, xs * 0.5, indexing="ij")
+    P = np.stack([X.ravel(), Y.ravel(), np.full(X.size, offset)], 1).astype(np.float32)
+    idx = np.arange(25).reshape(5, 5)
+    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
+    F = np.concatenate([np.stack([a, c, b], -1).reshape(-1, 3), np.stack([b, c, d], -1).reshape(-1, 3)])
+    J = np.zeros((25, 4), np.uint8)
+    W = np.zeros((25, 4), np.float32)
+    W[:, 0] = 1
+    times = np.linspace(0, 1, 5, dtype=np.float32)
+    ang = np.radians(40.0) * times
+    rot = np.stack([np.sin(ang / 2), 0 * ang, 0 * ang, np.cos(ang / 2)], 1).astype(np.float32)
+    ibm = np.eye(4, dtype=np.float32).reshape(1, 16)
+    parts, views, accs = [], [], []
+
+    def add(arr, ctype, type_, minmax=False):
+        off = sum(len(p) for p in parts)
+        data = np.ascontiguousarray(arr).tobytes()
+        parts.append(data + b"\0" * ((-len(data)) % 4))
+        views.append({"buffer": 0, "byteOffset": off, "byteLength": len(data)})
+        acc = {"bufferView": len(views) - 1, "componentType": ctype, "count": len(arr), "type": type_}
+        if minmax:
+            acc["min"] = [float(v) for v in arr.reshape(len(arr), -1).min(0)]
+            acc["max"] = [float(v) for v in arr.reshape(len(arr), -1).max(0)]
+        accs.append(acc)
+        return len(accs) - 1
+
+    prim = {"attributes": {"POSITION": add(P, 5126, "VEC3", True), "JOINTS_0": add(J, 5121, "VEC4"),
+                           "WEIGHTS_0": add(W, 5126, "VEC4")},
+            "indices": add(F.astype(np.uint16).ravel(), 5123, "SCALAR")}
+    js = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0, 1]}],
+          "nodes": [{"mesh": 0, "skin": 0}, {"name": "joint", "translation": [0.0, 0.0, 0.0]}],
+          "meshes": [{"primitives": [prim]}],
+          "skins": [{"joints": [1], "inverseBindMatrices": add(ibm, 5126, "MAT4")}],
+          "animations": [{"name": "tilt", "samplers": [{"input": add(times, 5126, "SCALAR", True),
+                                                        "output": add(rot, 5126, "VEC4"),
+                                                        "interpolation": "LINEAR"}],
+                          "channels": [{"sampler": 0, "target": {"node": 1, "path": "rotation"}}]}]}
+    binary = b"".join(parts)
+    js["bufferViews"], js["accessors"], js["buffers"] = views, accs, [{"byteLength": len(binary)}]
+    text = json.dumps(js).encode()
+    text += b" " * ((-len(text)) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(binary), 0x004E4942) + binary
+    path.write_bytes(struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body)
+
+
+def test_compare_known_offset(tmp_path, capsys):
+    """Two parallel sheets 0.03 apart, moved rigidly: every sample is 0.03 from the other sheet."""
+    ref, cand = tmp_path / "ref.glb", tmp_path / "cand.glb"
+    _sheet_glb(ref, 0.0)
+    _sheet_glb(cand, 0.03)
+    assert main(["compare", str(ref), str(cand), "--frames", "0:31:5", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    # independent answer: the sheet's world bounding box in the first frame (rotation 0): 2 x 1 x 0
+    diag = float(np.hypot(2.0, 1.0))
+    assert res["reference_diagonal_m"] == pytest.approx(diag, rel=1e-6)
+    assert res["hausdorff_rms_m"] == pytest.approx(0.03, rel=1e-4)
+    assert res["hausdorff_max_m"] == pytest.approx(0.03, rel=1e-4)
+    assert res["hausdorff_rms_pct"] == pytest.approx(100 * 0.03 / diag, rel=1e-4)
+    assert res["faces"] == 32 and res["frames"] == [0, 5, 10, 15, 20, 25, 30]
+    assert res["normal_rms_rad"] == pytest.approx(0.0, abs=1e-6)     # same topology, parallel
+    assert res["position_rms_m"] == pytest.approx(0.03, rel=1e-5)
+
+
+def test_compare_measures_lod_levels(tmp_path, capsys):
+    src = GLTF / "tube_two_materials.glb"
+    out = tmp_path / "tube.glb"
+    assert main(["lod", str(src), "-o", str(out), "--ratios", "0.5,0.2"]) == 0
+    capsys.readouterr()
+    res = []
+    for level in (0, 1, 2):
+        assert main(["compare", str(src), str(out), "--level", str(level), "--frames", "1:31:10", "--json",
+                     "--samples", "4000"]) == 0
+        res.append(json.loads(capsys.readouterr().out))
+    # level 0: the original primitives, their weights as ubyte codes (quantisation error only)
+    assert res[0]["faces"] == 1536 and res[0]["hausdorff_max_pct"] < 0.05 and "normal_rms_rad" in res[0]
+    assert res[1]["faces"] < 1536 and res[2]["faces"] < res[1]["faces"]
+    assert 0 < res[1]["hausdorff_rms_pct"] < res[2]["hausdorff_rms_pct"] < 1.0
+
+
+ASSIMP_FBX = Path("/usr/share/assimp/models/FBX")
+
+
+@pytest.mark.skipif(not (ASSIMP_FBX / "huesitos.fbx").exists() or __import__("shutil").which("assimp") is None,
+                    reason="assimp-utils / assimp-testmodels missing (tools/setup-testmodels.sh)")
+@pytest.mark.parametrize("name", ["huesitos.fbx", "animation_with_skeleton.fbx"])
+def test_lod_on_freshly_converted_assimp_characters(name, tmp_path, valid):
+    """The FBX characters converted by this machine's assimp (`assimp export ... -fglb2`), as a user would."""
+    import subprocess
+
+    glb = tmp_path / (Path(name).stem + ".glb")
+    subprocess.run(["assimp", "export", str(ASSIMP_FBX / name), str(glb), "-fglb2"], check=True,
+                   capture_output=True, timeout=120)
+    out = tmp_path / "lod.glb"
+    assert main(["lod", str(glb), "-o", str(out)]) == 0
+    valid(out)
+    check_lod_structure(glb, out, 2)
+    assert main(["reduce", str(glb), "-o", str(tmp_path / "k2.glb"), "-k", "2", "--solve", "k-largest"]) == 0
+    valid(tmp_path / "k2.glb")
+
+
+def test_lod_is_a_pipeline_rigslim_run_can_run(tmp_path):
+    """--save-pipeline writes the YAML the command ran; `rigslim run` on it writes the same levels."""
+    src = GLTF / "tube_two_materials.glb"
+    assert main(["lod", str(src), "-o", str(tmp_path / "a.glb"), "--ratios", "0.5,0.25",
+                 "--save-pipeline", str(tmp_path / "lod.yaml")]) == 0
+    text = (tmp_path / "lod.yaml").read_text().replace(str(tmp_path / "a.glb"), str(tmp_path / "b.glb"))
+    (tmp_path / "lod.yaml").write_text(text)
+    assert main(["run", str(tmp_path / "lod.yaml"), "-q"]) == 0
+    a, b = load_gltf(tmp_path / "a.glb").json, load_gltf(tmp_path / "b.glb").json
+    assert [m["name"] for m in a["meshes"]] == [m["name"] for m in b["meshes"]]
+    assert a["accessors"] == b["accessors"]
+
+
+def _two_skin_tube(path: Path) -> None:
+    """The tube with a second skin (same joints) for the Torso node: reduce and lod must handle every skin."""
+    src = load_gltf(GLTF / "tube_two_materials.glb")
+    js = json.loads(json.dumps(src.json))
+    js["skins"].append(dict(js["skins"][0], name="torso"))
+    js["nodes"][1]["skin"] = 1
+    text = json.dumps(js).encode()
+    text += b" " * ((-len(text)) % 4)
+    binary = src.buffers[0] + b"\0" * ((-len(src.buffers[0])) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(binary), 0x004E4942) + binary
+    path.write_bytes(struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body)
+
+
+def test_commands_handle_every_skin(tmp_path, valid):
+    src = tmp_path / "two-skins.glb"
+    _two_skin_tube(src)
+    assert main(["reduce", str(src), "-o", str(tmp_path / "k1.glb"), "-k", "1", "--solve", "k-largest",
+                 "--report", str(tmp_path / "r.json")]) == 0
+    valid(tmp_path / "k1.glb")
+    doc = load_gltf(tmp_path / "k1.glb")
+    for mesh in doc.json["meshes"]:
+        for prim in mesh["primitives"]:
+            W, _ = _skin_rows(doc, prim)
+            assert ((W > 0).sum(axis=1) <= 1).all()              # both skins' meshes reduced
+    assert [s["skin"] for s in json.loads((tmp_path / "r.json").read_text())["per_skin"]] == [0, 1]
+    out = tmp_path / "lod.glb"
+    assert main(["lod", str(src), "-o", str(out)]) == 0
+    valid(out)
+    check_lod_structure(src, out, 2)
+    js = load_gltf(out).json
+    assert [js["nodes"][j]["skin"] for j in js["nodes"][1]["extensions"]["MSFT_lod"]["ids"]] == [1, 1]
+    assert main(["compare", str(src), str(out), "--level", "1", "--frames", "1:31:10", "--json",
+                 "--samples", "2000"]) == 0

@@ -1,0 +1,107 @@
+"""rigslim report on runs whose outputs are glTF: reduced weights read from the .glb, MSFT_lod levels listed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from rigslim.commands.cli import main
+
+GLTF = Path(__file__).resolve().parents[3] / "examples" / "data" / "gltf"
+
+
+def test_report_renders_a_run_that_wrote_only_a_glb(tmp_path, capsys):
+    yml = tmp_path / "k2.yaml"
+    yml.write_text(f"""
+inputs:
+  gltf: {GLTF / 'animation_with_skeleton.glb'}
+  fps: 30
+poses: {{examples: "0:26:4", test: "1:26:2"}}
+steps:
+  - select: k-largest
+    k: 2
+  - solve: k-largest
+  - evaluate: [position-rms]
+  - write: out/k2.glb
+    quantize: ubyte
+""")
+    assert main(["run", str(yml), "--metrics", str(tmp_path / "m.json"), "-q"]) == 0
+    out = tmp_path / "report.html"
+    assert main(["report", str(tmp_path / "m.json"), "-o", str(out), "--size", "96x80", "--backend", "numpy",
+                 "-q"]) == 0
+    text = out.read_text()
+    assert "no reduced weights found" not in text and "not rendered" not in text
+    # the full weights, then the reduced deformation read back from the .glb and its normal-deviation map
+    assert "<figcaption>full weights" in text and "<figcaption>k-largest-k2</figcaption>" in text
+    assert "<figcaption>k-largest-k2: normal deviation" in text
+
+
+def test_report_lists_the_lod_levels(tmp_path):
+    yml = tmp_path / "lod.yaml"
+    yml.write_text(f"""
+inputs:
+  gltf: {GLTF / 'tube_two_materials.glb'}
+  fps: 30
+poses: {{examples: "0:31:4", test: "2:31:4"}}
+steps:
+  - decimate: quartic
+    targets: [0.5, 0.25]
+    max_bones: 4
+  - evaluate:
+      - metro: {{samples: 1000}}
+  - write: out/tube-lod.glb
+    lod: true
+    quantize: ubyte
+""")
+    assert main(["run", str(yml), "--metrics", str(tmp_path / "m.json"), "-q"]) == 0
+    out = tmp_path / "report.html"
+    assert main(["report", str(tmp_path / "m.json"), "-o", str(out), "--no-renders", "-q"]) == 0
+    text = out.read_text()
+    assert "<h2>Levels of detail</h2>" in text
+    assert "<td>Torso</td><td>2</td><td>Torso-quartic-25pct</td><td>2</td><td>0, 1</td>" in text
+    assert "<td>Legs</td><td>1</td><td>Legs-quartic-50pct</td><td>1</td><td>0</td>" in text
+
+
+def test_lod_rows_of_a_file_without_lod_is_empty():
+    from rigslim.report.gltf import lod_rows
+
+    assert lod_rows(GLTF / "huesitos.glb") == []
+    from rigslim.errors import InputError
+
+    with pytest.raises(InputError):
+        lod_rows(GLTF / "missing.glb")
+
+
+def test_report_gives_errors_in_world_units(tmp_path):
+    """assimp's character: joints scale by 100, so % of the bind diagonal overstates the error 100 times."""
+    import json
+    import re
+
+    yml = tmp_path / "k2.yaml"
+    yml.write_text(f"""
+inputs:
+  gltf: {GLTF / 'animation_with_skeleton.glb'}
+  fps: 30
+poses: {{examples: "0:26:4", test: "1:26:2"}}
+steps:
+  - select: k-largest
+    k: 2
+  - solve: k-largest
+  - evaluate: [position-rms]
+""")
+    assert main(["run", str(yml), "--metrics", str(tmp_path / "m.json"), "-q"]) == 0
+    doc = json.loads((tmp_path / "m.json").read_text())
+    out = tmp_path / "report.html"
+    assert main(["report", str(tmp_path / "m.json"), "-o", str(out), "--no-renders", "-q"]) == 0
+    text = out.read_text()
+    row = re.search(r"<td>position_rms_pct</td><td>([^<]+)</td><td>([^<]+)</td><td>([^<]+)</td><td>([^<]+)</td>",
+                    text)
+    assert row, "no world-units row"
+    pct_bind, metres, pct_world, world = (float(x) for x in row.groups())
+    from rigslim.report.gltf import world_diagonal
+
+    assert world == pytest.approx(world_diagonal(GLTF / "animation_with_skeleton.glb"), rel=1e-3)
+    assert world > 50 * doc["mesh"]["bbox_diagonal"]                    # the x100 joint scale
+    assert metres == pytest.approx(pct_bind / 100 * doc["mesh"]["bbox_diagonal"], rel=1e-3)
+    assert pct_world == pytest.approx(100 * metres / world, rel=1e-3)

@@ -1,0 +1,199 @@
+"""USD inputs and outputs in pipelines: reduce and simplify a UsdSkel character, write it back, check the files.
+
+The written levels are read back level by level (``lod=``), posed by UsdSkel
+and by rigslim, and compared with the levels the decimation step made; the
+carried UVs, material subsets and blend shapes are checked on each level;
+every written file passes the USD validators in every LOD variant.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_io_usd import make_character
+
+from rigslim.io.usd.check import check_usd
+from rigslim.io.usd.read import read_usd_skin
+from rigslim.io.usd.skinning import usdskel_points
+from rigslim.numerics.blend import linear_blend
+from rigslim.runtime.run import run_pipeline
+
+PIPELINE = """\
+name: usd-lod
+inputs:
+  usd:
+    path: hero.usda
+    fps: 24
+poses:
+  examples: "0:25:3"
+  test: "1:25:3"
+steps:
+  - select: k-largest
+    k: 2
+  - solve: k-largest
+  - decimate: quartic
+    targets: [0.5, 0.25]
+    max_bones: 2
+  - evaluate: [position-rms]
+  - write: out/hero-variant.usda
+  - write: out/hero-prims.usdc
+    lod: prims
+  - write: out/hero.usdz
+"""
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("usd-lod")
+    make_character(folder / "hero.usda")
+    before = (folder / "hero.usda").read_bytes()
+    (folder / "pipeline.yaml").write_text(PIPELINE)
+    result = run_pipeline(folder / "pipeline.yaml")
+    assert (folder / "hero.usda").read_bytes() == before
+    return folder, result
+
+
+@pytest.mark.parametrize("name", ["hero-variant.usda", "hero-prims.usdc", "hero.usdz"])
+def test_levels_pass_the_validators(run, name):
+    folder, _ = run
+    assert check_usd(folder / "out" / name) == []
+
+
+@pytest.mark.parametrize("name", ["hero-variant.usda", "hero-prims.usdc", "hero.usdz"])
+def test_each_level_reads_back_as_the_decimation_made_it(run, name):
+    folder, result = run
+    asset = result.asset
+    levels = asset.levels
+    assert len(levels) == 2
+    for i in range(3):
+        u = read_usd_skin(folder / "out" / name, lod=i, fps=24)
+        V = asset.mesh.V if i == 0 else levels[i - 1].mesh.V
+        W = asset.reduced.to_sparse() if i == 0 else levels[i - 1].weights.to_sparse()
+        assert u.mesh.n_faces == (asset.mesh.n_faces if i == 0 else levels[i - 1].n_faces)
+        # the same rest points, each with its own weights (matched by position)
+        order = np.lexsort(np.round(u.mesh.V, 5).T)
+        ref_order = np.lexsort(np.round(V, 5).T)
+        assert u.mesh.n_vertices == len(V)
+        np.testing.assert_allclose(u.mesh.V[order], V[ref_order], atol=1e-5)
+        assert abs(u.weights[order] - W[ref_order]).max() < 1e-6
+        assert all(p.element_size == 2 for p in u.parts)
+        ref = usdskel_points(u)
+        for f in (0, 6, 13):
+            mine = linear_blend(u.mesh.V, u.weights, u.poses.T[f])
+            assert np.abs(mine - ref[f]).max() < 1e-5
+            asset_posed = linear_blend(V, W, asset.poses.T[f])
+            np.testing.assert_allclose(mine[order], asset_posed[ref_order], atol=1e-4)
+
+
+def test_levels_carry_uvs_subsets_and_blend_shapes(run):
+    from pxr import Usd, UsdGeom, UsdSkel
+
+    folder, result = run
+    stage = Usd.Stage.Open(str(folder / "out" / "hero-variant.usda"))
+    root = stage.GetPrimAtPath("/Hero")
+    vset = root.GetVariantSets().GetVariantSet("LOD")
+    assert vset.GetVariantNames() == ["LOD0", "LOD1", "LOD2"] and vset.GetVariantSelection() == "LOD0"
+    for name in ("LOD1", "LOD2"):
+        vset.SetVariantSelection(name)
+        strip = UsdGeom.Mesh(stage.GetPrimAtPath("/Hero/Geo/Strip"))
+        faces = len(strip.GetFaceVertexCountsAttr().Get())
+        assert set(strip.GetFaceVertexCountsAttr().Get()) == {3}
+        st = UsdGeom.PrimvarsAPI(strip).GetPrimvar("st")
+        assert st.GetInterpolation() == "faceVarying"
+        uv = np.array(st.ComputeFlattened())
+        assert uv.shape == (3 * faces, 2)
+        # each face keeps its own chart: all three corners in the same one (u < 1.5 or u >= 1.5)
+        chart = uv[:, 0].reshape(-1, 3) >= 1.5
+        assert (chart.all(axis=1) | ~chart.any(axis=1)).all()
+        assert uv[:, 1].min() >= -1e-6 and uv[:, 1].max() <= 1 + 1e-6
+        subsets = UsdGeom.Subset.GetAllGeomSubsets(UsdGeom.Imageable(strip))
+        members = np.sort(np.concatenate([np.array(s.GetIndicesAttr().Get()) for s in subsets]))
+        np.testing.assert_array_equal(members, np.arange(faces))     # still a partition of the faces
+        shape = UsdSkel.BlendShape(stage.GetPrimAtPath("/Hero/Geo/Strip/Bulge"))
+        idx = np.array(shape.GetPointIndicesAttr().Get())
+        offsets = np.array(shape.GetOffsetsAttr().Get())
+        assert len(idx) == len(offsets) > 0
+        assert idx.max() < len(strip.GetPointsAttr().Get())
+        hat = stage.GetPrimAtPath("/Hero/Geo/Hat")
+        assert UsdSkel.BindingAPI(hat).GetJointIndicesPrimvar().GetElementSize() == 2
+
+
+def test_prims_layout_is_a_usdlod_root_with_hidden_levels(run):
+    from pxr import Usd, UsdGeom, UsdLod
+
+    folder, _ = run
+    stage = Usd.Stage.Open(str(folder / "out" / "hero-prims.usdc"))
+    lods = stage.GetPrimAtPath("/Hero/LODs")
+    assert lods.HasAPI(UsdLod.RootAPI)
+    assert [c.GetName() for c in lods.GetChildren()] == ["LOD0", "LOD1", "LOD2"]
+    assert UsdGeom.Imageable(lods.GetChild("LOD0")).ComputeVisibility() == "inherited"
+    assert UsdGeom.Imageable(lods.GetChild("LOD2")).ComputeVisibility() == "invisible"
+    assert not stage.GetPrimAtPath("/Hero/Geo/Strip")
+    # the default read takes item lod:default:index only, not every level merged
+    u = read_usd_skin(folder / "out" / "hero-prims.usdc")
+    assert u.mesh.n_faces == 2 * 88 + 1
+
+
+def test_a_gltf_input_is_written_as_usd_with_levels_and_read_back(tmp_path):
+    from pathlib import Path
+
+    gltf = Path(__file__).resolve().parents[3] / "examples" / "data" / "gltf" / "huesitos.glb"
+    (tmp_path / "to-usd.yaml").write_text(f"""\
+inputs:
+  gltf: {gltf}
+poses:
+  examples: "0:40:4"
+  test: "2:40:4"
+steps:
+  - select: k-largest
+    k: 2
+  - solve: k-largest
+  - decimate: quartic
+    targets: [0.5]
+    max_bones: 2
+  - write: huesitos.usda
+""")
+    result = run_pipeline(tmp_path / "to-usd.yaml")
+    assert check_usd(tmp_path / "huesitos.usda") == []
+    u = read_usd_skin(tmp_path / "huesitos.usda")
+    asset = result.asset
+    assert u.mesh.n_vertices == asset.mesh.n_vertices and all(p.element_size == 2 for p in u.parts)
+    for f in (0, 10, 30):
+        mine = linear_blend(u.mesh.V, u.weights, u.poses.T[f])
+        theirs = linear_blend(asset.mesh.V, asset.reduced.to_sparse(), asset.poses.T[f])
+        scale = np.linalg.norm(theirs.max(axis=0) - theirs.min(axis=0))
+        assert np.abs(mine - theirs).max() < 2e-5 * scale
+    assert read_usd_skin(tmp_path / "huesitos.usda", lod=1).mesh.n_faces == asset.levels[0].n_faces
+    (tmp_path / "again.yaml").write_text("""\
+inputs:
+  usd: huesitos.usda
+poses:
+  examples: "0:40:4"
+  test: "2:40:4"
+steps:
+  - select: k-largest
+    k: 1
+  - solve: k-largest
+  - write: back.usdc
+  - write: back.npz
+""")
+    back = run_pipeline(tmp_path / "again.yaml")
+    assert read_usd_skin(tmp_path / "back.usdc").parts[0].element_size == 1 and back.asset.reduced.k == 1
+    assert check_usd(tmp_path / "back.usdc") == []
+
+
+def test_the_usd_examples_run_and_validate(tmp_path):
+    """examples/usd-export-huesitos.yaml then examples/usd-simplify.yaml, from a copy of examples/."""
+    import shutil
+    from pathlib import Path
+
+    examples = Path(__file__).resolve().parents[1] / "examples"
+    (tmp_path / "data").symlink_to(examples / "data", target_is_directory=True)
+    for name in ("usd-export-huesitos.yaml", "usd-simplify.yaml"):
+        shutil.copy(examples / name, tmp_path / name)
+        run_pipeline(tmp_path / name)
+    for name in ("huesitos.usdc", "huesitos-lod.usdc", "huesitos-lod-prims.usda"):
+        assert check_usd(tmp_path / "out" / name) == [], name
+    for lod in (0, 1, 2):
+        u = read_usd_skin(tmp_path / "out" / "huesitos-lod.usdc", lod=lod)
+        assert all(p.element_size == 2 for p in u.parts) and (u.weights.getnnz(axis=1) <= 2).all()
