@@ -65,9 +65,9 @@ def write_tube(path: Path, triangles: int) -> dict:
     """The tube as a skinned .glb (rigslim's exporter), bent by bone 1 about z over 31 frames."""
     import scipy.sparse as sp
 
-    from rigslim.model.handles import Handles
     from rigslim.io.gltf.write import export_skinned
     from rigslim.io.transforms import trs_matrix
+    from rigslim.model.handles import Handles
     from rigslim.model.mesh import Mesh
     from rigslim.model.poses import Poses
 

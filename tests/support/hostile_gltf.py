@@ -388,8 +388,8 @@ def _draco(js: dict, data: bytes, parts: list[Part]) -> bytes:
 def posed_file_positions(path, times) -> list[np.ndarray]:
     """Per time, the (m, 3) skinned positions of every file vertex of the default scene's skinned primitives
     (in file order, no welding), posed with numpy from rigslim's own unwelded reader."""
-    from rigslim.numerics.blend import linear_blend
     from rigslim.io.gltf.skin import read_gltf_skin
+    from rigslim.numerics.blend import linear_blend
 
     skin = read_gltf_skin(path, weld=False, times=list(times))
     return [linear_blend(skin.mesh.V, skin.weights, skin.poses.T[j]) for j in range(len(times))]
