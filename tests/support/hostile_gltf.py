@@ -179,6 +179,8 @@ def build_gltf(path, parts: list[Part], n_joints: int | None = None, *, weights:
     used, req = set(required), set(required)
     prims = []
     node_extra: dict = {}
+    allV = np.concatenate([np.asarray(p.V, float) for p in parts]) * scale / root_scale
+    lo_all, hi_all = allV.min(axis=0), allV.max(axis=0)      # one dequantisation for the whole skin
     for part in parts:
         attrs, prim = {}, {"mode": 4}
         V = np.asarray(part.V, float) * scale / root_scale
@@ -187,7 +189,7 @@ def build_gltf(path, parts: list[Part], n_joints: int | None = None, *, weights:
         else:
             used.add("KHR_mesh_quantization")
             req.add("KHR_mesh_quantization")
-            lo, hi = V.min(axis=0), V.max(axis=0)
+            lo, hi = lo_all, hi_all
             smax = {"i16": 32767, "i8": 127, "u16": 65535}[positions]
             ext = np.maximum(hi - lo, 1e-12)
             q = np.rint((V - lo) / ext * smax) if positions == "u16" else np.rint(((V - lo) / ext * 2 - 1) * smax)
@@ -374,7 +376,10 @@ def _draco(js: dict, data: bytes, parts: list[Part]) -> bytes:
         out += b"\0" * ((-len(out)) % 4)
         js["bufferViews"].append({"buffer": 0, "byteOffset": len(out), "byteLength": len(enc)})
         out += enc
-        ids = {"POSITION": 0, "JOINTS_0": 1, "WEIGHTS_0": 2}
+        dec = DracoPy.decode(enc)        # the encoder numbers the attributes itself: read its ids back
+        pos = next(a["unique_id"] for a in dec.attributes if a["attribute_type"] == 0)
+        generic = sorted(a["unique_id"] for a in dec.attributes if a["attribute_type"] != 0)
+        ids = {"POSITION": pos, "JOINTS_0": generic[0], "WEIGHTS_0": generic[1]}
         prim["extensions"] = {"KHR_draco_mesh_compression": {"bufferView": len(js["bufferViews"]) - 1,
                                                              "attributes": ids}}
         for name, a in attrs.items():      # the accessors stay (count, type, min/max) without their data

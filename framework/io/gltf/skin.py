@@ -73,6 +73,25 @@ class GltfSkin:
         return rows if self.vertex_map is None else self.vertex_map[rows]
 
 
+def joint_indices(doc: GltfDocument, index: int, where: str) -> np.ndarray:
+    """A JOINTS_n accessor as joint numbers: its stored values, never normalized.
+
+    The specification allows only unsigned byte or short, not ``normalized`` (a normalized JOINTS_0 read as
+    fractions bound every vertex to joint 0); such files and float joints are read by their stored numbers,
+    which must then be whole (the writer rewrites them as unsigned integers). Anything else is refused.
+    """
+    raw = np.asarray(read_accessor(doc, index, normalize=False))
+    if raw.dtype.kind == "f":
+        bad = ~np.isfinite(raw) | (raw != np.rint(raw))
+        if bad.any():
+            v = int(np.argmax(bad.any(axis=-1))) if raw.ndim > 1 else int(np.argmax(bad))
+            raise InputError(f"float joint index {raw.reshape(len(raw), -1)[v].tolist()} of vertex {v} is not a "
+                             "whole number", source=doc.path, field=where,
+                             fix="re-export with UNSIGNED_BYTE or UNSIGNED_SHORT joints")
+        raw = np.rint(raw)
+    return raw.astype(np.int64)
+
+
 def weld_vertices(V: np.ndarray, F: np.ndarray, weights: sp.csr_matrix):
     """Merge file vertices that are one skinned vertex: the same position *and* the same weights.
 
@@ -313,9 +332,6 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, we
             sets = skinning_sets(attrs)
             if "POSITION" not in attrs or not sets:
                 continue
-            if prim.get("extensions", {}).get("KHR_draco_mesh_compression") is not None:
-                raise InputError("Draco-compressed primitives are not supported", source=doc.path, field=where,
-                                 fix="re-export without Draco compression")
             _expect_type(doc, attrs["POSITION"], ("VEC3",), f"{where}.attributes.POSITION")
             for s_ in sets:
                 _expect_type(doc, attrs[f"JOINTS_{s_}"], ("VEC4",), f"{where}.attributes.JOINTS_{s_}")
@@ -337,7 +353,7 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, we
                                  field=f"{where}.indices", fix="re-export the file")
             F = _triangles(prim.get("mode", 4), idx)
             for s in sets:
-                J = np.asarray(read_accessor(doc, attrs[f"JOINTS_{s}"]), np.int64).reshape(m, -1)
+                J = joint_indices(doc, attrs[f"JOINTS_{s}"], f"{where}.attributes.JOINTS_{s}").reshape(m, -1)
                 W = np.asarray(read_accessor(doc, attrs[f"WEIGHTS_{s}"]), float).reshape(m, -1)
                 nz = W != 0
                 if (J[nz] >= n).any() or (J[nz] < 0).any():
