@@ -44,7 +44,8 @@ def joint_count(path) -> int:
     from rigslim.io.usd.read import skel_bindings
 
     path = Path(path)
-    _, bindings = skel_bindings(open_stage(path), path)
+    stage = open_stage(path)         # held: the bindings' prims live as long as their stage
+    _, bindings = skel_bindings(stage, path)
     return max(len(b.GetSkeleton().GetJointsAttr().Get() or []) for b in bindings)
 
 
