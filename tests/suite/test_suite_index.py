@@ -17,7 +17,7 @@ import pytest
 
 from benchmarks.datasets import SUITE, suite
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CHARACTERS = suite()
 IDS = [c.name for c in CHARACTERS]
 

@@ -1,0 +1,136 @@
+"""Contact sheets of every suite character's far levels: ``rigslim lod`` beside gltf-transform and gltfpack.
+
+For each character of the suite (benchmarks.datasets.suite) and each ratio:
+
+1. ``rigslim lod CHAR.glb -o OUT.glb --ratios R1,R2 --split`` (defaults otherwise, as a new user runs it);
+2. the peers (benchmarks/peers.py) at rigslim's face count of that level
+   (ratio searched so that each lands within 3 %; gltfpack ``-si R -sa -noq``,
+   gltf-transform ``weld`` + ``simplify --ratio R --error 1``);
+3. one sheet per level (benchmarks/render_posed.py): rows are the index's test
+   poses seen from the character's side and front, columns the original and
+   the three levels, each level with its silhouette difference tile
+   (red: lost, cyan: added) and ``shape_diff`` (% of the original's silhouette).
+
+Writes ``OUT/CHAR-R.png``, ``OUT/CHAR-R.json`` and ``OUT/summary.md`` (worst
+``shape_diff`` per character, level and tool).
+
+Usage::
+
+    python benchmarks/lod_sheets.py [--out DIR] [--ratios 0.25,0.1] [--only NAME ...] [--size 220]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+for _p in (ROOT, ROOT / "tests"):
+    if str(_p) not in sys.path:
+        sys.path.insert(0, str(_p))
+
+from benchmarks.datasets import suite  # noqa: E402
+from benchmarks.peers import PeerError, at_faces, available, count_faces  # noqa: E402
+from benchmarks.render_posed import contact_sheet  # noqa: E402
+
+RIGSLIM = [sys.executable, "-m", "rigslim.cli"]
+
+
+def rigslim_levels(path: Path, tmp: Path, ratios: list[float]) -> list[Path]:
+    """``rigslim lod --split`` at ``ratios``: the level files, finest first."""
+    out = tmp / f"{path.stem}-rigslim.glb"
+    p = subprocess.run([*_rigslim(), "lod", str(path), "-o", str(out), "--ratios", ",".join(f"{r:g}" for r in ratios),
+                        "--split"], capture_output=True, text=True)
+    if p.returncode != 0:
+        raise RuntimeError(f"rigslim lod {path.name}: {p.stderr.strip()[-400:]}")
+    sys.stderr.write("".join(f"  {line}\n" for line in p.stderr.strip().splitlines()))
+    files = sorted(tmp.glob(f"{out.stem}-*.glb"), key=count_faces, reverse=True)
+    return files
+
+
+def _rigslim() -> list[str]:
+    exe = Path(sys.executable).with_name("rigslim")
+    return [str(exe)] if exe.exists() else RIGSLIM
+
+
+def sheets_for(c, out: Path, tmp: Path, ratios: list[float], size: int, renderer) -> list[dict]:
+    rows = []
+    levels = rigslim_levels(c.path, tmp, ratios)
+    for ratio, level in zip(ratios, levels, strict=False):     # levels may stop short of a ratio
+        faces = count_faces(level)
+        files, labels = [c.path, level], ["original", "rigslim lod"]
+        for tool in ("gltf-transform", "gltfpack"):
+            if not available()[tool]:
+                continue
+            try:
+                r = at_faces(tool, c.path, tmp / f"{c.name}-{tool}-{ratio:g}.glb", faces)
+            except PeerError as e:
+                print(f"  {tool} failed: {e}", file=sys.stderr)
+                continue
+            files.append(r.path)
+            labels.append(tool)
+        poses = [(t["clip"], t["time"]) for t in c.test_renders]
+        from PIL import Image
+
+        sheet, records = contact_sheet(files, poses, ["side", "front"], labels=labels, diff=True, size=size,
+                                       renderer=renderer)
+        stem = out / f"{c.name}-{round(100 * ratio)}"
+        Image.fromarray(sheet).save(stem.with_suffix(".png"))
+        stem.with_suffix(".json").write_text(json.dumps(records, indent=1) + "\n")
+        worst = {}
+        for rec in records:
+            for f in rec["files"][1:]:
+                w = worst.setdefault(f["label"], {"faces": f["faces"], "shape_diff": 0.0, "iou": 1.0})
+                w["shape_diff"] = max(w["shape_diff"], f["shape_diff"])
+                w["iou"] = min(w["iou"], f["iou"])
+        rows.append({"character": c.name, "ratio": ratio, "faces": c.faces, "sheet": str(stem.with_suffix(".png")),
+                     "worst": worst})
+        cells = ", ".join(f"{k} {v['faces']}f {100 * v['shape_diff']:.1f}%" for k, v in worst.items())
+        print(f"{c.name} {ratio:g}: {cells}", flush=True)
+    return rows
+
+
+def summary(rows: list[dict]) -> str:
+    tools = ["rigslim lod", "gltf-transform", "gltfpack"]
+    lines = ["| character | level | " + " | ".join(f"{t} faces / worst shape diff / min IoU" for t in tools)
+             + " | sheet |", "|---|---|" + "---|" * len(tools) + "---|"]
+    for r in rows:
+        cells = []
+        for t in tools:
+            w = r["worst"].get(t)
+            cells.append(f"{w['faces']} / {100 * w['shape_diff']:.1f} % / {w['iou']:.3f}" if w else "-")
+        lines.append(f"| {r['character']} ({r['faces']}) | {100 * r['ratio']:g} % | " + " | ".join(cells)
+                     + f" | {Path(r['sheet']).name} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--out", type=Path, default=Path("out/lod-sheets"))
+    ap.add_argument("--ratios", default="0.25,0.1")
+    ap.add_argument("--only", nargs="*", default=None)
+    ap.add_argument("--size", type=int, default=220)
+    args = ap.parse_args(argv)
+    from support.posed_render import PosedRenderer
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    ratios = [float(r) for r in args.ratios.split(",")]
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="rigslim-sheets-") as tmp, \
+            PosedRenderer(size=(args.size, args.size)) as renderer:
+        for c in suite(args.only):
+            work = Path(tmp) / c.name
+            work.mkdir()
+            rows.extend(sheets_for(c, args.out, work, ratios, args.size, renderer))
+    (args.out / "summary.md").write_text(summary(rows))
+    (args.out / "summary.json").write_text(json.dumps(rows, indent=1) + "\n")
+    print(summary(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

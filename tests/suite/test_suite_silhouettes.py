@@ -1,0 +1,170 @@
+"""Issue 25: every suite character's coarsest level, rendered posed in three.js, keeps the original's silhouette.
+
+For each character of the suite, ``rigslim lod CHAR.glb --ratios 0.1 --split``
+(the far level the issue is about, otherwise defaults) is rendered by three.js
+in headless Chromium at the index's test poses (clip, time), from the
+character's side and from its front, with the camera that frames the
+original in that pose (support.posed_render). The silhouette difference is
+``shape_diff = |(A ^ B) minus a 2-pixel band around A's outline| / |A|`` at
+320 x 320 pixels: the share of the original's silhouette area that the level
+loses or adds beyond a 2-pixel outline shift. Webbing between legs adds
+area, a collapsed tail or spiked feet lose or add it, and they count in full.
+
+The threshold, ``MAX_SHAPE_DIFF = 3 %`` of the silhouette area at the worst
+pose and view, comes from measurements of the peers at the same face counts
+(benchmarks/lod_sheets.py, sheets and figures in the suite's notes):
+glTF-Transform's 10 % levels, which keep the shapes the issue lists, score at
+most 1.4 % on every character but frankie (its alpha-tested tail cards:
+6.1 %), gltfpack's at most 2.3 % except where it webs snoutx10k's legs
+(8.3 %) and spikes ... The defects seen on rigslim's levels score 4.5-16 %.
+Characters whose level fails today are ``xfail(strict=True)`` with the defect
+seen on the sheets; when a fix lands the test turns XPASS and fails, and the
+mark is to be removed (/work/coord/requests/lod.md names them).
+
+A self-check renders a level with a spike added (vertices of one foot pulled
+down) and asserts that it fails the threshold, and mask_difference is
+checked on drawn silhouettes (webbed legs, a shortened tail, an outline shift).
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+from support.posed_render import View, available, mask_difference
+
+from benchmarks.datasets import suite
+from rigslim.cli import main as rigslim
+
+MAX_SHAPE_DIFF = 0.03
+SIZE = (320, 320)
+RATIO = 0.1
+
+#: Characters whose 10 % level fails today, with what the sheets show (benchmarks/lod_sheets.py).
+FAILING: dict[str, str] = {}
+
+browser = pytest.mark.skipif(available() is not None, reason=str(available()))
+
+
+def _cases():
+    out = []
+    for c in suite():
+        marks = [pytest.mark.slow, pytest.mark.browser, browser]
+        if c.name in FAILING:
+            marks.append(pytest.mark.xfail(strict=True, reason=FAILING[c.name]))
+        out.append(pytest.param(c, marks=marks, id=c.name))
+    return out
+
+
+@pytest.fixture(scope="module")
+def renderer():
+    from support.posed_render import PosedRenderer
+
+    with PosedRenderer(size=SIZE) as r:
+        yield r
+
+
+def coarsest_level(c, folder: Path) -> Path:
+    out = folder / f"{c.name}.glb"
+    assert rigslim(["lod", str(c.path), "-o", str(out), "--ratios", str(RATIO), "--split"]) == 0
+    levels = sorted(folder.glob(f"{c.name}-*.glb"))
+    assert levels, f"rigslim lod wrote no level for {c.name}"
+    return min(levels, key=lambda p: p.stat().st_size)
+
+
+def worst_difference(renderer, c, original: Path, level: Path) -> tuple[float, str, list]:
+    """The largest shape_diff over the index's test poses and the side and front views."""
+    rows = []
+    for pose in c.test_renders:
+        for view in ("side_azimuth", "front_azimuth"):
+            ref = renderer.render(original, clip=pose["clip"], time=pose["time"], view=View(azimuth=c.view[view]))
+            lod = renderer.render(level, clip=pose["clip"], time=pose["time"], camera=ref.camera)
+            m = mask_difference(ref.mask, lod.mask)
+            rows.append((m["shape_diff"], f"{pose['clip']} t={pose['time']} {view.split('_')[0]}", m))
+    worst = max(rows, key=lambda r: r[0])
+    return worst[0], worst[1], rows
+
+
+@pytest.mark.parametrize("character", _cases())
+def test_coarsest_level_keeps_the_silhouette(character, renderer, tmp_path):
+    level = coarsest_level(character, tmp_path)
+    worst, where, rows = worst_difference(renderer, character, character.path, level)
+    table = "; ".join(f"{w}: {100 * d:.1f}%" for d, w, _ in rows)
+    assert worst <= MAX_SHAPE_DIFF, (f"{character.name} {level.name}: silhouette differs by {100 * worst:.1f}% "
+                                     f"of its area at {where} (limit {100 * MAX_SHAPE_DIFF:g}%): {table}")
+
+
+def _spiked(src: Path, dst: Path, fraction: float = 0.02, drop: float = 0.15) -> None:
+    """Copy a .glb with its lowest ``fraction`` of vertices (one primitive, bind pose) pulled down by ``drop``
+    of the mesh height: a spike under a foot."""
+    raw = bytearray(src.read_bytes())
+    n = struct.unpack_from("<I", raw, 12)[0]
+    doc = json.loads(raw[20:20 + n])
+    bin_start = 20 + n + 8
+    acc = doc["accessors"][doc["meshes"][0]["primitives"][0]["attributes"]["POSITION"]]
+    bv = doc["bufferViews"][acc["bufferView"]]
+    start = bin_start + bv.get("byteOffset", 0) + acc.get("byteOffset", 0)
+    stride = bv.get("byteStride") or 12
+    rows = np.stack([np.frombuffer(bytes(raw[start + i * stride:start + i * stride + 12]), "<f4")
+                     for i in range(acc["count"])]).astype(np.float64)
+    up = int(np.argmax(rows.max(axis=0) - rows.min(axis=0)))
+    low = np.argsort(rows[:, up])[:max(3, int(fraction * len(rows)))]
+    low = low[np.linalg.norm(rows[low] - rows[low[0]], axis=1) < 0.1 * np.ptp(rows[:, up])]
+    rows[low, up] -= drop * np.ptp(rows[:, up])
+    for i in low:
+        raw[start + i * stride:start + i * stride + 12] = rows[i].astype("<f4").tobytes()
+    acc["min"] = [float(x) for x in rows.min(axis=0)]
+    text = json.dumps(doc, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    body = bytes(raw[20 + n:])
+    out = struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(text) + len(body)) + struct.pack("<I4s", len(text),
+                                                                                         b"JSON") + text + body
+    dst.write_bytes(out)
+
+
+@pytest.mark.slow
+@pytest.mark.browser
+@browser
+def test_the_threshold_catches_a_spiked_foot(renderer, tmp_path):
+    """The original against itself scores 0; with one foot pulled into a spike it fails the threshold."""
+    c = suite(["re_player"])[0]
+    spiked = tmp_path / "spiked.glb"
+    _spiked(c.path, spiked)
+    same, _, _ = worst_difference(renderer, c, c.path, c.path)
+    assert same == 0.0
+    worst, where, _ = worst_difference(renderer, c, c.path, spiked)
+    assert worst > MAX_SHAPE_DIFF, f"a spiked foot scores only {100 * worst:.2f}% at {where}"
+
+
+def _legs(webbed: bool = False, tail: float = 1.0, shift: int = 0) -> np.ndarray:
+    """A drawn silhouette (200 x 200): body, two legs, a tail; optionally webbed legs, a shortened tail."""
+    m = np.zeros((200, 200), bool)
+    m[40:110, 60:140] = True                                   # body
+    m[110:190, 65 + shift:85 + shift] = True                   # left leg
+    m[110:190, 115 + shift:135 + shift] = True                 # right leg
+    m[60:66, 140:140 + int(50 * tail)] = True                  # tail
+    if webbed:
+        for r in range(110, 160):                              # a web between the legs, down to mid-shin
+            m[r, 85:115] = r < 160 - (r - 110) // 2
+    return m
+
+
+def test_mask_difference_counts_webbing_and_lost_tails_not_outline_shifts():
+    ref = _legs()
+    assert mask_difference(ref, ref)["shape_diff"] == 0.0
+    assert mask_difference(ref, _legs(shift=1))["shape_diff"] == 0.0           # a 1-pixel shift is in the band
+    webbed = mask_difference(ref, _legs(webbed=True))
+    assert webbed["shape_diff"] > MAX_SHAPE_DIFF and webbed["extra"] > webbed["missing"]
+    spiked_tail = mask_difference(ref, _legs(tail=0.3))
+    assert spiked_tail["shape_diff"] > MAX_SHAPE_DIFF / 3 and spiked_tail["missing"] > 0
+    assert webbed["iou"] < 1.0 and 0.0 < spiked_tail["iou"] < 1.0
+
+
+def test_mask_difference_refuses_mismatched_or_empty_masks():
+    with pytest.raises(ValueError, match="size"):
+        mask_difference(np.ones((4, 4), bool), np.ones((5, 5), bool))
+    with pytest.raises(ValueError, match="empty"):
+        mask_difference(np.zeros((4, 4), bool), np.ones((4, 4), bool))
