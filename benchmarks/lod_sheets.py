@@ -16,7 +16,7 @@ Writes ``OUT/CHAR-R.png``, ``OUT/CHAR-R.json`` and ``OUT/summary.md`` (worst
 
 Usage::
 
-    python benchmarks/lod_sheets.py [--out DIR] [--ratios 0.25,0.1] [--only NAME ...] [--size 220]
+    python benchmarks/lod_sheets.py [--out DIR] [--ratios 0.25,0.1] [--only NAME ...] [--size 220] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -40,16 +40,19 @@ from benchmarks.render_posed import contact_sheet  # noqa: E402
 RIGSLIM = [sys.executable, "-m", "rigslim.cli"]
 
 
-def rigslim_levels(path: Path, tmp: Path, ratios: list[float]) -> list[Path]:
-    """``rigslim lod --split`` at ``ratios``: the level files, finest first."""
-    out = tmp / f"{path.stem}-rigslim.glb"
-    p = subprocess.run([*_rigslim(), "lod", str(path), "-o", str(out), "--ratios", ",".join(f"{r:g}" for r in ratios),
-                        "--split"], capture_output=True, text=True)
+def rigslim_level(path: Path, tmp: Path, ratio: float) -> Path:
+    """``rigslim lod IN -o OUT --ratios R --split``: the level's file (one run per ratio, so that a level that
+    stops short of its target, or merges with another, still gives the file that command writes)."""
+    out = tmp / f"{path.stem}-rigslim-{ratio:g}.glb"
+    done = sorted(tmp.glob(f"{out.stem}-*.glb"), key=count_faces)
+    if done:
+        return done[0]
+    p = subprocess.run([*_rigslim(), "lod", str(path), "-o", str(out), "--ratios", f"{ratio:g}", "--split"],
+                       capture_output=True, text=True)
     if p.returncode != 0:
-        raise RuntimeError(f"rigslim lod {path.name}: {p.stderr.strip()[-400:]}")
+        raise RuntimeError(f"rigslim lod {path.name} --ratios {ratio:g}: {p.stderr.strip()[-400:]}")
     sys.stderr.write("".join(f"  {line}\n" for line in p.stderr.strip().splitlines()))
-    files = sorted(tmp.glob(f"{out.stem}-*.glb"), key=count_faces, reverse=True)
-    return files
+    return sorted(tmp.glob(f"{out.stem}-*.glb"), key=count_faces)[0]
 
 
 def _rigslim() -> list[str]:
@@ -59,15 +62,26 @@ def _rigslim() -> list[str]:
 
 def sheets_for(c, out: Path, tmp: Path, ratios: list[float], size: int, renderer) -> list[dict]:
     rows = []
-    levels = rigslim_levels(c.path, tmp, ratios)
-    for ratio, level in zip(ratios, levels, strict=False):     # levels may stop short of a ratio
+    for ratio in ratios:
+        try:
+            level = rigslim_level(c.path, tmp, ratio)
+        except RuntimeError as e:
+            print(f"  {e}", file=sys.stderr)
+            rows.append({"character": c.name, "ratio": ratio, "faces": c.faces, "sheet": "", "worst": {},
+                         "error": str(e)})
+            continue
         faces = count_faces(level)
         files, labels = [c.path, level], ["original", "rigslim lod"]
         for tool in ("gltf-transform", "gltfpack"):
             if not available()[tool]:
                 continue
+            dst = tmp / f"{c.name}-{tool}-{ratio:g}.glb"
+            if dst.exists():
+                files.append(dst)
+                labels.append(tool)
+                continue
             try:
-                r = at_faces(tool, c.path, tmp / f"{c.name}-{tool}-{ratio:g}.glb", faces)
+                r = at_faces(tool, c.path, dst, faces)
             except PeerError as e:
                 print(f"  {tool} failed: {e}", file=sys.stderr)
                 continue
@@ -80,7 +94,6 @@ def sheets_for(c, out: Path, tmp: Path, ratios: list[float], size: int, renderer
                                        renderer=renderer)
         stem = out / f"{c.name}-{round(100 * ratio)}"
         Image.fromarray(sheet).save(stem.with_suffix(".png"))
-        stem.with_suffix(".json").write_text(json.dumps(records, indent=1) + "\n")
         worst = {}
         for rec in records:
             for f in rec["files"][1:]:
@@ -89,6 +102,7 @@ def sheets_for(c, out: Path, tmp: Path, ratios: list[float], size: int, renderer
                 w["iou"] = min(w["iou"], f["iou"])
         rows.append({"character": c.name, "ratio": ratio, "faces": c.faces, "sheet": str(stem.with_suffix(".png")),
                      "worst": worst})
+        stem.with_suffix(".json").write_text(json.dumps({"row": rows[-1], "records": records}, indent=1) + "\n")
         cells = ", ".join(f"{k} {v['faces']}f {100 * v['shape_diff']:.1f}%" for k, v in worst.items())
         print(f"{c.name} {ratio:g}: {cells}", flush=True)
     return rows
@@ -99,6 +113,10 @@ def summary(rows: list[dict]) -> str:
     lines = ["| character | level | " + " | ".join(f"{t} faces / worst shape diff / min IoU" for t in tools)
              + " | sheet |", "|---|---|" + "---|" * len(tools) + "---|"]
     for r in rows:
+        if r.get("error"):
+            lines.append(f"| {r['character']} ({r['faces']}) | {100 * r['ratio']:g} % | rigslim lod failed: "
+                         f"{r['error'][-120:]} | | | |")
+            continue
         cells = []
         for t in tools:
             w = r["worst"].get(t)
@@ -114,6 +132,8 @@ def main(argv=None) -> int:
     ap.add_argument("--ratios", default="0.25,0.1")
     ap.add_argument("--only", nargs="*", default=None)
     ap.add_argument("--size", type=int, default=220)
+    ap.add_argument("--keep", type=Path, default=None,
+                    help="keep the level files here and reuse those already there (re-render without re-running)")
     args = ap.parse_args(argv)
     from support.posed_render import PosedRenderer
 
@@ -123,11 +143,18 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="rigslim-sheets-") as tmp, \
             PosedRenderer(size=(args.size, args.size)) as renderer:
         for c in suite(args.only):
-            work = Path(tmp) / c.name
-            work.mkdir()
+            work = (args.keep or Path(tmp)) / c.name
+            work.mkdir(parents=True, exist_ok=True)
             rows.extend(sheets_for(c, args.out, work, ratios, args.size, renderer))
+    # the summary covers every sheet in the folder (earlier runs with --only included), in suite order
+    order = {c.name: i for i, c in enumerate(suite())}
+    done = {(r["character"], r["ratio"]): r for r in rows}
+    for f in args.out.glob("*.json"):
+        doc = json.loads(f.read_text())
+        if isinstance(doc, dict) and "row" in doc:
+            done.setdefault((doc["row"]["character"], doc["row"]["ratio"]), doc["row"])
+    rows = sorted(done.values(), key=lambda r: (order.get(r["character"], 99), -r["ratio"]))
     (args.out / "summary.md").write_text(summary(rows))
-    (args.out / "summary.json").write_text(json.dumps(rows, indent=1) + "\n")
     print(summary(rows))
     return 0
 

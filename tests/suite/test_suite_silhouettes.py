@@ -10,13 +10,15 @@ original in that pose (support.posed_render). The silhouette difference is
 loses or adds beyond a 2-pixel outline shift. Webbing between legs adds
 area, a collapsed tail or spiked feet lose or add it, and they count in full.
 
-The threshold, ``MAX_SHAPE_DIFF = 3 %`` of the silhouette area at the worst
-pose and view, comes from measurements of the peers at the same face counts
-(benchmarks/lod_sheets.py, sheets and figures in the suite's notes):
-glTF-Transform's 10 % levels, which keep the shapes the issue lists, score at
-most 1.4 % on every character but frankie (its alpha-tested tail cards:
-6.1 %), gltfpack's at most 2.3 % except where it webs snoutx10k's legs
-(8.3 %) and spikes ... The defects seen on rigslim's levels score 4.5-16 %.
+The threshold, ``MAX_SHAPE_DIFF = 4 %`` of the silhouette area at the worst
+pose and view (220 x 220 pixels), comes from measuring the two peers at
+rigslim's face counts (benchmarks/lod_sheets.py; sheets and table in the
+suite helper's notes): on every suite character at least one of
+glTF-Transform and gltfpack stays within it (the better peer's worst:
+bcn_epileptic 0.2 %, wuson 0.8 %, frankie 1.9 %, snoutx10k 1.4 %, mrfixit
+0.3 %, re_player 0.3 %, re_drone 3.5 %, the highest), while the defects the
+issue lists score more: webbed legs 8-23 %, a spike tail with a flattened
+flank 5.8 %, a head pinched to a point 13.9 %, boxes flattened 45 %.
 Characters whose level fails today are ``xfail(strict=True)`` with the defect
 seen on the sheets; when a fix lands the test turns XPASS and fails, and the
 mark is to be removed (/work/coord/requests/lod.md names them).
@@ -39,12 +41,24 @@ from support.posed_render import View, available, mask_difference
 from benchmarks.datasets import suite
 from rigslim.cli import main as rigslim
 
-MAX_SHAPE_DIFF = 0.03
-SIZE = (320, 320)
+MAX_SHAPE_DIFF = 0.04
+SIZE = (220, 220)
 RATIO = 0.1
 
 #: Characters whose 10 % level fails today, with what the sheets show (benchmarks/lod_sheets.py).
-FAILING: dict[str, str] = {}
+FAILING: dict[str, str] = {
+    "wuson": "10 % level (523 faces): the tail collapsed into a short spike, a flank flattened, forelegs thinned "
+             "(5.8 %; gltf-transform 0.8 % at 519 faces)",
+    "frankie": "10 % level (479 faces): the kicking arm lost, tail cards bloated (5.3 %; gltfpack 1.9 %)",
+    "snoutx10k": "10 % level (470 faces): back armour and head eroded, legs thinned all round (16.1 %; "
+                 "gltf-transform 1.4 %)",
+    "mrfixit": "10 % level (386 faces): legs webbed from the crotch to the knees, feet lost, head flattened "
+               "(11.0 %; gltf-transform 0.3 %)",
+    "re_drone": "10 % level (236 faces): head pinched to a point, legs webbed into one blade (13.9 %; "
+                "gltf-transform 3.5 %)",
+    "minetest_character": "84 -> 28 faces with no error bound: every box flattened into a sheet, the head a wedge "
+                          "(44.8 %; gltf-transform keeps 84 faces)",
+}
 
 browser = pytest.mark.skipif(available() is not None, reason=str(available()))
 
