@@ -30,6 +30,8 @@ CHARACTERS = {"tube": None, "huesitos": GLTF / "huesitos.glb",
               "animation_with_skeleton": GLTF / "animation_with_skeleton.glb",
               "RiggedFigure": GLTF / "RiggedFigure" / "RiggedFigure.gltf"}
 RENDERED = ("tube", "animation_with_skeleton")
+#: name -> (fitted actions, held-out actions) for characters whose suite entry holds clips out
+CLIPS: dict[str, tuple[list[str], list[str]]] = {}
 
 
 def blender(script: Path, zip_path: Path, *args: str) -> None:
@@ -45,7 +47,9 @@ def blender(script: Path, zip_path: Path, *args: str) -> None:
 def driver(zip_path: Path, name: str, k: int, select: str, lods: bool) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "r.json"
-        args = ["--out", str(out), "--k", str(k), "--select", select, "--max-bones", "4"]
+        args = ["--out", str(out), "--k", str(k), "--select", select, "--max-bones", "4", "--no-keep-better"]
+        if name in CLIPS:
+            args += ["--actions", ", ".join(CLIPS[name][0]), "--test-actions", ", ".join(CLIPS[name][1])]
         if CHARACTERS[name] is not None:
             args += ["--gltf", str(CHARACTERS[name])]
         if not lods:
@@ -89,6 +93,13 @@ def renders(zip_path: Path, name: str, k: int) -> dict:
         return fig
 
 
+def ratio(theirs: float, ours: float) -> str:
+    """Limit Total's error over rigslim's ("-" when both are zero: nothing to limit)."""
+    if theirs == 0 and ours == 0:
+        return "-"
+    return f"{theirs / ours:.3g}x" if ours > 0 else "inf"
+
+
 def markdown(rows: list[dict], figures: dict, k: int) -> str:
     out = [f"# Blender extension: Limit Influences and Generate Skinned LODs (k = {k})", "",
            f"Written by `benchmarks/blender_extension.py` (Blender {rows[0]['blender']} as the bpy module, "
@@ -99,14 +110,19 @@ def markdown(rows: list[dict], figures: dict, k: int) -> str:
            "| character | vertices | input max influences | held-out frames | Limit Total RMS % (max %) | "
            "rigslim default | RMS % (max %) | ratio | best-fit RMS % (max %) | ratio |",
            "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|"]
+    if any(r.get("clips") for r in rows):
+        out[2] = out[2].replace("held-out frames (every 4th sampled frame, never fitted)",
+                                "every frame of the held-out clips (never fitted; the others' frames are fitted)")
+        out.insert(3, "\nClips (fitted / held out): " + "; ".join(
+            f"{r['name']}: {', '.join(r['clips'][0])} / {', '.join(r['clips'][1])}" for r in rows if r.get("clips"))
+            + ". Raw fits (keep-Limit-Total fallback off).")
     for r in rows:
         d, b = r["default"], r["best_fit"]
-        ratio_d = d["limit_total_rms_pct"] / max(d["rms_pct"], 1e-300)
         out.append(f"| {r['name']} | {r['vertices']} | {d['input_max_influences']} | {d['measured_frames']} | "
                    f"{d['limit_total_rms_pct']:.4g} ({d['limit_total_max_pct']:.3g}) | {d['select']} + {d['solve']} | "
-                   f"{d['rms_pct']:.4g} ({d['max_pct']:.3g}) | {ratio_d:.3g}x"
+                   f"{d['rms_pct']:.4g} ({d['max_pct']:.3g}) | {ratio(d['limit_total_rms_pct'], d['rms_pct'])}"
                    f" | {b['rms_pct']:.4g} ({b['max_pct']:.3g}) | "
-                   f"{b['limit_total_rms_pct'] / max(b['rms_pct'], 1e-300):.3g}x |")
+                   f"{ratio(b['limit_total_rms_pct'], b['rms_pct'])} |")
     out += ["", "Generate Skinned LODs (ratios 0.5, 0.25, bone limit 4; faces are triangles):", "",
             "| character | source triangles | LOD1 | LOD2 | LODs valid (groups <= 4, sums 1, materials, UVs) |",
             "|---|---:|---:|---:|---|"]
@@ -132,6 +148,8 @@ def main() -> int:
     ap.add_argument("--suite", action="store_true", help="also every character of examples/data/gltf/suite/suite.json")
     ap.add_argument("--suite-dir", default=str(GLTF / "suite"), help="folder of suite.json (default: %(default)s)")
     ap.add_argument("--output", default="blender_extension", help="name of the docs/results files")
+    ap.add_argument("--clip-split", action="store_true",
+                    help="suite characters with held-out clips: fit on the fit clips, measure on the held-out ones")
     ap.add_argument("--renders-only", action="store_true",
                     help="keep the figures of docs/results/OUTPUT.json, render the named characters again")
     args = ap.parse_args()
@@ -140,6 +158,10 @@ def main() -> int:
         suite = json.loads((Path(args.suite_dir) / "suite.json").read_text())
         for ch in suite["characters"]:
             CHARACTERS[ch["name"]] = Path(args.suite_dir) / Path(ch["file"]).name
+            if args.clip_split and ch.get("holdout_clips"):
+                CLIPS[ch["name"]] = (list(ch["fit_clips"]), list(ch["holdout_clips"]))
+            elif args.clip_split:
+                continue
             names.append(ch["name"])
     if not BLENDER_PY.exists():
         print(f"{BLENDER_PY} missing: run tools/setup-blender.sh", file=sys.stderr)
@@ -159,7 +181,7 @@ def main() -> int:
     for name in names:
         full = driver(zip_path, name, args.k, "", True)
         best = driver(zip_path, name, args.k, "best-fit", False)
-        rows.append({"name": name, "blender": full["blender"], "object": full["object"],
+        rows.append({"name": name, "clips": CLIPS.get(name), "blender": full["blender"], "object": full["object"],
                      "vertices": full["groups"]["vertices"], "triangles": full["source_triangles"],
                      "materials": full["source_materials"], "default": full["limit"], "best_fit": best["limit"],
                      "independent_default": full["independent"], "lods": full["lods"],

@@ -148,8 +148,8 @@ class SuiteCharacter:
         return bool(self.holdout_clips)
 
     def read(self, clip=None, fps: float = 30.0, **kwargs):
-        """The character as rigslim reads it (``rigslim.io.gltf.read_gltf_skin``), posed over ``clip``."""
-        from rigslim.io.gltf import read_gltf_skin
+        """The character as rigslim reads it (``rigslim.io.gltf.skin.read_gltf_skin``), posed over ``clip``."""
+        from rigslim.io.gltf.skin import read_gltf_skin
 
         return read_gltf_skin(self.path, animation=clip if clip is not None else self.fit_clips[0], fps=fps,
                               **kwargs)

@@ -89,14 +89,14 @@ steps:
 
 
 def bench(gltf: Path, tmp: Path) -> dict:
-    from rigslim.blend import linear_blend
-    from rigslim.io.gltf import read_gltf_skin
+    from rigslim.io.gltf.skin import read_gltf_skin
     from rigslim.io.usd.check import check_usd
     from rigslim.io.usd.export import bind_transforms, build_stage
     from rigslim.io.usd.read import read_usd_skin
     from rigslim.io.usd.skinning import usdskel_points
     from rigslim.io.usd.write import save_stage, write_usd
-    from rigslim.pipeline import run_pipeline
+    from rigslim.numerics.blend import linear_blend
+    from rigslim.runtime.run import run_pipeline
 
     g = read_gltf_skin(gltf, weld=True)
     usd = tmp / f"{gltf.stem}.usdc"

@@ -31,7 +31,7 @@ import yaml
 from rigslim.errors import InputError, PipelineError, closest
 
 #: File types a directory is searched for (glTF and the mesh readers' formats).
-ASSET_SUFFIXES = (".glb", ".gltf", ".obj", ".off", ".ply", ".stl", ".mesh")
+ASSET_SUFFIXES = (".glb", ".gltf", ".usd", ".usda", ".usdc", ".usdz", ".obj", ".off", ".ply", ".stl", ".mesh")
 
 #: Manifest columns that are short names of input settings.
 INPUT_ALIASES = {"clip": "animation", "fps": "fps"}
@@ -333,14 +333,29 @@ def asset_pipeline(template: dict, template_path: Path, job: AssetJob) -> dict:
     return doc
 
 
+def _usd_dependencies(path: Path) -> list[Path]:
+    """Local files a USD layer composes (sublayers, references, payloads, textures), as USD resolves them."""
+    try:
+        from pxr import Sdf, UsdUtils
+
+        layers, assets, _ = UsdUtils.ComputeAllDependencies(Sdf.AssetPath(str(path)))
+    except Exception:       # noqa: BLE001 - no usd-core, or a file the reader will refuse in one line anyway
+        return []
+    found = [Path(layer.realPath) for layer in layers if layer.realPath] + [Path(a) for a in assets]
+    return [p for p in dict.fromkeys(found) if p.is_file() and p.resolve() != path.resolve()]
+
+
 def pipeline_hash(doc: dict) -> str:
     """sha256 of the pipeline document's canonical JSON (keys sorted)."""
     return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
 
 
 def input_files(path: Path) -> list[Path]:
-    """The asset file, and for a ``.gltf`` the local files its buffers and images name."""
+    """The asset file, and for a ``.gltf`` the local files its buffers and images name (for a USD layer,
+    the layers and assets it composes)."""
     files = [path]
+    if path.suffix.lower() in (".usd", ".usda", ".usdc"):
+        return files + _usd_dependencies(path)
     if path.suffix.lower() == ".gltf":
         try:
             js = json.loads(path.read_text())

@@ -14,6 +14,7 @@ from rigslim.commands.gltf_common import (
     _header,
     _jsonable,
     clip_frames,
+    is_usd,
     skins_used,
 )
 from rigslim.errors import InputError
@@ -48,6 +49,8 @@ def posed_surfaces(path: Path, *, clip, times, level: int = 0):
     from rigslim.io.gltf.skin import _read_gltf_skin
     from rigslim.numerics.blend import linear_blend
 
+    if is_usd(path):
+        return _posed_usd(path, clip=clip, times=times, level=level)
     doc = level_document(load_gltf(path), level)
     Ps, Fs, skins, start = [], [], [], 0
     for s in skins_used(doc.json) or [None]:          # every skin's meshes, as one surface
@@ -57,6 +60,17 @@ def posed_surfaces(path: Path, *, clip, times, level: int = 0):
         start += skin.mesh.n_vertices
         skins.append(skin)
     return np.concatenate(Ps, axis=1), np.concatenate(Fs), skins
+
+
+def _posed_usd(path: Path, *, clip, times, level: int = 0):
+    """:func:`posed_surfaces` of a USD file: its meshes bound to one skeleton, posed by rigslim's linear blend
+    (UsdSkel's own skinning agrees to float32, docs/usd.md), in world metres with Y up
+    (:func:`rigslim.io.usd.summary.world_points`); ``level`` reads variant ``LOD<level>``."""
+    from rigslim.io.usd.read import read_usd_skin
+    from rigslim.io.usd.summary import world_points
+
+    skin = read_usd_skin(path, animation=clip, times=list(times), lod=level if level else None)
+    return world_points(skin), np.asarray(skin.mesh.F), [skin]
 
 
 def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, level: int = 0, fps: float = DEFAULT_FPS,

@@ -24,11 +24,21 @@ REPORT_SCHEMA_VERSION = 1
 DEFAULT_FPS = 30.0
 
 
+#: Files the one-command front ends read and write: glTF, and USD / UsdSkel (docs/usd.md).
+GLTF_SUFFIXES = (".glb", ".gltf")
+USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+
+
+def is_usd(path) -> bool:
+    """Whether ``path`` names a USD layer or package (by suffix)."""
+    return Path(path).suffix.lower() in USD_SUFFIXES
+
+
 def _check_input(path, what: str = "input") -> Path:
     p = Path(path)
-    if p.suffix.lower() not in (".glb", ".gltf"):
-        raise InputError(f"'{p.suffix or p.name}' is not a glTF file", source=p, field=what,
-                         fix="give a .glb or .gltf file")
+    if p.suffix.lower() not in GLTF_SUFFIXES + USD_SUFFIXES:
+        raise InputError(f"'{p.suffix or p.name}' is not a glTF or USD file", source=p, field=what,
+                         fix="give a .glb, .gltf, .usd, .usda, .usdc or .usdz file")
     if not p.is_file():
         raise InputError("file not found", source=p, field=what, fix="check the path")
     return p.resolve()
@@ -36,14 +46,38 @@ def _check_input(path, what: str = "input") -> Path:
 
 def _check_output(path) -> Path:
     p = Path(path)
-    if p.suffix.lower() not in (".glb", ".gltf"):
-        raise InputError(f"output '{p.name}' is not a .glb or .gltf", source=p, field="-o",
-                         fix="write to OUT.glb or OUT.gltf")
+    if p.suffix.lower() not in GLTF_SUFFIXES + USD_SUFFIXES:
+        raise InputError(f"output '{p.name}' is not a .glb, .gltf or USD file", source=p, field="-o",
+                         fix="write to OUT.glb, OUT.gltf, OUT.usdc, OUT.usda or OUT.usdz")
     return p.resolve()
+
+
+def input_section(path: Path, spec: dict) -> dict:
+    """The pipeline's ``inputs``: ``{"gltf": spec}``, or ``{"usd": spec}`` for a USD file (no glTF skin index)."""
+    if is_usd(path):
+        return {"usd": {k: v for k, v in spec.items() if k != "skin"}}
+    return {"gltf": spec}
+
+
+def write_step(out: Path, **params) -> dict:
+    """A ``write`` step with the glTF writer's parameters, or the USD writer's for a USD output.
+
+    USD has no weight quantisation (float32 weights) and takes ``lod: variant`` for glTF's ``lod: true``.
+    """
+    if not is_usd(out):
+        return {"write": str(out), **params}
+    usd = {k: v for k, v in params.items() if k in ("clamp_negative", "keep_input_weights", "levels")}
+    if params.get("lod"):
+        usd["lod"] = "variant"
+    return {"write": str(out), **usd}
 
 
 def clip_frames(path: Path, clip, fps: float) -> tuple[int, str | None, float]:
     """Frame count of a clip sampled at ``fps`` (1 without animation), its name and its duration."""
+    if is_usd(path):
+        from rigslim.io.usd.summary import clip_info
+
+        return clip_info(path, clip, fps)
     from rigslim.io.gltf.document import load_gltf
     from rigslim.io.gltf.scene import animation_duration, find_animation
 
@@ -148,10 +182,14 @@ def _chain(src: Path, out: Path, make, args, console, tmp: Path):
     """
     from rigslim.io.gltf.document import load_gltf
 
-    skins = skins_used(load_gltf(src).json)
+    skins = [] if is_usd(src) else skins_used(load_gltf(src).json)    # USD: the reader picks the skeleton
     if len(skins) <= 1:
         pipeline = make(src, out, None)
         return [(pipeline, *_run(pipeline, args, console))]
+    if is_usd(out):
+        raise InputError(f"{src.name} has {len(skins)} skins; a USD output holds one skeleton's meshes",
+                         source=src, field="-o", fix="write glTF, or convert one skin at a time with a pipeline "
+                         "(inputs: gltf: {path: IN, skin: N})")
     runs, inp = [], src
     for i, s in enumerate(skins):
         dst = out if i == len(skins) - 1 else tmp / f"skin{s}{out.suffix}"
@@ -191,6 +229,10 @@ def _header(command: str) -> dict:
 
 
 def _joint_count(path: Path) -> int:
+    if is_usd(path):
+        from rigslim.io.usd.summary import joint_count
+
+        return joint_count(path)
     from rigslim.io.gltf.document import load_gltf
 
     skins = load_gltf(path).json.get("skins", [])

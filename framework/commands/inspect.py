@@ -12,6 +12,8 @@ from rigslim.commands.gltf_common import _check_input, _emit_report, _header, _j
 
 def inspect(path: Path) -> dict:
     """Skins, joints, clips, meshes, primitives, attributes, influences and weight-sum defects of a file."""
+    if Path(path).suffix.lower() in (".usd", ".usda", ".usdc", ".usdz"):
+        return inspect_usd(path)
     from rigslim.io.gltf.document import load_gltf, read_accessor
     from rigslim.io.gltf.lod import lod_nodes
     from rigslim.io.gltf.scene import animation_duration
@@ -61,11 +63,43 @@ def inspect(path: Path) -> dict:
     return out
 
 
+def inspect_usd(path: Path) -> dict:
+    """A USD file's skeletons, skinned meshes (points, faces, elementSize), animations, LOD variants, validation."""
+    from rigslim.io.usd.check import check_usd
+    from rigslim.io.usd.summary import describe
+
+    return _header("inspect") | describe(path) | {"validation": check_usd(path)}
+
+
+def _print_usd(info: dict) -> None:
+    print(f"{info['path']} (upAxis {info['up_axis']}, {info['meters_per_unit']:g} m per unit, "
+          f"{info['time_codes_per_second']:g} time codes per second)")
+    for s in info["skeletons"]:
+        print(f"skeleton {s['path']}: {s['joints']} joints, animation {s['animation'] or 'none (rest pose)'}")
+        for m in s["meshes"]:
+            print(f"  mesh {m['path']}: {m['points']} points, {m['faces']} faces ({m['triangles']} triangles), "
+                  f"elementSize {m['element_size']} ({m['interpolation']})"
+                  + (f", {m['blend_shapes']} blend shapes" if m["blend_shapes"] else ""))
+    for a in info["animations"]:
+        span = a["time_codes"]
+        print(f"SkelAnimation {a['path']}: {a['joints']} joints, time codes "
+              + (f"{span[0]:g}..{span[1]:g}" if span else "none (default values)"))
+    for prim, names in info["lod_variants"].items():
+        print(f"{prim}: LOD variants {', '.join(names)}")
+    bad = info["validation"]
+    print("validation: passes every USD validator" if not bad else f"validation: {len(bad)} problems")
+    for line in bad[:20]:
+        print(f"  {line}")
+
+
 def cmd_inspect(args) -> int:
     info = inspect(_check_input(args.input))
     _emit_report(args, info)
     if args.json:
         print(json.dumps(info, indent=2, default=_jsonable))
+        return 0
+    if "skeletons" in info:
+        _print_usd(info)
         return 0
     print(f"{info['path']} (generator: {info['generator']})")
     for s in info["skins"]:

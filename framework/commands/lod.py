@@ -16,6 +16,9 @@ from rigslim.commands.gltf_common import (
     _header,
     _poses,
     clip_frames,
+    input_section,
+    is_usd,
+    write_step,
 )
 from rigslim.errors import InputError
 from rigslim.runtime.metrics_document import flat_metrics
@@ -43,8 +46,8 @@ def lod_pipeline(src: Path, out: Path, *, ratios, max_bones: int, clip, fps: flo
     steps = [{"decimate": method, "targets": list(ratios), "max_bones": max_bones}]
     if measure:
         steps.append({"evaluate": ["metro", "max-influences"]})
-    steps.append({"write": str(out), "quantize": quantize, "lod": True, "clamp_negative": True})
-    return {"name": f"lod-{src.stem}", "inputs": {"gltf": _gltf_input(src, clip, fps, frames, skin)},
+    steps.append(write_step(out, quantize=quantize, lod=True, clamp_negative=True))
+    return {"name": f"lod-{src.stem}", "inputs": input_section(src, _gltf_input(src, clip, fps, frames, skin)),
             "poses": _poses(frames), "steps": steps}
 
 
@@ -53,7 +56,10 @@ def cmd_lod(args) -> int:
 
     src, out = _check_input(args.input), _check_output(args.output)
     ratios = parse_ratios(args.ratios)
-    if not 1 <= args.max_bones <= 8:
+    if args.split and is_usd(out):
+        raise InputError("--split writes one glTF file per level", field="--split",
+                         fix="leave --split out: a USD output holds every level in its LOD variant set")
+    if not 1 <= args.max_bones <= (64 if is_usd(out) else 8):
         raise InputError(f"--max-bones {args.max_bones}: glTF holds 1 to 8 influences per vertex",
                          field="--max-bones", fix="give 1..8 (4 for three.js and most engines)")
     frames, clip, duration = clip_frames(src, args.clip, args.fps)

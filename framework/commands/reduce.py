@@ -18,6 +18,9 @@ from rigslim.commands.gltf_common import (
     _joint_count,
     _poses,
     clip_frames,
+    input_section,
+    is_usd,
+    write_step,
 )
 from rigslim.errors import InputError
 
@@ -31,15 +34,16 @@ def reduce_pipeline(src: Path, out: Path, *, k: int, select: str, solve: str, cl
         steps += [{"select": select, "k": k}, {"solve": solve if animated else "k-largest"}]
         if animated:
             steps.append({"evaluate": ["position-rms", "normal-deviation", "max-influences"]})
-    steps.append({"write": str(out), "quantize": quantize, "clamp_negative": True, "keep_input_weights": False})
-    return {"name": f"reduce-{src.stem}", "inputs": {"gltf": _gltf_input(src, clip, fps, frames, skin)},
+    steps.append(write_step(out, quantize=quantize, clamp_negative=True, keep_input_weights=False))
+    return {"name": f"reduce-{src.stem}", "inputs": input_section(src, _gltf_input(src, clip, fps, frames, skin)),
             "poses": _poses(frames), "steps": steps}
 
 
 def cmd_reduce(args) -> int:
     src, out = _check_input(args.input), _check_output(args.output)
-    if not 1 <= args.k <= 8:
-        raise InputError(f"-k {args.k}: glTF holds 1 to 8 influences per vertex", field="-k", fix="give -k 1..8")
+    if not 1 <= args.k <= (64 if is_usd(out) else 8):      # UsdSkel's elementSize has no limit of its own
+        raise InputError(f"-k {args.k}: glTF holds 1 to 8 influences per vertex" if not is_usd(out) else
+                         f"-k {args.k} is not 1..64", field="-k", fix="give -k 1..8 (glTF) or 1..64 (USD)")
     frames, clip, duration = clip_frames(src, args.clip, args.fps)
     console = _console(args)
     select, solve = args.select, args.solve

@@ -53,6 +53,12 @@ class DecimationParams(Params):
     onto a neighbouring border point, and free vertices collapse onto them (false: borders are ordinary)."""
     border_collapses: bool = True
     """With ``keep_boundary``: border vertices may collapse along their border (false fixes every one)."""
+    border_weight: float = Field(default=1.0, ge=0.0)
+    """With ``keep_boundary``: weight of the planes through each border edge, perpendicular to its face
+    (:func:`rigslim.plugins.decimation.quadrics.border_quadrics`), relative to the faces' area weights."""
+    normalised_error: bool = True
+    """Rank collapses by the error over the merged planes' total area, a mean squared distance
+    (meshoptimizer), so that small parts are not collapsed first; false: [S09]'s area-weighted error."""
     attribute_weights: dict[str, float] = Field(default_factory=lambda: dict(ATTRIBUTE_WEIGHTS))
     """For a mesh read from glTF: weight of each vertex attribute's displacement term in the error, by name
     (``TEXCOORD_0``) or family (``TEXCOORD``, ``COLOR``, ``NORMAL``, ``TANGENT``); see :func:`attribute_term`."""
@@ -199,7 +205,8 @@ class ArticulatedDecimator(Decimator):
             hier = self.collapse(asset, params, W, T, X, model, min_faces, locked, seams, ctx)
         with clock("levels"):
             bound = error_bound(asset, params.max_error)
-            distances = collapse_distances(hier, Q[:, :len(asset.example_poses().T)])
+            distances = (np.sqrt(np.maximum(hier.errors, 0.0)) if params.normalised_error
+                         else collapse_distances(hier, Q[:, :len(asset.example_poses().T)]))
             choices = choose_levels(hier, list(params.targets), faces, distances, bound, self.name)
             levels = self.levels(asset, params, hier, choices)
         self.report(asset, params, ctx, hier, levels, choices, bound, locked, seams, len(T))
@@ -210,11 +217,13 @@ class ArticulatedDecimator(Decimator):
 
     def setup(self, asset: Asset, params: DecimationParams):
         """Per-pose quadrics (and the attribute term), bone-limited weights, the edge cost model."""
-        from rigslim.plugins.decimation.quadrics import per_pose_quadrics
+        from rigslim.plugins.decimation.quadrics import border_quadrics, per_pose_quadrics
 
         mesh = asset.mesh
         T = asset.example_poses().T
         Q, X = per_pose_quadrics(mesh.V, mesh.F, asset.weights, T, params.area_weighted)
+        if params.keep_boundary and params.border_weight > 0:
+            Q = Q + border_quadrics(X, mesh.F, params.border_weight)
         Q, T, X = attribute_term(asset, params.attribute_weights, Q, T, X)
         W = limited_weights(asset.weights, params.max_bones)
         return Q, W, T, X, self.model(Q, W, T, params)
@@ -227,7 +236,7 @@ class ArticulatedDecimator(Decimator):
         return simplify(mesh.V, mesh.F, W, T, X, model, min_faces=min_faces, keep_boundary=params.keep_boundary,
                         border_collapses=params.border_collapses, min_normal_cos=params.min_normal_cos,
                         progress=ctx.progress, method=self.name, params=params.model_dump(), backend=params.backend,
-                        locked=locked, seams=seams)
+                        locked=locked, seams=seams, normalised=params.normalised_error)
 
     def levels(self, asset, params, hier, choices) -> list:
         """The face-target levels (:func:`choose_levels`), error-target and adaptive levels, finest first."""

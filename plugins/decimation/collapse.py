@@ -148,7 +148,7 @@ class _EdgeTable:
 def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_boundary: bool = True,
              min_normal_cos: float = 0.0, progress=None, method: str = "", params: dict | None = None,
              batch: int = 2048, backend: str = "numpy", locked=None, seams=None,
-             border_collapses: bool = True) -> ProgressiveHierarchy:
+             border_collapses: bool = True, normalised: bool = False) -> ProgressiveHierarchy:
     """Greedy edge collapses down to ``min_faces``, recorded as a progressive hierarchy.
 
     Parameters
@@ -169,6 +169,11 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         along the border onto a neighbouring border vertex (:func:`rigslim.plugins.decimation.setup.placement`).
     border_collapses : bool
         False: no border vertex moves at all.
+    normalised : bool
+        Rank collapses by ``E / (w_a + w_b)``, the error over the total (area) weight of the merged planes
+        (:func:`rigslim.plugins.decimation.edge_costs.quadric_weight`): a mean squared distance, as
+        meshoptimizer does, so that small parts (a tail, the feet, fingers) cost as much per unit of
+        displacement as large ones; false: [S09]'s area-weighted error ``E``.
     min_normal_cos : float
         A collapse is refused if a surviving face's normal turns by more than
         ``arccos(min_normal_cos)`` in the rest pose or any example pose.
@@ -199,7 +204,7 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     progress = progress or (lambda it, total=None, description="": it)
     if backend == "numba":
         return _simplify_compiled(V, F, W, T, X, model, min_faces=min_faces, keep_boundary=keep_boundary,
-                                  border_collapses=border_collapses,
+                                  border_collapses=border_collapses, normalised=normalised,
                                   min_normal_cos=min_normal_cos, progress=progress, method=method, params=params,
                                   locked=locked, seams=seams)
     if backend != "numpy":
@@ -216,7 +221,12 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     setup = collapsible_edges(Fm, m, keep_boundary=keep_boundary, locked=locked, seams=seams,
                               border_collapses=border_collapses)
     boundary, along, charts = setup.boundary, setup.along, setup.charts
-    zero = zero_cost(V, Fm, len(T))
+    zero = zero_cost(V, Fm, len(T), normalised)
+    Qw = model.compiled_spec()[1] if normalised else None
+
+    def weight(v) -> np.ndarray:
+        """:func:`rigslim.plugins.decimation.edge_costs.quadric_weight` of vertices v."""
+        return np.einsum("vpii->v", Qw[np.atleast_1d(v)][..., :3, :3])
 
     def collapsible(x: int, y: int) -> bool:
         """:func:`rigslim.plugins.decimation.setup.placement` allows it and a fixed-fixed edge is on the curve."""
@@ -251,6 +261,9 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
                 keep = np.where(take_b, pb, pa)
                 table.v[ef], table.w[ef] = st.V[keep], st.W[keep]
                 table.cost[ef] = np.where(take_b, Eb, Ea)
+            if normalised:                     # the mean squared distance over the merged planes
+                w = weight(ea) + weight(eb)
+                table.cost[e] = np.where(w > 0, table.cost[e] / np.where(w > 0, w, 1.0), table.cost[e])
             table.cost[e] = np.where(table.cost[e] < zero, 0.0, table.cost[e])
             table.state[e] = CLEAN
             table.stamp[e] += 1
@@ -323,19 +336,22 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         n_faces -= len(fab)
         cost_ab = float(table.cost[e])
         table.kill(e)
+        wa, wb = (float(weight(a)[0]), float(weight(b)[0])) if normalised else (1.0, 1.0)
         for x in sorted(union):            # a fixed order: edge slots (tie-breaks) do not depend on set order
-            old = []
-            for y in (a, b):
+            wx = float(weight(x)[0]) if normalised else 0.0
+            old = [cost_ab * (wa + wb) if normalised else cost_ab]
+            for y, wy in ((a, wa), (b, wb)):
                 k = (y, x) if y < x else (x, y)
                 eo = table.key.get(k)
                 if eo is not None:
-                    old.append(float(table.cost[eo]))
+                    old.append(float(table.cost[eo]) * (wy + wx) if normalised else float(table.cost[eo]))
                     dirty.discard(eo)
                     table.kill(eo)
             if not collapsible(x, c):
                 continue
             en = table.add(x, c)
-            table.cost[en] = max(old + [cost_ab])
+            lb = max(old)
+            table.cost[en] = lb / (wa + wb + wx) if normalised and wa + wb + wx > 0 else lb
             table.state[en] = DIRTY
             dirty.add(en)
             heapq.heappush(heap, (float(table.cost[en]), int(table.stamp[en]), en))
@@ -402,14 +418,15 @@ def _hierarchy(Vall, Wall, F, collapses, errors, nfaces, method, params) -> Prog
 
 
 def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_normal_cos, progress, method,
-                       params, locked=None, seams=None, border_collapses=True) -> ProgressiveHierarchy:
+                       params, locked=None, seams=None, border_collapses=True,
+                       normalised=False) -> ProgressiveHierarchy:
     """:func:`simplify` with the compiled loop (:func:`rigslim.plugins.decimation.compiled.collapse_chunk`)."""
     from rigslim.plugins.decimation import compiled as cc
     from rigslim.plugins.decimation import edge_queue as eq
     from rigslim.plugins.decimation.edge_costs import edge_costs
 
     kind, Qv, ip, fp = model.compiled_spec()
-    fp = np.append(fp, zero_cost(V, np.asarray(F, np.int64), len(T)))
+    fp = np.append(fp, [zero_cost(V, np.asarray(F, np.int64), len(T), normalised), float(normalised)])
     st = SimplifyState(V, F, W, T, X)
     m = st.m
     N = 2 * m

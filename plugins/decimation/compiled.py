@@ -33,7 +33,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from rigslim.plugins.decimation.edge_costs import collapse_cost
+from rigslim.plugins.decimation.edge_costs import collapse_cost, quadric_weight
 from rigslim.plugins.decimation.edge_queue import (
     C_COLLAPSES,
     C_DIRTY,
@@ -366,10 +366,12 @@ def apply_collapse(e, a, b, nrem, nfab, mesh, vx, ed, cnt, s):
 
 
 @njit(cache=True)
-def requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s):
+def requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s, Qv, normalised):
     """Replace the edges (a, x) and (b, x) by (c, x) for every neighbour x, in increasing order of x.
 
-    Each new edge is queued with the lower bound ``max(cost(a, x), cost(b, x), cost(a, b))`` and marked
+    Each new edge is queued with the lower bound ``max(cost(a, x), cost(b, x), cost(a, b))`` (normalised
+    costs: ``max(E(a, x), E(b, x), E(a, b)) / (w_a + w_b + w_x)``, the unnormalised errors ``E`` over the
+    new edge's weight) and marked
     dirty (unless both c and x are fixed and the edge is no seam edge); edges at x that a guard blocked earlier
     are queued again.
     """
@@ -386,14 +388,20 @@ def requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s):
             uni[k + 1] = uni[k]
             k -= 1
         uni[k + 1] = y
+    wa = quadric_weight(Qv, a) if normalised else 1.0
+    wb = quadric_weight(Qv, b) if normalised else 1.0
     for i in range(nu):
         x = uni[i]
-        lb = cost_ab
+        wx = quadric_weight(Qv, x) if normalised else 0.0
+        lb = cost_ab * (wa + wb) if normalised else cost_ab
         for y in (a, b):
             eo = edge_of(x, y, N, hk, hv)
             if eo >= 0:
-                lb = max(lb, ecost[eo])
+                wy = wa if y == a else wb
+                lb = max(lb, ecost[eo] * (wy + wx) if normalised else ecost[eo])
                 edge_kill(eo, N, ea, eb, estate, free, cnt, hk, hv, in_dirty)
+        if normalised:
+            lb = lb / (wa + wb + wx) if wa + wb + wx > 0 else lb
         if not _collapsible(x, c, boundary, along, F, vf_start, vf_cnt, pool, charts):
             continue
         en = edge_add(x, c, N, ea, eb, estamp, free, cnt, hk, hv)
@@ -458,7 +466,7 @@ def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, cm, mesh, vx, ed,
                 ed.estate[e] = BLOCKED
                 continue
             c, cost_ab = apply_collapse(e, a, b, nrem, nfab, mesh, vx, ed, cnt, s)
-            requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s)
+            requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s, vx.Qv, cm.fp[3] != 0.0)
             i = cnt[C_COLLAPSES]
             rec.col[i, 0], rec.col[i, 1] = a, b
             rec.errs[i] = cost_ab

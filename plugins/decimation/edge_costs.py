@@ -54,7 +54,8 @@ from rigslim.plugins.decimation.setup import BEST, DECORO, KEEP_A, KEEP_B, MOHR_
 #: no finite-math assumptions, so infinities and NaN keep their meaning.
 FAST = {"reassoc", "contract", "nsz"}
 
-__all__ = ["DECORO", "FAST", "MOHR_GLEICHER", "QUARTIC", "anchored_cost", "collapse_cost", "edge_cost", "edge_costs"]
+__all__ = ["DECORO", "FAST", "MOHR_GLEICHER", "QUARTIC", "anchored_cost", "collapse_cost", "edge_cost", "edge_costs",
+           "quadric_weight"]
 
 
 @njit(cache=True, fastmath=FAST)
@@ -565,7 +566,8 @@ def collapse_cost(method, ia, ib, place, V, W, Qv, T, ip, fp, v_out, w_out):
     """The cost of collapsing (ia, ib) with a :func:`rigslim.plugins.decimation.setup.placement`.
 
     ``FREE``: :func:`edge_cost`; ``KEEP_A`` / ``KEEP_B``: :func:`anchored_cost` onto that end; ``BEST``:
-    the cheaper of the two (ties: a). Costs below ``fp[2]`` (round-off,
+    the cheaper of the two (ties: a). With ``fp[3]`` non-zero the cost is normalised, ``E / (w_a + w_b)``
+    (:func:`quadric_weight`). Costs below ``fp[2]`` (round-off,
     :func:`rigslim.plugins.decimation.setup.zero_cost`) are 0, so that both backends order them alike.
     """
     if place == KEEP_A:
@@ -583,7 +585,19 @@ def collapse_cost(method, ia, ib, place, V, W, Qv, T, ip, fp, v_out, w_out):
             E = Eb
     else:
         E = edge_cost(method, ia, ib, V, W, Qv, T, ip, fp, v_out, w_out)
+    if fp[3] != 0.0:                 # normalised: the mean squared distance over the merged planes
+        w = quadric_weight(Qv, ia) + quadric_weight(Qv, ib)
+        E = E / w if w > 0 else E
     return 0.0 if E < fp[2] else E
+
+
+@njit(cache=True)
+def quadric_weight(Qv, v):
+    """``w_v = sum_j tr(Q_v^j[:3, :3])``: the total (area) weight of the planes in vertex v's quadrics."""
+    s = 0.0
+    for j in range(Qv.shape[1]):
+        s += Qv[v, j, 0, 0] + Qv[v, j, 1, 1] + Qv[v, j, 2, 2]
+    return s
 
 
 @njit(cache=True, nogil=True)
@@ -606,8 +620,8 @@ def edge_costs(method, ea, eb, V, W, Qv, T, ip, fp, threads: int | None = None, 
     ea = np.ascontiguousarray(ea, dtype=np.int64)
     eb = np.ascontiguousarray(eb, dtype=np.int64)
     place = np.zeros(len(ea), np.int64) if place is None else np.ascontiguousarray(place, dtype=np.int64)
-    if len(fp) < 3:                 # no round-off threshold given: none
-        fp = np.append(fp, 0.0)
+    if len(fp) < 4:                 # no round-off threshold and no normalisation given: none
+        fp = np.concatenate([fp, np.zeros(4 - len(fp))])
     B, n = len(ea), W.shape[1]
     v, w, E = np.empty((B, 3)), np.empty((B, n)), np.empty(B)
     threads = threads or os.cpu_count() or 1

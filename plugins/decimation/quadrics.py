@@ -15,6 +15,9 @@ import scipy.sparse as sp
 
 from rigslim.numerics.blend import linear_blend
 
+#: Weight of the border planes (:func:`border_quadrics`) relative to the faces' area weights.
+BORDER_WEIGHT = 1.0
+
 
 def homogeneous(T: np.ndarray) -> np.ndarray:
     """(..., 3, 4) affine transforms as (..., 4, 4) matrices with last row ``[0, 0, 0, 1]``."""
@@ -77,6 +80,53 @@ def vertex_quadrics(X: np.ndarray, F: np.ndarray, area_weighted: bool = True) ->
     inc = sp.csr_matrix((np.ones(3 * f), (F.T.ravel(), np.tile(np.arange(f), 3))), shape=(m, f))
     Q = np.asarray(inc @ K.reshape(f, -1)).reshape(m, Xs.shape[0], 4, 4)
     return Q[:, 0] if single else Q
+
+
+def border_quadrics(X: np.ndarray, F: np.ndarray, weight: float = BORDER_WEIGHT) -> np.ndarray:
+    """Quadrics of the planes through every border edge, perpendicular to its face, for every pose.
+
+    Parameters
+    ----------
+    X : (P, m, 3) array
+        Vertex positions in each pose.
+    F : (f, 3) int array
+    weight : float
+        Relative weight: a border edge e of face f adds ``weight |e|^2 [n_e; d_e][n_e; d_e]^T`` to both
+        its vertices, ``n_e = normalize(e x n_f)`` (the plane contains e and f's normal).
+
+    Returns
+    -------
+    (m, P, 4, 4) array (zero where a vertex has no border edge)
+
+    Notes
+    -----
+    Garland & Heckbert 1997's boundary constraint planes, as meshoptimizer adds them: without them a
+    collapse along a border (or onto it) of a flat part costs nothing, so a planar sheet's outline, a
+    fin or an ear, is eaten from its edge. ``|e|^2`` has the units of the faces' area weights.
+    """
+    P, m = X.shape[0], X.shape[1]
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    opp = np.concatenate([F[:, 2], F[:, 0], F[:, 1]])
+    key = np.sort(E, axis=1)
+    _, inv, counts = np.unique(key[:, 0] * m + key[:, 1], return_inverse=True, return_counts=True)
+    border = counts[inv] == 1
+    Q = np.zeros((m, P, 4, 4))
+    if not border.any():
+        return Q
+    a, b, c = E[border, 0], E[border, 1], opp[border]
+    pa, pb, pc = X[:, a], X[:, b], X[:, c]                             # (P, k, 3)
+    e = pb - pa
+    nf = np.cross(e, pc - pa)
+    n = np.cross(e, nf)
+    ln = np.linalg.norm(n, axis=-1, keepdims=True)
+    n = np.where(ln > 0, n / np.where(ln > 0, ln, 1.0), 0.0)
+    d = -(n * pa).sum(axis=-1)
+    plane = np.concatenate([n, d[..., None]], axis=-1)                 # (P, k, 4)
+    w = weight * (e * e).sum(axis=-1)                                  # (P, k)
+    K = np.einsum("pk,pki,pkj->kpij", w, plane, plane)
+    np.add.at(Q, a, K)
+    np.add.at(Q, b, K)
+    return Q
 
 
 def per_pose_quadrics(V: np.ndarray, F: np.ndarray, weights, T: np.ndarray, area_weighted: bool = True):

@@ -178,18 +178,20 @@ def _seam_pairs(Fm: np.ndarray, pairs: np.ndarray, charts: np.ndarray) -> np.nda
     return out
 
 
-def zero_cost(V: np.ndarray, F: np.ndarray, n_poses: int) -> float:
+def zero_cost(V: np.ndarray, F: np.ndarray, n_poses: int, normalised: bool = False) -> float:
     """Collapse costs below this count as 0 (both backends): round-off of the quadric forms.
 
     ``(1e-7 D)^2 A P``, D the rest bounding-box diagonal, A the mean rest face area, P the poses: the cost
     of moving a vertex by 1e-7 D off the planes of its faces in every pose, about a hundred times the
-    round-off of ``[p; 1]^T Q [p; 1]`` at coordinates of size D. Without it, the half-edge collapses of
-    flat regions (exactly zero in exact arithmetic) would be ordered by round-off, differently in numpy and
-    in the compiled loop.
+    round-off of ``[p; 1]^T Q [p; 1]`` at coordinates of size D; ``(1e-7 D)^2`` for normalised costs (a
+    mean squared distance). Without it, the half-edge collapses of flat regions (exactly zero in exact
+    arithmetic) would be ordered by round-off, differently in numpy and in the compiled loop.
     """
     if not len(F):
         return 0.0
     D = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
+    if normalised:
+        return (1e-7 * D) ** 2
     P = V[F]
     A = 0.5 * float(np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1).mean())
     return (1e-7 * D) ** 2 * A * n_poses

@@ -65,6 +65,7 @@ class UsdWriter(Writer):
         lod: Literal["variant", "prims"] = "variant"
         """Layout of levels: a ``LOD`` variant set on the model prim, or ``UsdLod`` items (docs/usd.md)."""
         fps: float = 30.0
+        """Frame rate of an exported animation (glTF inputs keep the rate they were sampled at)."""
         keep_input_weights: bool = True
         """With no solve step, keep the file's influences (else write the weights as read, normalised)."""
         clamp_negative: bool = False
@@ -108,8 +109,12 @@ class UsdWriter(Writer):
         gltf = asset.extras.get("gltf")
         bind = bind_transforms(asset.handles, gltf if gltf is not None and gltf.mesh is asset.mesh else None)
         name = getattr(asset.mesh, "source", None) or "Character"
-        stage = build_stage(asset.mesh, asset.handles, weights, asset.poses, fps=params.fps, bind=bind,
-                            name=_stem(name))
+        from_gltf = gltf is not None and gltf.mesh is asset.mesh
+        fps = gltf.fps if from_gltf else params.fps          # a glTF's frames keep the rate they were sampled at
+        clips = _other_gltf_clips(gltf, fps) if from_gltf else None
+        bound = _clip_name(gltf) if from_gltf else "Animation"
+        stage = build_stage(asset.mesh, asset.handles, weights, asset.poses, fps=fps, bind=bind,
+                            name=_stem(name), clips=clips, animation_name=bound)
         if not levels:
             save_stage(stage, path)
             k = asset.reduced.k if asset.reduced is not None else None
@@ -117,6 +122,27 @@ class UsdWriter(Writer):
         skin = usd_skin_of_stage(stage, asset.mesh, asset.handles, asset.weights, asset.poses, path)
         return write_usd(path, skin, None, levels=levels, hierarchy=asset.hierarchy, lod=params.lod,
                          clamp_negative=params.clamp_negative)
+
+
+def _other_gltf_clips(gltf, fps: float) -> list:
+    """``(name, Poses)`` of the glTF's other animations (the read one is the bound SkelAnimation)."""
+    from rigslim.io.gltf.skin import read_gltf_skin
+
+    anims = gltf.document.json.get("animations", [])
+    out = []
+    for i, anim in enumerate(anims):
+        if i == gltf.animation:
+            continue
+        other = read_gltf_skin(gltf.document.path, animation=i, fps=fps, skin=gltf.skin, weld=False,
+                               allow_external_uris=gltf.document.allow_external_uris)
+        out.append((anim.get("name") or f"clip{i}", other.poses))
+    return out
+
+
+def _clip_name(gltf) -> str:
+    if gltf.animation is None:
+        return "Animation"
+    return gltf.document.json["animations"][gltf.animation].get("name") or f"clip{gltf.animation}"
 
 
 def _stem(source: str) -> str:

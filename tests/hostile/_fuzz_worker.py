@@ -51,6 +51,11 @@ def run_case(kind: str, suffix: str, payload: bytes, folder: Path):
 
         skin = read_gltf_skin(path, weld=True)
         skin.mesh.edges  # noqa: B018 - the derived data a pipeline builds first
+    elif kind == "usd":
+        from rigslim.io.usd.read import read_usd_skin
+
+        skin = read_usd_skin(path)
+        skin.mesh.edges  # noqa: B018
     elif kind == "dmat":
         from rigslim.io.animation import stacked_to_transforms
         from rigslim.io.dmat import read_dmat

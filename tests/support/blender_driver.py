@@ -148,6 +148,8 @@ def main() -> int:
     ap.add_argument("--select", default="")
     ap.add_argument("--solve", default="")
     ap.add_argument("--skip-lods", action="store_true")
+    ap.add_argument("--test-actions", default="", help="held-out actions (empty: every 4th frame)")
+    ap.add_argument("--no-keep-better", action="store_true", help="measure the raw fit (never keep Limit Total)")
     ap.add_argument("--blend", default=None, help="also save the scene there")
     args = ap.parse_args(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:])
     if args.gltf:
@@ -179,11 +181,12 @@ def main() -> int:
     result["limit_total_groups"] = group_stats(ext, lt)
     select_only(obj)
     op = bpy.ops.rigslim.limit_influences(k=args.k, actions=args.actions, frame_step=args.frame_step, holdout=4,
-                                          select=args.select, solve=args.solve)
+                                          select=args.select, solve=args.solve, keep_better=not args.no_keep_better,
+                                          test_actions=args.test_actions)
     result["limit_status"] = sorted(op)
     result["limit"] = json.loads(obj["rigslim_limit"])
     result["groups"] = group_stats(ext, obj)
-    _, test = ext.scene.sample_frames(ext.scene.parse_actions(args.actions), args.frame_step, 4)
+    _, test = ext.scene.split_frames(args.actions, args.test_actions, args.frame_step, 4)
     result["independent"] = measure_independently(ext, obj, ref, lt, test)
     result["temporary_objects_left"] = sorted(o.name for o in bpy.data.objects if "rigslim-" in o.name)
     ext.measure.remove_copy(ref)

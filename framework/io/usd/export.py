@@ -4,7 +4,8 @@ The stage written by :func:`build_stage`::
 
     /NAME              SkelRoot (defaultPrim, kind = component; upAxis, metersPerUnit on the layer)
       Skeleton         joints, bindTransforms, restTransforms, skel:animationSource -> Animation
-      Animation        SkelAnimation: translations, rotations, scales per frame (time code = frame)
+      Animation        SkelAnimation (named after the clip): translations, rotations, scales per frame
+                       (time code = frame); a glTF's other clips beside it, unbound
       MESH             Mesh: points, triangles, skel:skeleton, jointIndices/jointWeights (elementSize k)
 
 Handle ``b`` becomes joint ``b`` (joints are listed parents first, as UsdSkel
@@ -141,7 +142,7 @@ def local_transforms(T: np.ndarray, bind: np.ndarray, parents: np.ndarray) -> np
 
 
 def build_stage(mesh, handles, weights, poses=None, *, fps: float = 30.0, bind=None, name: str = "Character",
-                mesh_name: str = "Body", normals: bool = True):
+                mesh_name: str = "Body", normals: bool = True, clips=None, animation_name: str = "Animation"):
     """An in-memory UsdSkel stage of one skinned mesh (module docstring).
 
     Parameters
@@ -156,6 +157,9 @@ def build_stage(mesh, handles, weights, poses=None, *, fps: float = 30.0, bind=N
         Frame f becomes time code f; ``timeCodesPerSecond = fps``.
     bind : (n, 4, 4) array, optional
         Bind transforms; default :func:`bind_transforms`.
+    clips : list of (str, Poses), optional
+        More animations of the same handles, each written as a ``SkelAnimation`` named after the clip
+        beside the bound one (the reader's ``animation: NAME`` samples them).
 
     Returns
     -------
@@ -179,6 +183,8 @@ def build_stage(mesh, handles, weights, poses=None, *, fps: float = 30.0, bind=N
     stage.SetDefaultPrim(root.GetPrim())
     Usd.ModelAPI(root.GetPrim()).SetKind("component")
     skel = UsdSkel.Skeleton.Define(stage, f"/{root_name}/Skeleton")
+    taken = {"Skeleton", mesh_name}
+    bound = usd_identifier(animation_name, taken)
     skel.CreateJointsAttr(Vt.TokenArray(skel_tokens))
     skel.CreateJointNamesAttr(Vt.TokenArray([str(handles.names[j]) for j in order]))
     skel.CreateBindTransformsAttr(to_rows(bind[order]))
@@ -186,8 +192,11 @@ def build_stage(mesh, handles, weights, poses=None, *, fps: float = 30.0, bind=N
     skel.CreateRestTransformsAttr(to_rows(rest[order]))
     if poses is not None and len(poses):
         L = local_transforms(poses.T, bind, parents)[:, order]
-        _animation(stage, skel, f"/{root_name}/Animation", skel_tokens, L, fps)
-    geom = UsdGeom.Mesh.Define(stage, f"/{root_name}/{usd_identifier(mesh_name, {'Skeleton', 'Animation'})}")
+        _animation(stage, skel, f"/{root_name}/{bound}", skel_tokens, L, fps)
+    for clip, clip_poses in clips or []:
+        L = local_transforms(clip_poses.T, bind, parents)[:, order]
+        _animation(stage, None, f"/{root_name}/{usd_identifier(clip, taken)}", skel_tokens, L, fps)
+    geom = UsdGeom.Mesh.Define(stage, f"/{root_name}/{usd_identifier(mesh_name, taken - {mesh_name})}")
     V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
     geom.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(V.astype(np.float32)))
     geom.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(F), 3, np.int32)))
@@ -220,6 +229,8 @@ def _animation(stage, skel, path: str, tokens: list[str], L: np.ndarray, fps: fl
         tr.Set(Vt.Vec3fArray.FromNumpy(t.astype(np.float32)), Usd.TimeCode(f))
         ro.Set(Vt.QuatfArray([Gf.Quatf(*map(float, x)) for x in q]), Usd.TimeCode(f))
         sc.Set(Vt.Vec3hArray.FromNumpy(s.astype(np.float16)), Usd.TimeCode(f))
+    if skel is None:        # another clip: not bound, the stage's time range stays the bound one's
+        return
     UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
     stage.SetTimeCodesPerSecond(float(fps))
     stage.SetFramesPerSecond(float(fps))

@@ -36,6 +36,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from rigslim.errors import InputError, brief, closest
+from rigslim.io.usd import stage as usd_stage
 from rigslim.io.usd.stage import diagnostics, open_stage, pxr_modules, time_codes_per_second, to_columns
 from rigslim.model.handles import Handles
 from rigslim.model.mesh import Mesh
@@ -138,6 +139,38 @@ class UsdSkin:
     notes: list[str] = field(default_factory=list)
 
 
+def values(raw, dtype, path: Path, where: str, width: int | None = None) -> np.ndarray:
+    """An authored array value as numpy (empty when unauthored), or one line when it has the wrong type.
+
+    ``width``: the elements' size (3 for points, 16 for matrices); the result is (n, width), else (n,).
+    """
+    if raw is None:
+        return np.zeros((0, width) if width else 0, dtype)
+    try:
+        A = np.array(raw, dtype=dtype)
+        if width:
+            A = A.reshape(len(A), -1)
+            if A.shape[1] != width:
+                raise ValueError
+        elif A.ndim != 1:
+            raise ValueError
+    except (TypeError, ValueError):
+        kind = type(raw).__name__
+        raise InputError(f"the value has the wrong type ({kind})", source=path, field=where,
+                         fix="re-export the file (the property must hold an array of its declared type)") from None
+    return A
+
+
+def _tokens(raw, path: Path, where: str) -> list[str]:
+    """A token[] value as strings (empty when unauthored), or one line when it is something else."""
+    if raw is None:
+        return []
+    if isinstance(raw, (str, bytes)) or not hasattr(raw, "__len__"):
+        raise InputError(f"the value has the wrong type ({type(raw).__name__})", source=path, field=where,
+                         fix="author a token[] of joint paths")
+    return [str(j) for j in raw]
+
+
 # --------------------------------------------------------------------------- bindings
 
 
@@ -231,7 +264,7 @@ def _matches(prim, mesh) -> bool:
 def check_joints(skel, path: Path, where: str) -> list[str]:
     """The skeleton's ``joints`` tokens, refused with one line when empty, repeated or not parents-first."""
     _, _, UsdSkel, _, _, _ = pxr_modules()
-    joints = [str(j) for j in (skel.GetJointsAttr().Get() or [])]
+    joints = _tokens(skel.GetJointsAttr().Get(), path, f"{where}.joints")
     if not joints:
         raise InputError("the skeleton has no joints", source=path, field=f"{where}.joints",
                          fix="author the Skeleton's joints (token[] of joint paths)")
@@ -251,18 +284,18 @@ def _skeleton(skel_query, path: Path, where: str):
     skel = skel_query.GetSkeleton()
     joints = check_joints(skel, path, where)
     parents = np.asarray(skel_query.GetTopology().GetParentIndices(), np.int64)
-    bind_raw = skel.GetBindTransformsAttr().Get()
-    if bind_raw is None or len(bind_raw) != len(joints):
-        raise InputError(f"{0 if bind_raw is None else len(bind_raw)} bindTransforms for {len(joints)} joints",
+    bind_raw = values(skel.GetBindTransformsAttr().Get(), np.float64, path, f"{where}.bindTransforms", 16)
+    if len(bind_raw) != len(joints):
+        raise InputError(f"{len(bind_raw)} bindTransforms for {len(joints)} joints",
                          source=path, field=f"{where}.bindTransforms",
                          fix="author one skeleton-space bind matrix per joint")
     bind = to_columns(bind_raw)
     _check_matrices(bind, path, f"{where}.bindTransforms", joints)
-    rest_raw = skel.GetRestTransformsAttr().Get()
-    if rest_raw is not None and len(rest_raw) == len(joints):
+    rest_raw = values(skel.GetRestTransformsAttr().Get(), np.float64, path, f"{where}.restTransforms", 16)
+    if len(rest_raw) == len(joints):
         rest = to_columns(rest_raw)
         _check_matrices(rest, path, f"{where}.restTransforms", joints)
-    elif rest_raw is not None and len(rest_raw):
+    elif len(rest_raw):
         raise InputError(f"{len(rest_raw)} restTransforms for {len(joints)} joints", source=path,
                          field=f"{where}.restTransforms", fix="author one local rest matrix per joint, or none")
     else:   # unauthored: the bind pose, as local transforms
@@ -355,30 +388,30 @@ def _mesh_part(query, joint_index: dict[str, int], skel_joints: list[str], path:
     where = str(prim.GetPath())
     mesh = UsdGeom.Mesh(prim)
     t0 = Usd.TimeCode.EarliestTime()
-    raw = mesh.GetPointsAttr().Get(t0)
-    P = np.array(raw if raw is not None else [], dtype=np.float64).reshape(-1, 3)
+    P = values(mesh.GetPointsAttr().Get(t0), np.float64, path, f"{where}.points", 3)
     if not len(P):
         raise InputError("the mesh has no points", source=path, field=f"{where}.points", fix="re-export the mesh")
     if not np.isfinite(P).all():
         raise InputError("points contain NaN or inf", source=path, field=f"{where}.points", fix="re-export the mesh")
-    counts = np.array(mesh.GetFaceVertexCountsAttr().Get(t0) or [], np.int64)
-    indices = np.array(mesh.GetFaceVertexIndicesAttr().Get(t0) or [], np.int64)
+    counts = values(mesh.GetFaceVertexCountsAttr().Get(t0), np.int64, path, f"{where}.faceVertexCounts")
+    indices = values(mesh.GetFaceVertexIndicesAttr().Get(t0), np.int64, path, f"{where}.faceVertexIndices")
     if counts.sum() != len(indices) or (counts < 0).any():
         raise InputError(f"faceVertexCounts add up to {int(counts.sum())} but there are {len(indices)} "
                          "faceVertexIndices", source=path, field=f"{where}.faceVertexCounts", fix="re-export the mesh")
     if len(indices) and (indices.min() < 0 or indices.max() >= len(P)):
         raise InputError(f"faceVertexIndices name points outside 0..{len(P) - 1}", source=path,
                          field=f"{where}.faceVertexIndices", fix="re-export the mesh")
-    holes = np.array(mesh.GetHoleIndicesAttr().Get(t0) or [], np.int64)
+    holes = values(mesh.GetHoleIndicesAttr().Get(t0), np.int64, path, f"{where}.holeIndices")
     left = mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded
     F, polygon, corners = triangulate(counts, indices, holes, left)
-    G = to_columns([query.GetGeomBindTransform()])[0]
+    G = to_columns(values([query.GetGeomBindTransform()], np.float64, path,
+                          f"{where}.primvars:skel:geomBindTransform", 16))[0]
     if not np.isfinite(G).all() or abs(np.linalg.det(G[:3, :3])) < 1e-300:
         raise InputError("geomBindTransform is singular or not finite", source=path,
                          field=f"{where}.primvars:skel:geomBindTransform", fix="re-export the skin binding")
     V = P @ G[:3, :3].T + G[:3, 3]
     rows, cols, vals, k, rigid = _influences(query, prim, len(P), joint_index, skel_joints, path)
-    blend = [str(s) for s in (UsdSkel.BindingAPI(prim).GetBlendShapesAttr().Get() or [])]
+    blend = _tokens(UsdSkel.BindingAPI(prim).GetBlendShapesAttr().Get(), path, f"{where}.skel:blendShapes")
     part = MeshPart(where, start, len(P), face_start, polygon, corners, G, k, rigid, blend)
     return V, F, (rows + start, cols, vals), part
 
@@ -393,8 +426,8 @@ def _influences(query, prim, m: int, joint_index: dict[str, int], skel_joints: l
         missing = JOINT_INDICES if not ji_pv.HasValue() else JOINT_WEIGHTS
         raise InputError("the mesh is bound to a skeleton but has no joint influences", source=path,
                          field=f"{where}.{missing}", fix="author jointIndices and jointWeights (UsdSkelBindingAPI)")
-    ji = np.array(ji_pv.ComputeFlattened(), dtype=np.int64).ravel()
-    jw = np.array(jw_pv.ComputeFlattened(), dtype=np.float64).ravel()
+    ji = values(ji_pv.ComputeFlattened(), np.int64, path, f"{where}.{JOINT_INDICES}")
+    jw = values(jw_pv.ComputeFlattened(), np.float64, path, f"{where}.{JOINT_WEIGHTS}")
     k, kw = int(ji_pv.GetElementSize()), int(jw_pv.GetElementSize())
     if k != kw:
         raise InputError(f"jointIndices have elementSize {k}, jointWeights {kw}", source=path,
@@ -419,7 +452,7 @@ def _influences(query, prim, m: int, joint_index: dict[str, int], skel_joints: l
                          field=f"{where}.{JOINT_WEIGHTS}", fix="re-export the skin weights")
     authored = query.GetJointOrder()
     if authored is not None:
-        order = [str(j) for j in authored]
+        order = _tokens(authored, path, f"{where}.skel:joints")
         unknown = [j for j in order if j not in joint_index]
         if unknown:
             raise InputError(f"skel:joints names {len(unknown)} joints the skeleton lacks ('{brief(unknown[0])}')",
@@ -504,7 +537,7 @@ def skinning_transforms(anim_query, joints: list[str], parents: np.ndarray, bind
     inv_bind = np.linalg.inv(bind)
     out = np.empty((len(time_codes), n, 3, 4))
     if anim_query:
-        anim_joints = [str(j) for j in anim_query.GetJointOrder()]
+        anim_joints = _tokens(anim_query.GetJointOrder(), path, "animation.joints")
         src = np.array([i for i, j in enumerate(anim_joints) if j in index], np.int64)
         dst = np.array([index[anim_joints[i]] for i in src], np.int64)
     for f, tc in enumerate(time_codes):
@@ -610,7 +643,19 @@ def read_usd_skin(path, *, skeleton=None, mesh=None, animation=None, fps: float 
     """
     if not (np.isfinite(fps) and fps > 0):
         raise InputError(f"fps {fps} is not a positive number", source=path, field="fps", fix="give e.g. fps: 30")
+    from pxr import Tf
+
     path = Path(path)
+    with usd_stage.memory_budget(path):
+        try:
+            return _read_usd_skin(path, skeleton, mesh, animation, fps, times, normalize, lod)
+        except Tf.ErrorException as e:
+            why = usd_stage.tf_message(e)
+            raise InputError(f"USD cannot read a value ({why})", source=path, field="layer",
+                             fix="re-export the file; check it with usdchecker") from None
+
+
+def _read_usd_skin(path: Path, skeleton, mesh, animation, fps, times, normalize, lod) -> UsdSkin:
     stage = open_stage(path)
     Usd, UsdGeom, UsdSkel, _, _, _ = pxr_modules()
     if lod is not None:

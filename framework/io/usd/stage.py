@@ -15,6 +15,8 @@ line.
 from __future__ import annotations
 
 import contextlib
+import os
+import resource
 from pathlib import Path
 
 import numpy as np
@@ -70,6 +72,60 @@ def diagnostics():
         del delegate
 
 
+#: Address space a USD read may add to the process (bytes): at least this, or 100x the file's size.
+#: ``RIGSLIM_USD_MEMORY`` (bytes) overrides it.
+MEMORY_BUDGET = 4 << 30
+
+
+def _address_space() -> int:
+    """This process's current virtual memory size in bytes (0 where /proc is unavailable)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmSize:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0
+
+
+@contextlib.contextmanager
+def memory_budget(path):
+    """Cap the address space while USD reads ``path``, so that a corrupt crate file asking for terabytes fails.
+
+    USD's crate reader allocates what a file's counts say; a damaged ``.usdc``
+    can make it allocate (and zero) more memory than the machine has. Inside
+    the block the soft ``RLIMIT_AS`` is the current size plus
+    ``max(MEMORY_BUDGET, 100 x file size)`` (never above an existing limit);
+    USD then fails the read with an error, which :func:`open_stage` and the
+    reader turn into one line. The previous limit is restored afterwards.
+    """
+    try:
+        size = os.stat(path).st_size
+    except OSError:
+        size = 0
+    budget = int(os.environ.get("RIGSLIM_USD_MEMORY", "0") or 0) or max(MEMORY_BUDGET, 100 * size)
+    current = _address_space()
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    cap = current + budget if current else resource.RLIM_INFINITY
+    if hard != resource.RLIM_INFINITY:
+        cap = min(cap, hard)
+    if soft != resource.RLIM_INFINITY:
+        cap = min(cap, soft)
+    try:
+        resource.setrlimit(resource.RLIMIT_AS, (cap, hard))
+    except (ValueError, OSError):
+        cap = None
+    try:
+        yield
+    except MemoryError:
+        raise InputError(f"reading it needs more than {budget / 2**30:.1f} GiB (a corrupt file?)", source=path,
+                         field="layer", fix="re-export the file; set RIGSLIM_USD_MEMORY=BYTES if it is real") from None
+    finally:
+        if cap is not None:
+            resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+
+
 def open_stage(path):
     """Open a USD stage read-only, with every payload loaded.
 
@@ -96,16 +152,25 @@ def open_stage(path):
                          fix="give a .usd, .usda, .usdc or .usdz file")
     if not path.is_file():
         raise InputError("file not found", source=path, field="path", fix="check the path")
-    with diagnostics() as found:
+    with memory_budget(path), diagnostics() as found:
         try:
             stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
         except Tf.ErrorException as e:
-            stage, found = None, found + [" ".join(str(e).split())]
+            stage, found = None, found + [tf_message(e)]
     if stage is None:
         why = found[0] if found else "USD could not open it"
         raise InputError(f"not a readable USD layer ({why})", source=path, field="layer",
                          fix="re-export the file; check it with usdchecker")
     return stage
+
+
+def tf_message(error) -> str:
+    """The text of a ``Tf.ErrorException`` without USD's C++ locations (its first quoted commentary)."""
+    import re
+
+    text = " ".join(str(error).split())
+    found = re.findall(r"\.(?:cpp|h) : '(.*?)'(?= Error in |$)", text)
+    return found[0] if found else text
 
 
 def time_codes_per_second(stage) -> float:

@@ -44,7 +44,8 @@ def joint_count(path) -> int:
     from rigslim.io.usd.read import skel_bindings
 
     path = Path(path)
-    _, bindings = skel_bindings(open_stage(path), path)
+    stage = open_stage(path)         # held: the bindings' prims live as long as their stage
+    _, bindings = skel_bindings(stage, path)
     return max(len(b.GetSkeleton().GetJointsAttr().Get() or []) for b in bindings)
 
 
@@ -109,7 +110,7 @@ def world_transform(skin) -> np.ndarray:
 
 def world_points(skin, frames=None) -> np.ndarray:
     """(p, m, 3) the skin's merged mesh posed by rigslim's linear blend, in world metres, Y up."""
-    from rigslim.blend import linear_blend
+    from rigslim.numerics.blend import linear_blend
 
     frames = range(len(skin.poses)) if frames is None else frames
     M = world_transform(skin)

@@ -201,14 +201,14 @@ def sample_poses(op: StepOperator, context, skin: sc.Skin, frames, lo: float, hi
 
 
 def action_frames(op, skin: sc.Skin, holdout: int):
-    actions = sc.parse_actions(op.actions)
-    if not actions:
+    if not sc.parse_actions(op.actions):
         raise sc.SkinError(f"{skin.obj.name}: no action poses the bones of {skin.armature.name}; "
                            "animate it or name the actions to fit (actions: Walk, Run:1-40)")
-    examples, test = sc.sample_frames(actions, op.frame_step, holdout)
+    examples, test = sc.split_frames(op.actions, getattr(op, "test_actions", ""), op.frame_step, holdout)
     if not examples:
-        raise sc.SkinError(f"{skin.obj.name}: the actions' frame ranges give no frame to fit; widen them")
-    return actions, examples, test
+        raise sc.SkinError(f"{skin.obj.name}: the actions' frame ranges give no frame to fit (with the held-out "
+                           "actions taken out); widen them or fit more actions")
+    return examples, test
 
 
 class RIGSLIM_OT_limit_influences(StepOperator, bpy.types.Operator):
@@ -225,11 +225,17 @@ class RIGSLIM_OT_limit_influences(StepOperator, bpy.types.Operator):
                                         "empty: every action that poses bones")
     frame_step: IntProperty(name="Frame Step", default=1, min=1, max=100,
                             description="Sample every n-th frame of each action")
+    test_actions: StringProperty(name="Held-Out Actions", default="",
+                                 description="Actions only measured, never fitted (e.g. Run while fitting Walk); "
+                                             "empty: hold out every n-th sampled frame instead")
     holdout: IntProperty(name="Hold Out Every", default=4, min=0, max=100,
                          description="Every n-th sampled frame is not fitted but used to measure the error "
                                      "against Limit Total (0 or 1: fit every frame, measure none)")
     measure: BoolProperty(name="Compare with Limit Total", default=True,
                           description="Measure rigslim's and Blender's Limit Total error on the held-out frames")
+    keep_better: BoolProperty(name="Keep Limit Total If Better", default=True,
+                              description="If Limit Total's result has the lower error on the held-out frames, "
+                                          "write it instead of rigslim's fit (and say so)")
     select: StringProperty(name="Selection", default="",
                            description="rigslim influence selection plugin (empty: the library's default)")
     solve: StringProperty(name="Solver", default="",
@@ -258,7 +264,7 @@ class RIGSLIM_OT_limit_influences(StepOperator, bpy.types.Operator):
         skin = sc.read_skin(obj)
         for w in skin.warnings:
             self.report({"WARNING"}, f"rigslim: {obj.name}: {w}")
-        _, examples, test = action_frames(self, skin, self.holdout)
+        examples, test = action_frames(self, skin, self.holdout)
         with sc.preserved_animation(context.scene, skin.armature):
             T = yield from sample_poses(self, context, skin, examples, lo, lo + 0.2 * span, "sampling poses")
             request = {"V": skin.V, "F": skin.F, "k": np.int64(self.k), "poses": T, "select": np.str_(self.select),
@@ -276,25 +282,33 @@ class RIGSLIM_OT_limit_influences(StepOperator, bpy.types.Operator):
                     assert held is not None
                     held.measure_frame(context.evaluated_depsgraph_get())
                     yield lo + span * (0.8 + 0.2 * (i + 1) / len(test)), f"measuring: {action.name} {frame}", False
+                kept = "rigslim"
+                if held is not None and self.keep_better and held.rms["rigslim"] \
+                        and held.errors("rigslim").rms_pct > held.errors("limit_total").rms_pct:
+                    wt.write_groups(obj, skin, *wt.fixed_rows(sc.read_skin(held.limited), self.k))
+                    kept = "limit_total"
             finally:
                 if held is not None:
                     held.remove()
-        self.report_result(obj, skin, res, examples, test, held)
+        self.report_result(obj, skin, res, examples, test, held, kept)
 
-    def report_result(self, obj, skin, res, examples, test, held) -> None:
+    def report_result(self, obj, skin, res, examples, test, held, kept: str) -> None:
         method = f"{res['select']} + {res['solve']}"
         line = (f"rigslim: {obj.name}: {self.k} influences per vertex ({method}, {len(examples)} frames fitted, "
                 f"{float(res['seconds']):.1f} s)")
         record = {"k": self.k, "select": str(res["select"]), "solve": str(res["solve"]),
                   "fitted_frames": len(examples), "held_out_frames": len(test), "seconds": float(res["seconds"]),
-                  "input_max_influences": skin.max_influences()}
+                  "input_max_influences": skin.max_influences(), "kept": kept}
         if held is not None and held.rms["rigslim"]:
             ours, theirs = held.errors("rigslim"), held.errors("limit_total")
             ratio = theirs.rms_pct / ours.rms_pct if ours.rms_pct > 0 else float("inf")
-            verdict = (f"{ratio:.2f}x lower" if max(ours.rms_pct, theirs.rms_pct) > ROUND_OFF_PCT
-                       else "both at float32 round-off, k loses nothing here")
+            verdict = ("both at float32 round-off, k loses nothing here"
+                       if max(ours.rms_pct, theirs.rms_pct) <= ROUND_OFF_PCT
+                       else f"{ratio:.2f}x lower" if ratio >= 1 else f"{1 / ratio:.2f}x higher")
             line += (f"; held-out error {ours} vs Limit Total {theirs}: {verdict}"
                      f" over {len(held.rms['rigslim'])} frames")
+            if kept == "limit_total":
+                line += "; the fit was worse on those frames, so Limit Total's weights were kept"
             record.update({"rms_pct": ours.rms_pct, "max_pct": ours.max_pct, "limit_total_rms_pct": theirs.rms_pct,
                            "limit_total_max_pct": theirs.max_pct, "measured_frames": len(held.rms["rigslim"])})
         obj["rigslim_limit"] = json.dumps(record)
@@ -440,7 +454,7 @@ class RIGSLIM_OT_generate_lods(StepOperator, bpy.types.Operator):
     def lods_one(self, context, obj, python, extra, lo, hi) -> Steps:
         span = hi - lo
         skin = sc.read_skin(obj)
-        _, examples, _ = action_frames(self, skin, 0)
+        examples, _ = action_frames(self, skin, 0)
         with sc.preserved_animation(context.scene, skin.armature):
             T = yield from sample_poses(self, context, skin, examples, lo, lo + 0.2 * span, "sampling poses")
         request = lod_request(skin, T, self, extra)

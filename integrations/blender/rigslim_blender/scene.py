@@ -296,3 +296,18 @@ def evaluated_positions(obj: bpy.types.Object, depsgraph) -> np.ndarray:
     finally:
         ev.to_mesh_clear()
     return X.reshape(-1, 3)
+
+
+def split_frames(actions: str, test_actions: str, step: int, holdout: int) -> tuple[list, list]:
+    """Example and held-out ``(action, frame)`` pairs from the operators' action properties.
+
+    With ``test_actions`` empty, :func:`sample_frames` over ``actions`` (every ``holdout``-th sample held out).
+    Otherwise the test actions' frames are the held-out set and every sample of the other chosen actions is
+    fitted (no action is in both: one fitted on a clip, measured on another, as rigslim's clip splits do).
+    """
+    if not test_actions.strip():
+        return sample_frames(parse_actions(actions), step, holdout)
+    test = parse_actions(test_actions)
+    held = {a.name for a, _, _ in test}
+    fit = [item for item in parse_actions(actions) if item[0].name not in held]
+    return sample_frames(fit, step, 0)[0], sample_frames(test, step, 0)[0]

@@ -35,9 +35,13 @@ class RigslimSettings(bpy.types.PropertyGroup):
                                         "empty: every action that poses bones")
     frame_step: IntProperty(name="Frame Step", default=1, min=1, max=100,
                             description="Sample every n-th frame of each action")
+    test_actions: StringProperty(name="Held-Out Actions", default="",
+                                 description="Actions only measured, never fitted; empty: every n-th frame")
     holdout: IntProperty(name="Hold Out Every", default=4, min=0, max=100,
                          description="Every n-th sampled frame is only used to measure the error")
     measure: BoolProperty(name="Compare with Limit Total", default=True)
+    keep_better: BoolProperty(name="Keep Limit Total If Better", default=True,
+                              description="Write Limit Total's result when it has the lower held-out error")
     ratios: StringProperty(name="Ratios", default="0.5, 0.25, 0.125",
                            description="Fraction of the faces kept by each LOD level")
     max_bones: IntProperty(name="Bone Limit", default=4, min=0, max=32,
@@ -81,11 +85,14 @@ class DATA_PT_rigslim(bpy.types.Panel):
         box.label(text="Limit Influences", icon="GROUP_BONE")
         col = box.column()
         col.prop(s, "k")
+        col.prop(s, "test_actions")
         col.prop(s, "holdout")
         col.prop(s, "measure")
+        col.prop(s, "keep_better")
         op = col.operator("rigslim.limit_influences", text="Limit Influences (Fit to Animation)",
                           icon="MOD_VERTEX_WEIGHT")
         op.k, op.actions, op.frame_step, op.holdout, op.measure = s.k, s.actions, s.frame_step, s.holdout, s.measure
+        op.keep_better, op.test_actions = s.keep_better, s.test_actions
         last = _last(obj, "rigslim_limit")
         if last and "rms_pct" in last:
             col.label(text=f"Last: {last['rms_pct']:.3g} % RMS vs Limit Total {last['limit_total_rms_pct']:.3g} %",

@@ -84,3 +84,16 @@ def deform_counts(obj: bpy.types.Object) -> tuple[np.ndarray, np.ndarray]:
                 count[v.index] += 1
                 total[v.index] += g.weight
     return count, total
+
+
+def fixed_rows(skin: Skin, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """A skin's weight triplets as (m, k) handle indices (-1 where empty) and weights, largest first."""
+    m = skin.n_vertices
+    idx, val = np.full((m, k), -1, np.int64), np.zeros((m, k))
+    order = np.lexsort((-skin.values, skin.rows))
+    rows, cols, vals = skin.rows[order], skin.cols[order], skin.values[order]
+    start = np.searchsorted(rows, np.arange(m))
+    slot = np.arange(len(rows)) - start[rows]
+    keep = slot < k
+    idx[rows[keep], slot[keep]], val[rows[keep], slot[keep]] = cols[keep], vals[keep]
+    return idx, val

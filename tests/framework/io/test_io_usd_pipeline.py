@@ -187,7 +187,7 @@ def test_the_usd_examples_run_and_validate(tmp_path):
     import shutil
     from pathlib import Path
 
-    examples = Path(__file__).resolve().parents[1] / "examples"
+    examples = Path(__file__).resolve().parents[3] / "examples"
     (tmp_path / "data").symlink_to(examples / "data", target_is_directory=True)
     for name in ("usd-export-huesitos.yaml", "usd-simplify.yaml"):
         shutil.copy(examples / name, tmp_path / name)
@@ -197,3 +197,26 @@ def test_the_usd_examples_run_and_validate(tmp_path):
     for lod in (0, 1, 2):
         u = read_usd_skin(tmp_path / "out" / "huesitos-lod.usdc", lod=lod)
         assert all(p.element_size == 2 for p in u.parts) and (u.weights.getnnz(axis=1) <= 2).all()
+
+
+def test_every_clip_of_a_multi_clip_character_is_exported(tmp_path):
+    """A glTF input's other clips become SkelAnimations named after them; each poses like the glTF's."""
+    from pathlib import Path
+
+    from rigslim.io.gltf.skin import read_gltf_skin
+
+    gltf = Path(__file__).resolve().parents[3] / "examples" / "data" / "gltf" / "suite" / "wuson.glb"
+    (tmp_path / "export.yaml").write_text(f"inputs:\n  gltf: {gltf}\nsteps:\n  - write: wuson.usdc\n")
+    run_pipeline(tmp_path / "export.yaml")
+    out = tmp_path / "wuson.usdc"
+    assert check_usd(out) == []
+    names = [a.get("name") for a in read_gltf_skin(gltf, times=[0.0]).document.json["animations"]]
+    assert len(names) == 2
+    for i, name in enumerate(names):
+        g = read_gltf_skin(gltf, animation=i, weld=True)
+        u = read_usd_skin(out, animation=name)
+        assert u.animation.endswith(name) and len(u.poses) == len(g.poses)
+        for f in range(0, len(g.poses), 9):
+            a = linear_blend(g.mesh.V, g.weights, g.poses.T[f])
+            b = linear_blend(u.mesh.V, u.weights, u.poses.T[f])
+            assert np.abs(a - b).max() <= 2e-5 * np.linalg.norm(a.max(axis=0) - a.min(axis=0)), (name, f)

@@ -51,6 +51,20 @@ def tube(extension_zip, tmp_path_factory) -> dict:
                       "--max-bones", "2")
 
 
+@pytest.fixture(scope="module")
+def tube_smooth(extension_zip, tmp_path_factory) -> dict:
+    """The tube with the smooth solver, whose fit loses to Limit Total here: the operator keeps Limit Total's."""
+    return run_driver(extension_zip, tmp_path_factory.mktemp("smooth"), "--k", "2", "--solve", "smooth",
+                      "--skip-lods")
+
+
+@pytest.fixture(scope="module")
+def tube_clips(extension_zip, tmp_path_factory) -> dict:
+    """Fitted on Bend only, measured on Twist (a held-out action)."""
+    return run_driver(extension_zip, tmp_path_factory.mktemp("clips"), "--k", "2", "--actions", "Bend",
+                      "--test-actions", "Twist", "--skip-lods")
+
+
 def test_zip_matches_blenders_own_build(extension_zip, tmp_path):
     ext = next((ROOT / ".venv-blender" / "lib").glob("python3*/site-packages/bpy/*/scripts/addons_core/bl_pkg/"
                                                      "cli/blender_ext.py"))
@@ -78,6 +92,7 @@ def test_limit_influences_beats_limit_total_on_held_out_frames(tube):
     assert ours["measured_frames"] == indep["frames"] > 0
     assert ours["held_out_frames"] == indep["frames"]
     # the operator's own figures are what Blender measures when it poses the three meshes
+    assert ours["kept"] == "rigslim"                              # the fit wins on the tube: nothing to fall back to
     assert ours["rms_pct"] == pytest.approx(indep["rms_pct"], rel=1e-6)
     assert ours["limit_total_rms_pct"] == pytest.approx(indep["limit_total_rms_pct"], rel=1e-6)
     assert indep["rms_pct"] <= indep["limit_total_rms_pct"]
@@ -117,3 +132,21 @@ def test_generate_lods_max_error(tube):
     assert tube["lod_bounded_children"] == [lv["name"] for lv in bounded]
     assert all(lv["faces"] >= free[lv["name"]] for lv in bounded)
     assert any(lv["faces"] > free[lv["name"]] for lv in bounded)
+
+
+def test_limit_influences_keeps_limit_total_when_the_fit_is_worse(tube_smooth):
+    rec, indep = tube_smooth["limit"], tube_smooth["independent"]
+    assert rec["solve"] == "smooth" and rec["rms_pct"] > rec["limit_total_rms_pct"]   # the raw fit lost
+    assert rec["kept"] == "limit_total"
+    assert indep["rms_pct"] == pytest.approx(indep["limit_total_rms_pct"], rel=1e-6)   # what is on the mesh now
+    assert tube_smooth["groups"]["max_groups"] <= 2 and tube_smooth["groups"]["max_sum_error"] < 1e-5
+
+
+def test_limit_influences_held_out_action(tube_clips):
+    rec, indep = tube_clips["limit"], tube_clips["independent"]
+    # Bend fitted, Twist measured
+    assert rec["fitted_frames"] == 40 and rec["held_out_frames"] == indep["frames"] == 40
+    on_mesh = rec["rms_pct"] if rec["kept"] == "rigslim" else rec["limit_total_rms_pct"]
+    assert indep["rms_pct"] == pytest.approx(on_mesh, rel=1e-6)
+    assert indep["rms_pct"] <= indep["limit_total_rms_pct"] * (1 + 1e-9)
+    assert tube_clips["groups"]["max_groups"] <= 2

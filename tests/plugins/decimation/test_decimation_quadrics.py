@@ -236,3 +236,64 @@ def test_nonnegative_weight_step_matches_a_general_qp_solver(elephant_edges):
         def obj(z, H=H, k=k, b=b):
             return z @ (H + ridge * np.eye(len(k))) @ z - 2 * ridge * a0[b, k] @ z
         assert obj(a[b, k]) <= obj(x) + 1e-8 * max(1.0, abs(obj(x)))
+
+
+def _sheet(n=8):
+    """A flat open n x n grid in z = 0 (an L-shaped outline: the top-right quarter removed)."""
+    ids = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    F = []
+    for i in range(n):
+        for j in range(n):
+            if i >= n // 2 and j >= n // 2:
+                continue
+            a, b, c, d = ids[i, j], ids[i, j + 1], ids[i + 1, j], ids[i + 1, j + 1]
+            F += [[a, b, d], [a, d, c]]
+    x, y = np.meshgrid(np.arange(n + 1.0), np.arange(n + 1.0))
+    V = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    F = np.array(F, dtype=np.int64)
+    used = np.unique(F)
+    remap = np.full(len(V), -1)
+    remap[used] = np.arange(len(used))
+    return V[used], remap[F]
+
+
+def test_border_quadrics_measure_the_distance_off_the_border_line():
+    from rigslim.plugins.decimation.quadrics import border_quadrics
+
+    V, F = _sheet()
+    Q = border_quadrics(V[None], F, weight=2.0)[:, 0]
+    i = int(np.flatnonzero((V[:, 1] == 0) & (V[:, 0] == 3))[0])       # on the bottom border, two unit edges
+    for p, expect in (([5.0, 0.0, 0.0], 0.0), ([3.0, 0.5, 0.0], 2 * 2 * 1.0 * 0.25), ([3.0, 0.0, 7.0], 0.0)):
+        ph = np.r_[p, 1.0]
+        assert ph @ Q[i] @ ph == pytest.approx(expect, abs=1e-12)
+    inner = int(np.flatnonzero((V[:, 0] == 2) & (V[:, 1] == 2))[0])
+    assert not Q[inner].any()
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_a_flat_sheet_keeps_its_outline(backend):
+    """Guard: the border planes keep a planar part's outline (without them its border is eaten for free)."""
+    import scipy.sparse as sp
+
+    from rigslim.asset import Asset
+    from rigslim.host import get_host
+    from rigslim.mesh import Mesh
+    from rigslim.plugin import StepContext
+    from rigslim.poses import FrameSplit, Poses
+
+    V, F = _sheet()
+    T = np.zeros((4, 1, 3, 4))
+    T[..., :3, :3] = np.eye(3)
+    asset = Asset(mesh=Mesh(V, F), weights=sp.csr_matrix(np.ones((len(V), 1))), poses=Poses(T),
+                  split=FrameSplit.from_specs([0, 2], [1, 3], 4))
+    plugin = get_host().get("articulated-decimation", "quartic")
+    area = 0.5 * np.abs(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])[:, 2]).sum()
+    for border_weight, keeps in ((1.0, True), (0.0, False)):
+        asset.extras.clear()
+        plugin.apply(asset, plugin.parse_params({"targets": [12], "backend": backend,
+                                                 "border_weight": border_weight}), StepContext())
+        lv = asset.levels[0]
+        P, G = lv.mesh.V, np.asarray(lv.mesh.F)
+        got = 0.5 * np.abs(np.cross(P[G[:, 1]] - P[G[:, 0]], P[G[:, 2]] - P[G[:, 0]])[:, 2]).sum()
+        assert lv.n_faces <= 14
+        assert (got == pytest.approx(area, rel=1e-9)) == keeps, (border_weight, got, area)

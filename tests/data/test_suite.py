@@ -65,7 +65,7 @@ def test_index_matches_the_file(character):
 def test_rigslim_reads_every_clip_as_a_moving_skin(character):
     """Each clip reads; each clip to fit, hold out or render poses the mesh: some vertex moves by > 1 % of the
     bind diagonal between the clip's frames (other clips may be held poses, e.g. minetest's ``lay``)."""
-    from rigslim.blend import linear_blend
+    from rigslim.numerics.blend import linear_blend
 
     used = set(character.fit_clips) | set(character.holdout_clips) | {r["clip"] for r in character.test_renders}
     for clip in character.clip_names:
