@@ -60,9 +60,17 @@ def _rigslim() -> list[str]:
     return [str(exe)] if exe.exists() else RIGSLIM
 
 
-def sheets_for(c, out: Path, tmp: Path, ratios: list[float], size: int, renderer) -> list[dict]:
+def level_ratio(ratio: float, faces: int, floor: int = 0) -> float:
+    """``ratio``, raised so that the level keeps at least ``floor`` faces (at most 0.5): a 10 % level of a
+    700-face wolf is 70 faces, which no game ships; its far level is a few hundred faces."""
+    if floor and faces * ratio < floor:
+        return round(min(0.5, floor / faces), 2)
+    return ratio
+
+
+def sheets_for(c, out: Path, tmp: Path, ratios: list[float], size: int, renderer, floor: int = 0) -> list[dict]:
     rows = []
-    for ratio in ratios:
+    for ratio in sorted({level_ratio(r, c.faces, floor) for r in ratios}, reverse=True):
         try:
             level = rigslim_level(c.path, tmp, ratio)
         except RuntimeError as e:
@@ -132,6 +140,8 @@ def main(argv=None) -> int:
     ap.add_argument("--ratios", default="0.25,0.1")
     ap.add_argument("--only", nargs="*", default=None)
     ap.add_argument("--size", type=int, default=220)
+    ap.add_argument("--floor", type=int, default=0,
+                    help="raise a ratio so that the level keeps at least this many faces (e.g. 250)")
     ap.add_argument("--keep", type=Path, default=None,
                     help="keep the level files here and reuse those already there (re-render without re-running)")
     args = ap.parse_args(argv)
@@ -145,7 +155,7 @@ def main(argv=None) -> int:
         for c in suite(args.only):
             work = (args.keep or Path(tmp)) / c.name
             work.mkdir(parents=True, exist_ok=True)
-            rows.extend(sheets_for(c, args.out, work, ratios, args.size, renderer))
+            rows.extend(sheets_for(c, args.out, work, ratios, args.size, renderer, args.floor))
     # the summary covers every sheet in the folder (earlier runs with --only included), in suite order
     order = {c.name: i for i, c in enumerate(suite())}
     done = {(r["character"], r["ratio"]): r for r in rows}

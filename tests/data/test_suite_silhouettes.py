@@ -1,24 +1,28 @@
 """Issue 25: every suite character's coarsest level, rendered posed in three.js, keeps the original's silhouette.
 
-For each character of the suite, ``rigslim lod CHAR.glb --ratios 0.1 --split``
-(the far level the issue is about, otherwise defaults) is rendered by three.js
+For each character of the suite, ``rigslim lod CHAR.glb --ratios R --split``
+with R = 10 % (the far level the issue is about), raised to keep at least 250
+faces (at most 50 %) for the small characters (wolf 36 %, mangonel 22 %,
+re_drone 13 %, minetest_character 50 %), otherwise defaults, is rendered by three.js
 in headless Chromium at the index's test poses (clip, time), from the
 character's side and from its front, with the camera that frames the
 original in that pose (support.posed_render). The silhouette difference is
-``shape_diff = |(A ^ B) minus a 2-pixel band around A's outline| / |A|`` at
-320 x 320 pixels: the share of the original's silhouette area that the level
-loses or adds beyond a 2-pixel outline shift. Webbing between legs adds
-area, a collapsed tail or spiked feet lose or add it, and they count in full.
+``shape_diff = (|A \\ D(B)| + |B \\ D(A)|) / |A|`` at 220 x 220 pixels, where
+``D`` dilates a silhouette by 2 pixels: the pixels of either silhouette
+farther than 2 pixels from the other, as a share of the original's area. An
+outline moved by a pixel or two counts nothing; webbing between legs, a
+collapsed tail or a spiked foot count in full, however thin.
 
 The threshold, ``MAX_SHAPE_DIFF = 4 %`` of the silhouette area at the worst
 pose and view (220 x 220 pixels), comes from measuring the two peers at
 rigslim's face counts (benchmarks/lod_sheets.py; sheets and table in the
-suite helper's notes): on every suite character at least one of
-glTF-Transform and gltfpack stays within it (the better peer's worst:
-bcn_epileptic 0.2 %, wuson 0.8 %, frankie 1.9 %, snoutx10k 1.4 %, mrfixit
-0.3 %, re_player 0.3 %, re_drone 3.5 %, the highest), while the defects the
-issue lists score more: webbed legs 8-23 %, a spike tail with a flattened
-flank 5.8 %, a head pinched to a point 13.9 %, boxes flattened 45 %.
+suite helper's notes, main 06eb2ad): on every suite character at least one
+of glTF-Transform and gltfpack stays within it (the better peer's worst:
+bcn_epileptic 0.2 %, wuson 1.5 %, frankie 2.8 %, snoutx10k 1.5 %, mrfixit
+0.6 %, re_player 1.2 %, re_drone 3.8 % (at 10 %), the highest; PEER_LIMITS below for the two
+characters where both peers exceed it), while the
+defects the issue lists score more: webbed legs 7.7-22 %, a spike tail with a
+flattened flank 9 %, a head pinched to a point 13.8 %, boxes flattened 44 %.
 Characters whose level fails today are ``xfail(strict=True)`` with the defect
 seen on the sheets; when a fix lands the test turns XPASS and fails, and the
 mark is to be removed (/work/coord/requests/lod.md names them).
@@ -44,20 +48,30 @@ from rigslim.cli import main as rigslim
 MAX_SHAPE_DIFF = 0.04
 SIZE = (220, 220)
 RATIO = 0.1
+FLOOR = 250         # faces: the far level of a small character (wolf 696, mangonel 1,158, drone 1,926 faces)
+
+#: Where even the better peer exceeds MAX_SHAPE_DIFF at rigslim's face count, the limit is the better peer's
+#: score (rigslim must not be worse than the best open tool): wolf at 250 faces, gltf-transform 7.0 % (its tail
+#: thinned to a spike, a hind leg webbed), gltfpack 7.4 %; mangonel at 22 % (rigslim stops at 315 faces),
+#: gltfpack 9.6 % at 273 (the throwing arm lost), gltf-transform 10.0 % (it cannot go below 512 faces; the sling
+#: rope webbed into a sheet).
+PEER_LIMITS: dict[str, float] = {"wolf": 0.07, "mangonel": 0.096}
 
 #: Characters whose 10 % level fails today, with what the sheets show (benchmarks/lod_sheets.py).
 FAILING: dict[str, str] = {
     "wuson": "10 % level (523 faces): the tail collapsed into a short spike, a flank flattened, forelegs thinned "
-             "(5.8 %; gltf-transform 0.8 % at 519 faces)",
-    "frankie": "10 % level (479 faces): the kicking arm lost, tail cards bloated (5.3 %; gltfpack 1.9 %)",
-    "snoutx10k": "10 % level (470 faces): back armour and head eroded, legs thinned all round (16.1 %; "
-                 "gltf-transform 1.4 %)",
-    "mrfixit": "10 % level (386 faces): legs webbed from the crotch to the knees, feet lost, head flattened "
-               "(11.0 %; gltf-transform 0.3 %)",
-    "re_drone": "10 % level (236 faces): head pinched to a point, legs webbed into one blade (13.9 %; "
-                "gltf-transform 3.5 %)",
-    "minetest_character": "84 -> 28 faces with no error bound: every box flattened into a sheet, the head a wedge "
-                          "(44.8 %; gltf-transform keeps 84 faces)",
+             "(9.0 % on main 06eb2ad; gltf-transform 1.5 % at 519 faces)",
+    "frankie": "10 % level (479 faces): the kicking arm lost, tail cards bloated (7.8 %; gltfpack 2.8 %)",
+    "snoutx10k": "10 % level (482 faces): back armour and head eroded, legs thinned all round (18.7 %; "
+                 "gltf-transform 1.5 %)",
+    "mrfixit": "10 % level (382 faces): legs webbed from the crotch to the knees, feet lost, head flattened "
+               "(13.2 %; gltf-transform 0.6 %)",
+    "re_player": "10 % level (500 faces): head crest lost, the trailing foot a flat paddle, back thinned "
+                 "(5.6 %; gltf-transform 1.2 %; 2.5 % before the border-plane change cc9509e)",
+    "re_drone": "13 % level (250 faces; at 10 %, 240 faces: 13.8 %, gltf-transform 3.8 %): head pinched to a "
+                "point, legs webbed into one blade",
+    "minetest_character": "84 -> 42 faces at 50 % with no error bound: closed boxes flattened into sheets, the head "
+                          "a wedge (at 25 %, 28 faces: 44 %; gltf-transform keeps all 84 faces)",
 }
 
 browser = pytest.mark.skipif(available() is not None, reason=str(available()))
@@ -82,8 +96,11 @@ def renderer():
 
 
 def coarsest_level(c, folder: Path) -> Path:
+    from benchmarks.lod_sheets import level_ratio
+
     out = folder / f"{c.name}.glb"
-    assert rigslim(["lod", str(c.path), "-o", str(out), "--ratios", str(RATIO), "--split"]) == 0
+    ratio = level_ratio(RATIO, c.faces, FLOOR)
+    assert rigslim(["lod", str(c.path), "-o", str(out), "--ratios", f"{ratio:g}", "--split"]) == 0
     levels = sorted(folder.glob(f"{c.name}-*.glb"))
     assert levels, f"rigslim lod wrote no level for {c.name}"
     return min(levels, key=lambda p: p.stat().st_size)
@@ -107,8 +124,9 @@ def test_coarsest_level_keeps_the_silhouette(character, renderer, tmp_path):
     level = coarsest_level(character, tmp_path)
     worst, where, rows = worst_difference(renderer, character, character.path, level)
     table = "; ".join(f"{w}: {100 * d:.1f}%" for d, w, _ in rows)
-    assert worst <= MAX_SHAPE_DIFF, (f"{character.name} {level.name}: silhouette differs by {100 * worst:.1f}% "
-                                     f"of its area at {where} (limit {100 * MAX_SHAPE_DIFF:g}%): {table}")
+    limit = max(MAX_SHAPE_DIFF, PEER_LIMITS.get(character.name, 0.0))
+    assert worst <= limit, (f"{character.name} {level.name}: silhouette differs by {100 * worst:.1f}% "
+                            f"of its area at {where} (limit {100 * limit:g}%): {table}")
 
 
 def _spiked(src: Path, dst: Path, fraction: float = 0.02, drop: float = 0.15) -> None:
