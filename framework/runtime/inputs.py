@@ -69,7 +69,7 @@ def read_inputs(doc: PipelineDoc, base: Path, host: PluginHost, ctx: StepContext
             if not cands:
                 raise PipelineError(f"unknown input '{role}'", source=source, field=f"inputs.{role}",
                                     fix=closest(role, roles_known))
-            fitting = [r for r in cands if file.suffix.lower() in r.suffixes]
+            fitting = host.by_suffix("reader", file.suffix, role)  # two readers: DuplicatePluginError
             if not fitting:
                 sufs = sorted({s for r in cands for s in r.suffixes})
                 raise PipelineError(f"no reader for '{file.suffix}' files as {role}", source=source,
@@ -79,7 +79,8 @@ def read_inputs(doc: PipelineDoc, base: Path, host: PluginHost, ctx: StepContext
             raise PipelineError("input file not found", source=file, field=f"inputs.{role}",
                                 fix="check the path (relative paths are relative to the pipeline file)")
         params = _check_params(reader, spec, source, f"inputs.{role}")
-        reader.read(file, asset, params, ctx)
+        with host.calling("reader", reader.name, f"inputs.{role}"):
+            reader.read(file, asset, params, ctx)
         asset.provenance.setdefault("inputs", {})[role] = str(file)
     if asset.poses is None and asset.handles is not None:
         asset.provenance["poses"] = "rest pose only"

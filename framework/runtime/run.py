@@ -14,7 +14,7 @@ from rigslim.errors import PipelineError, RigslimError
 from rigslim.io.atomic import atomic_path, check_output, output_transaction
 from rigslim.model.asset import Asset
 from rigslim.model.weights import influence_counts
-from rigslim.plugin.contract import StepContext
+from rigslim.plugin.contract import StepContext, returned
 from rigslim.plugin.evaluation import Evaluation
 from rigslim.plugin.host import PluginHost, get_host
 from rigslim.runtime.document import Step, _check_params, load_pipeline
@@ -83,8 +83,9 @@ def _run_pipeline(path, *, overrides, metrics_path, host, console, on_evaluation
             try:
                 entry = _run_step(step, asset, host, ctx, base, path, document)
             except RigslimError as e:
-                if not e.source:
-                    e.source = f"{path} steps[{step.index}] ({step.key})"
+                if not e.source:  # a field naming the step (a plugin's failure) needs only the file
+                    e.source = str(path) if (e.field or "").startswith(f"steps[{step.index}]") else \
+                        f"{path} steps[{step.index}] ({step.key})"
                     e.args = (e.one_line(),)
                 raise
         entry.update({"seconds": time.perf_counter() - t})
@@ -117,7 +118,9 @@ def _run_step(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base
     if runner is not None:
         return runner(step, asset, host, ctx, base, source, document, entry)
     plugin = host.get(step.stage, step.plugin)
-    entry.update(plugin.apply(asset, plugin.parse_params(step.params), ctx))
+    params = plugin.parse_params(step.params)
+    with host.calling(step.stage, step.plugin, f"steps[{step.index}].{step.key}"):
+        entry.update(plugin.apply(asset, params, ctx))
     return entry
 
 
@@ -128,8 +131,12 @@ def _run_evaluate(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, 
     levels: list[dict] = []
     for name, p in step.plugin:
         metric = host.get("metric", name)
-        with np.errstate(over="ignore", invalid="ignore"):  # non-finite results: null + note in the JSON
-            values = dict(metric.compute(evaluation, metric.parse_params(p), ctx))
+        params = metric.parse_params(p)
+        with host.calling("metric", name, f"steps[{step.index}].evaluate.{name}"), \
+                np.errstate(over="ignore", invalid="ignore"):  # non-finite results: null + note in the JSON
+            result = metric.compute(evaluation, params, ctx)
+        returned(metric, "compute", result, dict, "a dict of metric values")
+        values = dict(result)
         merge_levels(levels, values.pop("levels", None) or [])
         metrics.update(values)
     label = step.name if step.name != f"evaluate{step.index}" else _default_label(document, asset)
@@ -159,7 +166,7 @@ def _run_write(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, bas
     ctx.document = document
     writers = host.plugins("writer")
     if name is None:
-        fitting = [w for w in writers.values() if out.suffix.lower() in w.suffixes]
+        fitting = host.by_suffix("writer", out.suffix)  # two writers taking the suffix: DuplicatePluginError
         if not fitting:
             sufs = sorted({s for w in writers.values() for s in w.suffixes})
             raise PipelineError(f"no writer for '{out.suffix}' files", source=source,
@@ -167,7 +174,9 @@ def _run_write(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, bas
         writer = fitting[0]
     else:
         writer = host.get("writer", name)
-    writer.write(out, asset, _check_params(writer, params, source, f"steps[{step.index}]"), ctx)
+    checked = _check_params(writer, params, source, f"steps[{step.index}]")
+    with host.calling("writer", writer.name, f"steps[{step.index}].{step.key}"):
+        writer.write(out, asset, checked, ctx)
     entry.update({"plugin": writer.name, "path": str(out)})
     return entry
 
