@@ -118,13 +118,15 @@ CHARACTERS = [
               "CC-BY-SA-3.0", "Wildfire Games (0 A.D.)", "pmd_wolf",
               fit=["walk", "idle", "attack"], holdout=["run", "death"],
               test=[("run", 0.2), ("attack", 1.0)], front=180,
-              notes="in usr/share/games/0ad/mods/public/public.zip; 0 A.D.'s cached PMD/PSA converted by pmd2gltf.py (skeleton from art/skeletons/wolf.xml); "
-                    "no texture (0 A.D. ships its textures as DDS); one primitive, 696 faces"),
+              notes="in usr/share/games/0ad/mods/public/public.zip; 0 A.D.'s cached PMD/PSA converted by "
+                    "pmd2gltf.py (skeleton from art/skeletons/wolf.xml); no texture (0 A.D. ships "
+                    "its textures as DDS); one primitive, 696 faces"),
     Character("mangonel", "mechanical (trebuchet, with ropes)", "0ad-data",
               "art/meshes/structural/han_mangonel.dae.cached.pmd", "CC-BY-SA-3.0", "Wildfire Games (0 A.D.)",
               "pmd_mangonel", fit=["attack"], test=[("attack", 1.0), ("attack", 2.0)], front=0,
-              notes="in usr/share/games/0ad/mods/public/public.zip; rigid parts (beams, arm, counterweight) and rope chains, 1-2 influences; `idle` is a held "
-                    "pose (0.1 s): one moving clip, fit on even frames of attack, test on odd ones"),
+              notes="in usr/share/games/0ad/mods/public/public.zip; rigid parts (beams, arm, counterweight) "
+                    "and rope chains, 1-2 influences; `idle` is a held pose (0.1 s): "
+                    "one moving clip, fit on even frames of attack, test on odd ones"),
 ]
 
 
