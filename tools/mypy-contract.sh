@@ -20,4 +20,8 @@ cd "$tmp"
 "$MYPY" --config-file "$root/pyproject.toml" --cache-dir /dev/null --follow-imports=silent \
     -m rigslim.plugin -m rigslim.plugin.contract -m rigslim.plugin.hookspecs -m rigslim.plugin.host \
     -m rigslim.plugin.evaluation -m rigslim.model.asset -m rigslim.api -m rigslim.runtime.metrics_document \
-    -m rigslim.numerics.k_largest -m rigslim.compat "$@"
+    -m rigslim.numerics.k_largest -m rigslim.compat -m rigslim.commands.plugins "$@"
+# The example plugin package, strictly: what docs/plugins.md teaches type-checks.
+cp -r "$root/examples/rigslim-absweights/rigslim_absweights" "$tmp/"
+"$MYPY" --config-file "$root/pyproject.toml" --cache-dir /dev/null --follow-imports=silent --strict \
+    -p rigslim_absweights

@@ -109,8 +109,8 @@ def _cmd_plugins(args: Any) -> int:
         from rich.console import Console
 
         console = Console()
-        for i, info in enumerate(found):
-            if i:
+        for n, info in enumerate(found):
+            if n:
                 console.print()
             _print_one(console, info)
         return 0
@@ -124,8 +124,8 @@ def _cmd_plugins(args: Any) -> int:
     table = Table(title="rigslim plugins")
     for col in ("stage", "name", "package", "version", "summary"):
         table.add_column(col, overflow="fold")
-    for i in infos:
-        table.add_row(i.stage, i.name, i.package, i.version, i.summary)
+    for row in infos:
+        table.add_row(row.stage, row.name, row.package, row.version, row.summary)
     Console().print(table)
     if host.disabled:
         print(f"rigslim: not loaded (RIGSLIM_DISABLE_PLUGINS): {', '.join(host.disabled)}", file=sys.stderr)

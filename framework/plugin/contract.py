@@ -163,6 +163,17 @@ class Plugin(Generic[P]):
     summary: ClassVar[str] = ""
     Params: ClassVar[type[Params]] = Params
 
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """``class MySolver(WeightSolver[MyParams])`` sets ``Params = MyParams`` (the typed idiom, docs/plugins.md)."""
+        super().__init_subclass__(**kwargs)
+        if "Params" in cls.__dict__:
+            return
+        for base in cls.__dict__.get("__orig_bases__", ()):
+            args = typing.get_args(base)
+            if args and isinstance(args[0], type) and issubclass(args[0], Params):
+                cls.Params = args[0]
+                return
+
     def parse_params(self, raw: dict[str, Any]) -> P:
         """Validate raw parameters (from YAML) into the plugin's ``Params`` model."""
         return self.Params(**raw)  # type: ignore[return-value]
