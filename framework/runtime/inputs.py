@@ -39,6 +39,11 @@ def read_inputs(doc: PipelineDoc, base: Path, host: PluginHost, ctx: StepContext
     inputs = dict(doc.inputs)
     normalize = inputs.pop("normalize", None)
     if "gltf" in inputs:
+        clash = [r for r in ("mesh", "skeleton", "weights", "cage") if r in inputs]
+        if clash:   # the glTF reader fills the mesh, joints and weights: another file would silently replace them
+            raise PipelineError(f"'gltf:' reads the mesh, skeleton and weights, so 'inputs.{clash[0]}' would replace "
+                                "the glTF's own", source=source, field=f"inputs.{clash[0]}",
+                                fix=f"remove '{clash[0]}:' (choose a glTF mesh with 'gltf: {{path: ..., mesh: NAME}}')")
         inputs = _gltf_inputs(inputs)
     readers = host.readers()
     specs = {}

@@ -19,7 +19,7 @@ from rigslim.plugin.evaluation import Evaluation
 from rigslim.plugin.host import PluginHost, get_host
 from rigslim.runtime.document import Step, _check_params, load_pipeline
 from rigslim.runtime.inputs import read_inputs
-from rigslim.runtime.metrics_document import SCHEMA_VERSION, merge_levels
+from rigslim.runtime.metrics_document import SCHEMA_VERSION, UNITS, merge_levels
 
 
 @dataclass
@@ -60,6 +60,7 @@ def _run_pipeline(path, *, overrides, metrics_path, host, console, on_evaluation
         asset = read_inputs(doc, base, host, reporter.context(base), path)
     document = {
         "schema_version": SCHEMA_VERSION,
+        "units": dict(UNITS),
         "rigslim_version": rigslim.__version__,
         "pipeline": str(path),
         "pipeline_file": str(path.resolve()),
