@@ -35,10 +35,11 @@ from rigslim.errors import RigslimError  # noqa: E402
 
 _configure_numba_threads()  # before numba is imported: a new-enough TBB, or none (rigslim.device.numba_threads)
 
+from rigslim.plugin.contract import PLUGIN_API_VERSION  # noqa: E402
 from rigslim.plugin.hookspecs import hookimpl  # noqa: E402
 
-__all__ = ["__version__", "RigslimError", "hookimpl", "Pipeline", "RunResult", "reduce_weights", "registry",
-           "simplify"]
+__all__ = ["__version__", "PLUGIN_API_VERSION", "RigslimError", "hookimpl", "Pipeline", "RunResult", "reduce_weights",
+           "registry", "simplify"]
 
 _API = {"Pipeline": "rigslim.api", "reduce_weights": "rigslim.api", "registry": "rigslim.api",
         "simplify": "rigslim.api", "RunResult": "rigslim.runtime.run"}

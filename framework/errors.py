@@ -98,8 +98,16 @@ class PluginNotFoundError(PipelineError):
     """A stage or plugin name that no loaded plugin provides."""
 
 
+class DuplicatePluginError(PipelineError):
+    """Two loaded plugins answer to one name, or take one file suffix: rigslim never picks one silently."""
+
+
 class StepError(RigslimError):
     """A step cannot run on what the pipeline produced so far."""
+
+
+class PluginError(StepError):
+    """A plugin's code failed, or returned what its stage does not take; the message names the plugin and package."""
 
 
 def closest(name: str, choices, n: int = 3) -> str:

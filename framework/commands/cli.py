@@ -2,7 +2,8 @@
 
 ``rigslim run PIPELINE.yaml [--metrics FILE.json] [--set STEP.PARAM=VALUE | STEP=PLUGIN]``
 runs a pipeline; ``rigslim report METRICS.json [...] -o report.html`` writes an
-HTML report of runs; ``rigslim plugins [--json]`` lists loaded plugins. Errors a
+HTML report of runs; ``rigslim plugins [NAME] [--json]`` lists loaded plugins (or one plugin's
+parameters). Errors a
 user can cause print one line and exit with status 2.
 """
 
@@ -61,7 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("--allow-external-uris", action="store_true",
                         help="let glTF buffer/image URIs name files outside the glTF's folder (trusted files only)")
     report.set_defaults(func=_cmd_report)
-    plugins = sub.add_parser("plugins", help="list loaded plugins")
+    plugins = sub.add_parser("plugins", help="list loaded plugins, or one plugin's parameters")
+    plugins.add_argument("name", nargs="?", metavar="NAME",
+                         help="a plugin's name: its parameters with types, defaults and descriptions")
     plugins.add_argument("--json", action="store_true", help="machine-readable output")
     plugins.set_defaults(func=_cmd_plugins)
     from rigslim.commands.cli import add_commands  # reduce, lod, compare, inspect (docs/gltf.md)
@@ -87,6 +90,8 @@ def main(argv=None) -> int:
     import threading
     import warnings
 
+    from rigslim.plugin.host import PluginLoadWarning
+
     parser = build_parser()
     args = parser.parse_args(argv)
     previous = None
@@ -101,10 +106,17 @@ def main(argv=None) -> int:
         with warnings.catch_warnings(record=True) as caught:
             code = args.func(args)
         for w in caught:
+            if issubclass(w.category, PluginLoadWarning):  # a skipped plugin package: one line, no source line
+                print(f"rigslim: warning: {w.message}", file=sys.stderr)
+                continue
             warnings.showwarning(w.message, w.category, w.filename, w.lineno, line=w.line)
         return code
     except RigslimError as e:
         print(f"rigslim: error: {e.one_line()}", file=sys.stderr)
+        if os.environ.get("RIGSLIM_TRACEBACK"):  # a plugin's failure (PluginError) chains the original
+            import traceback
+
+            traceback.print_exception(e)
         return EXIT_USER_ERROR
     except KeyboardInterrupt as e:
         print("rigslim: interrupted; every output is either unchanged or complete", file=sys.stderr)
@@ -148,6 +160,9 @@ def add_commands(sub) -> None:
     p.add_argument("--max-bones", type=int, default=4, help="influences per vertex at every level (default 4)")
     p.add_argument("--method", default="quartic", help="decimator (quartic, mohr-gleicher, decoro-rusinkiewicz)")
     p.add_argument("--quantize", choices=["ubyte", "ushort", "float"], default="ubyte")
+    p.add_argument("--max-error", default="1%", metavar="E",
+                   help="stop a level where the error would pass E: %% of the world diagonal (1, 1%%), metres "
+                        "(0.02m), or none (default 1%%)")
     p.add_argument("--split", action="store_true", help="one file per level: OUT-50.glb, OUT-25.glb")
     p.add_argument("--measure", action="store_true", help="also measure each level (metro) on the test frames")
     add_level_arguments(p)

@@ -48,12 +48,31 @@ def split_names(out: Path, ratios) -> list[Path]:
     return [out.with_name(f"{out.stem}-{r * 100:g}{out.suffix}") for r in ratios]
 
 
+#: ``--max-error`` default: 1 % of the first test pose's world diagonal (gltfpack's ``-se`` default is 1 %).
+DEFAULT_MAX_ERROR = "1%"
+
+
+def parse_max_error_option(text: str) -> str | None:
+    """``--max-error``: ``E`` or ``E%`` (% of the world diagonal), ``Em`` (metres), ``none``."""
+    from rigslim.errors import StepError
+    from rigslim.model.units import parse_length_bound
+
+    try:
+        parsed = parse_length_bound(text, "--max-error")
+    except StepError:
+        raise InputError(f"--max-error '{text}' is not an error bound", field="--max-error",
+                         fix="give a percentage of the world diagonal (1 or 1%), metres (0.02m), or none") from None
+    return None if parsed is None else f"{parsed[0]:g}{parsed[1]}"
+
+
 def lod_pipeline(src: Path, out: Path, *, ratios, max_bones: int, clip, fps: float, frames: int, quantize: str,
                  method: str = "quartic", measure: bool = False, skin: int | None = None,
-                 joints: dict | None = None, coverage: dict | None = None) -> dict:
+                 max_error: str | None = DEFAULT_MAX_ERROR, joints: dict | None = None,
+                 coverage: dict | None = None) -> dict:
     """The pipeline ``rigslim lod`` runs: a decimation step with a bone limit (and ``joints``: the joint budget,
     :func:`rigslim.commands.lod_levels.decimate_params`), then the LOD writer (``coverage``: its switch camera)."""
-    steps = [{"decimate": method, "targets": list(ratios), "max_bones": max_bones, **(joints or {})}]
+    steps = [{"decimate": method, "targets": list(ratios), "max_bones": max_bones,
+              "max_error": "none" if max_error is None else max_error, **(joints or {})}]
     if measure:
         steps.append({"evaluate": ["metro", "max-influences"]})
     write = write_step(out, quantize=quantize, lod=True, clamp_negative=True)
@@ -75,6 +94,7 @@ def cmd_lod(args) -> int:
     if not 1 <= args.max_bones <= (64 if is_usd(out) else 8):
         raise InputError(f"--max-bones {args.max_bones}: glTF holds 1 to 8 influences per vertex",
                          field="--max-bones", fix="give 1..8 (4 for three.js and most engines)")
+    max_error = parse_max_error_option(args.max_error)
     joints, coverage = decimate_params(args, len(ratios)), write_params(args)
     frames, clip, duration = clip_frames(src, args.clip, args.fps)
     if frames < 2:
@@ -84,25 +104,29 @@ def cmd_lod(args) -> int:
         target = Path(tmp) / f"lod{out.suffix}" if args.split else out
         runs = _chain(src, target, lambda i, o, s: lod_pipeline(
             i, o, ratios=ratios, max_bones=args.max_bones, clip=args.clip, fps=args.fps, frames=frames,
-            quantize=args.quantize, method=args.method, measure=args.measure, skin=s, joints=joints,
-            coverage=coverage), args, console, Path(tmp))
+            quantize=args.quantize, method=args.method, measure=args.measure, skin=s, max_error=max_error,
+            joints=joints, coverage=coverage), args, console, Path(tmp))
         pipeline, result, _ = runs[0]
         seconds = sum(r[2] for r in runs)
+        step = next(s for s in result.document["steps"] if s["stage"] == "decimate")
+        targets = step.get("report", {}).get("targets") or [{"target": r, "same_as": None} for r in ratios]
+        kept = [t for t in targets if t["same_as"] is None]
         outputs = [out]
         if args.split:
-            outputs = split_names(out, ratios)
+            outputs = split_names(out, [t["target"] for t in kept])
             split_levels(target, outputs)
-    step = next(s for s in result.document["steps"] if s["stage"] == "decimate")
     write = result.document["steps"][-1].get("report", {})
     rows = []
-    for r, row in zip(ratios, level_rows(result), strict=False):
-        rows.append({"ratio": r} | row)
+    for t, row in zip(kept, level_rows(result), strict=False):
+        rows.append({"ratio": t["target"]} | row | {"target_faces": t.get("target_faces"), "error": t.get("error"),
+                                                    "max_error": t.get("max_error"), "stopped": t.get("stopped")})
     per_prim = {x["label"]: x["primitive_faces"] for x in write.get("level_primitives", [])}
     for row in rows:
         row["primitive_faces"] = per_prim.get(row["label"])
     doc = _header("lod") | {"input": str(src), "outputs": [str(p) for p in outputs], "clip": clip,
                              "clip_seconds": duration, "frames": frames, "ratios": ratios,
                              "max_bones": args.max_bones, "method": args.method, "split": args.split,
+                             "max_error": max_error, "targets": targets,
                              "input_faces": step.get("report", {}).get("input_faces"),
                              "locked_seam_vertices": step.get("report", {}).get("locked_seam_vertices"),
                              "levels": rows, "seconds": seconds,
@@ -125,9 +149,22 @@ def cmd_lod(args) -> int:
     faces = ", ".join(f"{r['faces']}" for r in rows)
     print(f"wrote {', '.join(str(p) for p in outputs)}: {len(rows)} levels ({faces} faces of "
           f"{doc['input_faces']}), at most {args.max_bones} bones per vertex, {seconds:.2f} s")
-    for r in rows:
-        if r["faces"] > 1.05 * r["ratio"] * (doc["input_faces"] or 0):
-            print(f"rigslim lod: level {r['label']} stopped at {r['faces']} faces: no valid collapse was left "
-                  f"(seam corners and mesh boundaries stay fixed; {doc['locked_seam_vertices']} seam vertices)",
-                  file=sys.stderr)
+    for t in targets:
+        _say_where_it_stopped(t, max_error, doc["locked_seam_vertices"])
     return 0
+
+
+def _say_where_it_stopped(t: dict, max_error: str | None, seam_vertices) -> None:
+    """One stderr line for a target the level did not reach: the bound, no collapse left, or a finer level."""
+    if "faces" not in t or t["faces"] <= 1.03 * t["target_faces"]:
+        return
+    where = f"target {t['target']:g} ({t['target_faces']} faces)"
+    if t["same_as"] is not None:
+        print(f"rigslim lod: {where} not reached: it ends at the {t['faces']} faces of level {t['same_as']}, "
+              f"so it has no level of its own", file=sys.stderr)
+    elif t["stopped"] == "max_error":
+        print(f"rigslim lod: level {t['label']} stopped at {t['faces']} faces, {where}: the next collapse exceeds "
+              f"--max-error {max_error} (--max-error none goes on)", file=sys.stderr)
+    else:
+        print(f"rigslim lod: level {t['label']} stopped at {t['faces']} faces, {where}: no valid collapse was left "
+              f"(seam corners and parts' borders stay; {seam_vertices} seam vertices)", file=sys.stderr)

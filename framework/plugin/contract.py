@@ -68,8 +68,13 @@ if TYPE_CHECKING:
     from rigslim.model.weights import InfluenceSets, ReducedWeights
     from rigslim.plugin.evaluation import Evaluation
 
+#: Version of this contract (the stage classes, their calls, hooks and what the host checks; docs/plugins.md,
+#: "What is stable"). A plugin package may set ``RIGSLIM_PLUGIN_API = "1.0"`` in its entry-point module: it
+#: loads where the major version is the same and the minor version is at least its own.
+PLUGIN_API_VERSION = "1.0"
+
 __all__ = [
-    "Params", "StepContext", "Plugin", "Reader", "Writer", "WeightGenerator", "InfluenceSelector",
+    "PLUGIN_API_VERSION", "Params", "StepContext", "Plugin", "Reader", "Writer", "WeightGenerator", "InfluenceSelector",
     "WeightSolver", "Decimation", "Decimator", "Deformer", "NormalEstimator", "Metric", "STAGES",
     "STEP_STAGES", "STAGE_HOOKS", "MetricValue", "aggregate",
 ]
@@ -77,9 +82,10 @@ __all__ = [
 
 class Params(BaseModel):
     """Base of every plugin's parameter model: unknown names are errors, and ``true``/``false``
-    is not a number (pydantic would read ``k: true`` as ``k = 1``)."""
+    is not a number (pydantic would read ``k: true`` as ``k = 1``). A string literal under a field
+    is its description (``rigslim plugins NAME`` prints it)."""
 
-    model_config = ConfigDict(extra="forbid", arbitrary_types_allowed=True)
+    model_config = ConfigDict(extra="forbid", arbitrary_types_allowed=True, use_attribute_docstrings=True)
 
     @field_validator("*", mode="before")
     @classmethod
@@ -93,6 +99,15 @@ P = TypeVar("P", bound=Params)
 
 #: A step's entry fields for the metrics document (``{"k": 4}``...).
 StepEntry = dict[str, Any]
+
+
+def returned(plugin: Plugin[Any], call: str, value: object, kind: type | tuple[type, ...], what: str) -> None:
+    """Raise a :class:`~rigslim.errors.PluginError` when ``plugin.call()`` returned something not of ``kind``."""
+    if not isinstance(value, kind):
+        from rigslim.errors import PluginError, brief
+
+        raise PluginError(f"{plugin.stage} '{plugin.name}': {call}() returned {brief(value)} "
+                          f"({type(value).__name__}), not {what}")
 
 
 def _no_progress(iterable: Iterable[Any], total: int | None = None, description: str = "") -> Iterable[Any]:
@@ -147,6 +162,17 @@ class Plugin(Generic[P]):
     name: ClassVar[str] = ""
     summary: ClassVar[str] = ""
     Params: ClassVar[type[Params]] = Params
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """``class MySolver(WeightSolver[MyParams])`` sets ``Params = MyParams`` (the typed idiom, docs/plugins.md)."""
+        super().__init_subclass__(**kwargs)
+        if "Params" in cls.__dict__:
+            return
+        for base in cls.__dict__.get("__orig_bases__", ()):
+            args = typing.get_args(base)
+            if args and isinstance(args[0], type) and issubclass(args[0], Params):
+                cls.Params = args[0]
+                return
 
     def parse_params(self, raw: dict[str, Any]) -> P:
         """Validate raw parameters (from YAML) into the plugin's ``Params`` model."""
@@ -205,6 +231,7 @@ class WeightGenerator(Plugin[P]):
         asset.require("mesh", "handles", step=f"generate: {self.name}")
         assert asset.mesh is not None and asset.handles is not None
         W = self.generate(asset, params, ctx)
+        returned(self, "generate", W, (np.ndarray, sp.spmatrix, sp.sparray), "an (m, n) array or sparse matrix")
         asset.weights = validate_weights(W, asset.mesh.n_vertices, n_handles=asset.handles.n,
                                          source=f"generate: {self.name}")
         return {}
@@ -222,7 +249,11 @@ class InfluenceSelector(Plugin[P]):
         raise NotImplementedError
 
     def apply(self, asset: Asset, params: P, ctx: StepContext) -> StepEntry:
-        asset.influences = self.select(asset, params, ctx)
+        from rigslim.model.weights import InfluenceSets
+
+        influences = self.select(asset, params, ctx)
+        returned(self, "select", influences, InfluenceSets, "InfluenceSets (rigslim.model.weights)")
+        asset.influences = influences
         asset.reduced = None
         return {"k": asset.influences.k}
 
@@ -239,7 +270,11 @@ class WeightSolver(Plugin[P]):
         raise NotImplementedError
 
     def apply(self, asset: Asset, params: P, ctx: StepContext) -> StepEntry:
-        asset.reduced = self.solve(asset, params, ctx)
+        from rigslim.model.weights import ReducedWeights
+
+        reduced = self.solve(asset, params, ctx)
+        returned(self, "solve", reduced, ReducedWeights, "ReducedWeights (rigslim.model.weights)")
+        asset.reduced = reduced
         asset.provenance["solver"] = self.name
         return {"k": asset.reduced.k}
 
@@ -274,6 +309,7 @@ class Decimator(Plugin[P]):
 
     def apply(self, asset: Asset, params: P, ctx: StepContext) -> StepEntry:
         result = self.decimate(asset, params, ctx)
+        returned(self, "decimate", result, Decimation, "a Decimation (rigslim.plugin)")
         asset.levels, asset.hierarchy = list(result.levels), result.hierarchy
         asset.provenance["decimator"] = self.name
         return {}

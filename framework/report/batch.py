@@ -9,8 +9,8 @@ One self-contained HTML page (every image a ``data:`` URI) of a
   ``hausdorff_max_pct_max``, ``position_rms_pct_max``, ``normal_rms_rad_max``
   present), each with two renders at its worst test frame: the deformation
   with the full input weights, and with the reduced weights its outputs hold,
-  coloured by each vertex's distance to the full deformation (% of the rest
-  bounding-box diagonal);
+  coloured by each vertex's distance to the full deformation (% of that
+  frame's world-space bounding-box diagonal);
 - every row in a table sorted by clicking a column header.
 
 The renders re-read the asset's inputs through ``DIR/<name>/pipeline.yaml``
@@ -183,7 +183,9 @@ def render_asset(folder: Path, width: int = 320, height: int = 270, backend: str
     T = asset.poses.select([frame]).T[0]
     full = linear_blend(asset.mesh.V, asset.weights, T)
     reduced = linear_blend(asset.mesh.V, R, T)
-    err = 100.0 * np.linalg.norm(full - reduced, axis=1) / asset.mesh.bbox_diagonal
+    from rigslim.numerics.units import diagonal
+
+    err = 100.0 * np.linalg.norm(full - reduced, axis=1) / max(diagonal(full), 1e-300)  # % of the world diagonal
     camera = Camera.fit(np.vstack([full, reduced]), width, height)
     grey = np.array([0.75, 0.75, 0.78])
     img_full, _ = render_mesh(full, asset.mesh.F, grey, camera, backend=backend)

@@ -141,6 +141,8 @@ def world_units_section(documents) -> str:
 
     rows = []
     for doc, source in documents:
+        if int(doc.get("schema_version") or 1) >= 3:    # already in world units and % of the world diagonal
+            continue
         gltf = (doc.get("inputs") or {}).get("gltf")
         diag = (doc.get("mesh") or {}).get("bbox_diagonal")
         if not gltf or not diag or not Path(gltf).is_file():

@@ -91,6 +91,31 @@ _CHECK_JS = """
 """
 
 
+#: Metric keys the main table shows in columns of its own.
+_TABLE_KEYS = {"position_rms_pct", "normal_rms_rad", "normal_median_rad", "normal_p95_rad", "normal_p99_rad",
+               "normal_flipped", "normal_area_rms_rad", "max_influences", "input_max_influences", "mean_influences",
+               "input_mean_influences"}
+
+
+def _other_metrics(rows: list[EvaluationRow], shown: set[str]) -> list[str]:
+    """A table of every other metric key (third-party metrics among them): mean and max, or the value."""
+    keys = sorted({k for r in rows for k in r.metrics} - _TABLE_KEYS - shown)
+    if not keys:
+        return []
+    out = ['<h3>Other metrics</h3><table><thead><tr><th class="l">run / evaluation</th>' +
+           "".join(f"<th>{html.escape(k)}</th>" for k in keys) + "</tr></thead><tbody>"]
+    for r in rows:
+        cells = []
+        for k in keys:
+            v = r.metrics.get(k)
+            text = f"{_fmt(v.get('mean'))} (max {_fmt(v.get('max'))})" if isinstance(v, dict) else \
+                _fmt(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else "&ndash;"
+            cells.append(f"<td>{text}</td>")
+        out.append(f'<tr><td class="l">{html.escape(r.label)}</td>' + "".join(cells) + "</tr>")
+    out.append("</tbody></table>")
+    return out
+
+
 def _table(rows: list[EvaluationRow]) -> str:
     metro_keys = sorted({k for r in rows for k in r.metro})
     names = {"hausdorff_rms_pct": "Metro RMS % mean", "hausdorff_max_pct": "Metro max % mean"}
@@ -118,6 +143,7 @@ def _table(rows: list[EvaluationRow]) -> str:
         cells += [f"<td>{infl}</td>", f"<td>{_fmt(m.get('mean_influences'))}</td>"]
         out.append("<tr>" + "".join(cells) + "</tr>")
     out.append("</tbody></table>")
+    out += _other_metrics(rows, set(metro_keys))
     if any(r.levels for r in rows):
         out.append("<h3>Simplified levels</h3><table><thead><tr><th class=\"l\">run / evaluation</th>"
                    "<th class=\"l\">level</th><th>faces</th><th>Metro RMS % mean</th><th>Metro RMS % max</th>"

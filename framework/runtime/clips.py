@@ -107,7 +107,8 @@ def clip_split(spec, asset, base: Path, source, gltf_params: dict | None = None)
         else:
             label, poses = load_clip(clip, asset, base, source, where, gltf_params)
             sides[name] = (label, poses, frames)
-    offsets, parts = {}, []
+    offsets: dict[str, int] = {}
+    parts: list[Poses] = []
     for name in ("examples", "test"):
         label, poses, _ = sides[name]
         if label not in offsets:

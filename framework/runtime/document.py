@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import yaml
 from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
@@ -66,7 +67,7 @@ def _format_validation(err: ValidationError) -> tuple[str, str]:
     return loc, e["msg"]
 
 
-def load_pipeline(path, overrides: list[str] = (), host: PluginHost | None = None, *,
+def load_pipeline(path, overrides: Sequence[str] = (), host: PluginHost | None = None, *,
                   raw: dict | None = None) -> tuple[PipelineDoc, list[Step]]:
     """Read, validate and parse a pipeline file.
 
@@ -83,7 +84,7 @@ def load_pipeline(path, overrides: list[str] = (), host: PluginHost | None = Non
     host = host or get_host()
     path = Path(path)
     if raw is None:
-        raw = load_yaml_file(path)  # UTF-8, no repeated keys, bounded aliases and nesting
+        raw = cast("dict | None", load_yaml_file(path))  # UTF-8, no repeated keys, bounded aliases and nesting
     if not isinstance(raw, dict):
         raise PipelineError("the document is not a mapping", source=path, field="top level",
                             fix="start with 'inputs:', 'poses:' and 'steps:'")
@@ -122,7 +123,7 @@ def _parse_step(index: int, raw: dict, path: Path, host: PluginHost) -> Step:
     params = {k: v for k, v in raw.items() if k not in (key, "name")}
     value = raw[key]
     if key == "evaluate":
-        plugin = _parse_metrics(value, index, path, host)
+        plugin: str | list[tuple[str, dict]] = _parse_metrics(value, index, path, host)
         name = raw.get("name") or f"evaluate{index}"
     elif key in ("write", "report"):
         if not isinstance(value, str):
@@ -145,6 +146,7 @@ def _parse_step(index: int, raw: dict, path: Path, host: PluginHost) -> Step:
 
 
 def _parse_metrics(value, index, path, host) -> list[tuple[str, dict]]:
+    items: list[tuple[str, dict]]
     if isinstance(value, str):
         items = [(value, {})]
     elif isinstance(value, list):

@@ -39,8 +39,13 @@ def read_inputs(doc: PipelineDoc, base: Path, host: PluginHost, ctx: StepContext
     inputs = dict(doc.inputs)
     normalize = inputs.pop("normalize", None)
     if "gltf" in inputs:
+        clash = [r for r in ("mesh", "skeleton", "weights", "cage") if r in inputs]
+        if clash:   # the glTF reader fills the mesh, joints and weights: another file would silently replace them
+            raise PipelineError(f"'gltf:' reads the mesh, skeleton and weights, so 'inputs.{clash[0]}' would replace "
+                                "the glTF's own", source=source, field=f"inputs.{clash[0]}",
+                                fix=f"remove '{clash[0]}:' (choose a glTF mesh with 'gltf: {{path: ..., mesh: NAME}}')")
         inputs = _gltf_inputs(inputs)
-    readers = host.plugins("reader")
+    readers = host.readers()
     specs = {}
     for role, spec in inputs.items():
         if isinstance(spec, str):
@@ -61,7 +66,7 @@ def read_inputs(doc: PipelineDoc, base: Path, host: PluginHost, ctx: StepContext
         name = spec.pop("reader", None)
         if name is not None:
             try:
-                reader = host.get("reader", name)
+                reader = host.reader(name)
             except PluginNotFound as e:
                 raise PipelineError(e.problem, source=source, field=f"inputs.{role}.reader", fix=e.fix) from None
         else:
@@ -69,7 +74,7 @@ def read_inputs(doc: PipelineDoc, base: Path, host: PluginHost, ctx: StepContext
             if not cands:
                 raise PipelineError(f"unknown input '{role}'", source=source, field=f"inputs.{role}",
                                     fix=closest(role, roles_known))
-            fitting = [r for r in cands if file.suffix.lower() in r.suffixes]
+            fitting = host.by_suffix("reader", file.suffix, role)  # two readers: DuplicatePluginError
             if not fitting:
                 sufs = sorted({s for r in cands for s in r.suffixes})
                 raise PipelineError(f"no reader for '{file.suffix}' files as {role}", source=source,
@@ -79,7 +84,8 @@ def read_inputs(doc: PipelineDoc, base: Path, host: PluginHost, ctx: StepContext
             raise PipelineError("input file not found", source=file, field=f"inputs.{role}",
                                 fix="check the path (relative paths are relative to the pipeline file)")
         params = _check_params(reader, spec, source, f"inputs.{role}")
-        reader.read(file, asset, params, ctx)
+        with host.calling("reader", reader.name, f"inputs.{role}"):
+            reader.read(file, asset, params, ctx)
         asset.provenance.setdefault("inputs", {})[role] = str(file)
     if asset.poses is None and asset.handles is not None:
         asset.provenance["poses"] = "rest pose only"

@@ -1,5 +1,14 @@
 """The metrics document (``rigslim run --metrics FILE.json``): its schema versions and their readers.
 
+Version 3 (written since issue 21) has the same layout as version 2 and one unit everywhere
+(:mod:`rigslim.numerics.units`): every ``*_pct`` position and Hausdorff error is a percentage of the
+world-space bounding-box diagonal of the reference in the first test frame (each metric also gives
+``reference_diagonal_m``), and each has a twin in world units, ``*_m`` (metres for glTF):
+``position_rms_m``, ``hausdorff_rms_m``, ``hausdorff_max_m``. The document's ``units`` says so. In
+versions 1 and 2 the percentages were of the rest (bind-space) mesh's diagonal, which differs from the
+world diagonal when the joints carry a scale (100x for assimp's centimetre FBX conversions);
+:func:`upgrade` keeps their numbers and records that definition in ``units``.
+
 Version 2 (written since rigslim 0.2) carries ``"schema_version": 2`` and gives every
 evaluation the values of simplified levels as a list of records::
 
@@ -18,10 +27,16 @@ from __future__ import annotations
 import copy
 from typing import Any
 
-__all__ = ["SCHEMA_VERSION", "flat_metrics", "merge_levels", "upgrade"]
+__all__ = ["SCHEMA_VERSION", "UNITS", "flat_metrics", "merge_levels", "upgrade"]
 
 #: The version :func:`rigslim.runtime.run.run_pipeline` writes.
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
+#: ``units`` of a version 3 document.
+UNITS = {"pct": "percent of the world-space bounding-box diagonal of the reference in the first test frame",
+         "m": "world units: metres for glTF, the mesh file's units otherwise"}
+#: ``units`` given to an upgraded version 1 or 2 document (its percentages keep their old definition).
+UNITS_V2 = {"pct": "percent of the rest (bind-space) mesh's bounding-box diagonal (schema 1-2)",
+            "m": "world units: metres for glTF, the mesh file's units otherwise"}
 
 
 def merge_levels(levels: list[dict[str, Any]], more: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -54,7 +69,7 @@ def _upgrade_evaluation(evaluation: dict[str, Any]) -> dict[str, Any]:
 
 
 def upgrade(document: dict[str, Any]) -> dict[str, Any]:
-    """A copy of a metrics document (version 1 or 2) in version 2.
+    """A copy of a metrics document (version 1, 2 or 3) in version 3.
 
     Parameters
     ----------
@@ -64,9 +79,15 @@ def upgrade(document: dict[str, Any]) -> dict[str, Any]:
     Returns
     -------
     dict
-        ``schema_version`` 2; each evaluation's ``KEY@LEVEL`` metrics moved into its ``levels``.
+        ``schema_version`` 3; each evaluation's ``KEY@LEVEL`` metrics moved into its ``levels``; ``units``
+        says what the percentages are of (for versions 1 and 2: the rest mesh's diagonal, numbers kept).
     """
     document = copy.copy(document)
+    version = document.get("schema_version", 1)
+    if not isinstance(version, int) or version < 3:
+        document.setdefault("units", dict(UNITS_V2))
+    else:
+        document.setdefault("units", dict(UNITS))
     if isinstance(document.get("evaluations"), list):
         document["evaluations"] = [_upgrade_evaluation(ev) if isinstance(ev, dict) else ev
                                    for ev in document["evaluations"]]

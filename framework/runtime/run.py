@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -14,12 +14,12 @@ from rigslim.errors import PipelineError, RigslimError
 from rigslim.io.atomic import atomic_path, check_output, output_transaction
 from rigslim.model.asset import Asset
 from rigslim.model.weights import influence_counts
-from rigslim.plugin.contract import StepContext
+from rigslim.plugin.contract import StepContext, returned
 from rigslim.plugin.evaluation import Evaluation
 from rigslim.plugin.host import PluginHost, get_host
 from rigslim.runtime.document import Step, _check_params, load_pipeline
 from rigslim.runtime.inputs import read_inputs
-from rigslim.runtime.metrics_document import SCHEMA_VERSION, merge_levels
+from rigslim.runtime.metrics_document import SCHEMA_VERSION, UNITS, merge_levels
 
 
 @dataclass
@@ -31,7 +31,7 @@ class RunResult:
     evaluations: list = field(default_factory=list)
 
 
-def run_pipeline(path, *, overrides: list[str] = (), metrics_path=None, host: PluginHost | None = None,
+def run_pipeline(path, *, overrides: Sequence[str] = (), metrics_path=None, host: PluginHost | None = None,
                  console=None, on_evaluation: Callable | None = None, raw: dict | None = None) -> RunResult:
     """Run a pipeline file (or the document ``raw``, see :func:`load_pipeline`); return the asset and metrics.
 
@@ -60,6 +60,7 @@ def _run_pipeline(path, *, overrides, metrics_path, host, console, on_evaluation
         asset = read_inputs(doc, base, host, reporter.context(base), path)
     document = {
         "schema_version": SCHEMA_VERSION,
+        "units": dict(UNITS),
         "rigslim_version": rigslim.__version__,
         "pipeline": str(path),
         "pipeline_file": str(path.resolve()),
@@ -83,8 +84,9 @@ def _run_pipeline(path, *, overrides, metrics_path, host, console, on_evaluation
             try:
                 entry = _run_step(step, asset, host, ctx, base, path, document)
             except RigslimError as e:
-                if not e.source:
-                    e.source = f"{path} steps[{step.index}] ({step.key})"
+                if not e.source:  # a field naming the step (a plugin's failure) needs only the file
+                    e.source = str(path) if (e.field or "").startswith(f"steps[{step.index}]") else \
+                        f"{path} steps[{step.index}] ({step.key})"
                     e.args = (e.one_line(),)
                 raise
         entry.update({"seconds": time.perf_counter() - t})
@@ -117,7 +119,9 @@ def _run_step(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base
     if runner is not None:
         return runner(step, asset, host, ctx, base, source, document, entry)
     plugin = host.get(step.stage, step.plugin)
-    entry.update(plugin.apply(asset, plugin.parse_params(step.params), ctx))
+    params = plugin.parse_params(step.params)
+    with host.calling(step.stage, step.plugin, f"steps[{step.index}].{step.key}"):
+        entry.update(plugin.apply(asset, params, ctx))
     return entry
 
 
@@ -127,9 +131,13 @@ def _run_evaluate(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, 
     metrics: dict = {}
     levels: list[dict] = []
     for name, p in step.plugin:
-        metric = host.get("metric", name)
-        with np.errstate(over="ignore", invalid="ignore"):  # non-finite results: null + note in the JSON
-            values = dict(metric.compute(evaluation, metric.parse_params(p), ctx))
+        metric = host.metric(name)
+        params = metric.parse_params(p)
+        with host.calling("metric", name, f"steps[{step.index}].evaluate.{name}"), \
+                np.errstate(over="ignore", invalid="ignore"):  # non-finite results: null + note in the JSON
+            result = metric.compute(evaluation, params, ctx)
+        returned(metric, "compute", result, dict, "a dict of metric values")
+        values = dict(result)
         merge_levels(levels, values.pop("levels", None) or [])
         metrics.update(values)
     label = step.name if step.name != f"evaluate{step.index}" else _default_label(document, asset)
@@ -157,17 +165,19 @@ def _run_write(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, bas
     params = dict(step.params)
     name = params.pop("writer", "report" if step.key == "report" else None)
     ctx.document = document
-    writers = host.plugins("writer")
+    writers = host.writers()
     if name is None:
-        fitting = [w for w in writers.values() if out.suffix.lower() in w.suffixes]
+        fitting = host.by_suffix("writer", out.suffix)  # two writers taking the suffix: DuplicatePluginError
         if not fitting:
             sufs = sorted({s for w in writers.values() for s in w.suffixes})
             raise PipelineError(f"no writer for '{out.suffix}' files", source=source,
                                 field=f"steps[{step.index}].write", fix="use one of " + ", ".join(sufs))
         writer = fitting[0]
     else:
-        writer = host.get("writer", name)
-    writer.write(out, asset, _check_params(writer, params, source, f"steps[{step.index}]"), ctx)
+        writer = host.writer(name)
+    checked = _check_params(writer, params, source, f"steps[{step.index}]")
+    with host.calling("writer", writer.name, f"steps[{step.index}].{step.key}"):
+        writer.write(out, asset, checked, ctx)
     entry.update({"plugin": writer.name, "path": str(out)})
     return entry
 

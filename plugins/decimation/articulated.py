@@ -180,12 +180,23 @@ def attribute_term(asset, weights: dict[str, float], Q, T, X):
 def seam_lock(asset, along: bool = True):
     """Seam and material-boundary vertices of a mesh read from glTF, and how they may collapse.
 
+    ``asset.extras["seams"] = (locked, charts)`` gives them from arrays (any input: one locked flag per
+    vertex, one chart label per face; the along-seam vertices follow from them); else they come from the
+    glTF file the mesh was read from.
+
     Returns ``(locked, seams)``: ``locked`` (m,) bool, ``seams`` ``(along, charts)`` for
     :func:`rigslim.plugins.decimation.collapse.simplify` (None when ``along`` is false), or
     ``(None, None)`` for other inputs, or when a step replaced the mesh the glTF reader made.
     """
-    from rigslim.io.gltf.seams import seam_structure
+    from rigslim.io.gltf.seams import seam_structure, seams_along
 
+    given = asset.extras.get("seams")
+    if given is not None:                  # from arrays (e.g. Blender): (locked (m,) bool, charts (f,) int)
+        locked, charts = np.asarray(given[0], bool), np.asarray(given[1], np.int64)
+        if locked.shape != (asset.mesh.n_vertices,) or charts.shape != (asset.mesh.n_faces,):
+            raise StepError("extras['seams'] does not match the mesh", field="seams",
+                            fix="give (locked, charts) with one flag per vertex and one chart per face")
+        return locked, ((seams_along(asset.mesh.F, charts, locked), charts) if along else None)
     source = asset.extras.get("gltf")
     if source is None or source.mesh is not asset.mesh:
         return None, None

@@ -19,38 +19,21 @@ target and its real face count (``quartic-25pct-394f``).
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 
 import numpy as np
 
-from rigslim.errors import StepError
+from rigslim.model.units import parse_length_bound
 
 #: A level within this fraction above its face target counts as reaching it (its name is the target's).
 REACHED = 0.03
 
-_ERROR = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(%|m)?\s*$")
-
-
 def parse_max_error(value) -> tuple[float, str] | None:
     """``(value, unit)`` of a ``max_error`` setting: a number or ``"E%"`` is % of the diagonal, ``"Em"`` metres.
 
-    ``None``, ``"none"`` and ``"off"`` turn the bound off.
+    ``None``, ``"none"`` and ``"off"`` turn the bound off (:func:`rigslim.model.units.parse_length_bound`).
     """
-    if value is None or (isinstance(value, str) and value.strip().lower() in ("none", "off")):
-        return None
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        number, unit = float(value), "%"
-    else:
-        match = _ERROR.match(str(value))
-        if not match:
-            raise StepError(f"max_error '{value}' is not an error bound", field="max_error",
-                            fix="give a percentage of the diagonal (1 or '1%') or metres ('0.02m'), or 'none'")
-        number, unit = float(match.group(1)), match.group(2) or "%"
-    if not number > 0:
-        raise StepError(f"max_error {value} is not positive", field="max_error",
-                        fix="give a positive bound, e.g. 1 (% of the diagonal) or '0.02m', or 'none'")
-    return number, "m" if unit == "m" else "%"
+    return parse_length_bound(value, "max_error")
 
 
 def collapse_distances(hier, Q: np.ndarray) -> np.ndarray:

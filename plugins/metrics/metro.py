@@ -10,10 +10,12 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import numpy as np
 from pydantic import Field
 
 from rigslim.errors import StepError
-from rigslim.numerics.surface_distance import metro_distance
+from rigslim.numerics.surface_distance import metro_distance, pymeshlab_available
+from rigslim.numerics.units import reference_diagonal
 from rigslim.plugin import Metric, Params, aggregate
 
 if TYPE_CHECKING:
@@ -27,7 +29,8 @@ __all__ = ["Metro", "metro_distance"]
 
 class Metro(Metric):
     name = "metro"
-    summary = "two-sided Metro/Hausdorff distance (pymeshlab) per test pose, RMS and max as % of the bbox diagonal"
+    summary = ("two-sided Metro/Hausdorff distance (pymeshlab) per test pose, RMS and max in world units and % of "
+               "the world-space diagonal of the first test frame")
 
     class Params(Params):
         samples: int = Field(default=20000, ge=100)
@@ -35,35 +38,33 @@ class Metro(Metric):
 
     def compute(self, evaluation: Evaluation, params: Params,
                 ctx: StepContext | None = None) -> dict[str, Any]:
-        try:
-            import pymeshlab  # noqa: F401
-        except ImportError:  # pragma: no cover - pymeshlab is in the 'metro' extra
+        if not pymeshlab_available():  # pragma: no cover - pymeshlab is in the 'metro' extra
             raise StepError("the metro metric needs pymeshlab", field="evaluate",
-                            fix="pip install 'rigslim[metro]'") from None
+                            fix="pip install 'rigslim[metro]'")
         mesh = evaluation.mesh
-        scale = 100.0 / mesh.bbox_diagonal
+        D = reference_diagonal(evaluation)
         frames = range(len(evaluation))
         if evaluation.levels:
-            out: dict = {"levels": []}
+            out: dict = {"levels": [], "reference_diagonal_m": D}
             for i, level in enumerate(evaluation.levels):
-                rms, mx = [], []
-                for j in frames:
-                    d = metro_distance(level_positions(evaluation, i, j), level.mesh.F,
-                                       evaluation.full_positions(j), mesh.F, params.samples)
-                    rms.append(scale * d["rms"])
-                    mx.append(scale * d["max"])
+                d = [metro_distance(level_positions(evaluation, i, j), level.mesh.F, evaluation.full_positions(j),
+                                    mesh.F, params.samples) for j in frames]
+                values = _values(d, D)
                 if i == 0:
-                    out["hausdorff_rms_pct"], out["hausdorff_max_pct"] = aggregate(rms), aggregate(mx)
-                out["levels"].append({"name": level.label, "faces": level.n_faces,
-                                      "hausdorff_rms_pct": aggregate(rms), "hausdorff_max_pct": aggregate(mx)})
+                    out.update(values)
+                out["levels"].append({"name": level.label, "faces": level.n_faces, **values})
             return out
-        rms, mx = [], []
-        for j in frames:
-            d = metro_distance(evaluation.reduced_positions(j), mesh.F, evaluation.full_positions(j), mesh.F,
-                               params.samples)
-            rms.append(scale * d["rms"])
-            mx.append(scale * d["max"])
-        return {"hausdorff_rms_pct": aggregate(rms), "hausdorff_max_pct": aggregate(mx)}
+        d = [metro_distance(evaluation.reduced_positions(j), mesh.F, evaluation.full_positions(j), mesh.F,
+                            params.samples) for j in frames]
+        return {**_values(d, D), "reference_diagonal_m": D}
+
+
+def _values(d: list[dict], D: float) -> dict:
+    """Per-frame RMS and max in % of the reference diagonal ``D`` and in world units."""
+    rms = np.array([x["rms"] for x in d])
+    mx = np.array([x["max"] for x in d])
+    return {"hausdorff_rms_pct": aggregate(100.0 * rms / D), "hausdorff_max_pct": aggregate(100.0 * mx / D),
+            "hausdorff_rms_m": aggregate(rms), "hausdorff_max_m": aggregate(mx)}
 
 
 def level_positions(evaluation, i, j):

@@ -1,4 +1,5 @@
-"""Position error ([P10] fig. 10): RMS vertex distance, as % of the bounding-box diagonal."""
+"""Position error ([P10] fig. 10): RMS vertex distance per test frame, in world units and in % of the reference
+diagonal (the world-space bounding-box diagonal of the first test frame, :mod:`rigslim.numerics.units`)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from rigslim.numerics.units import reference_diagonal
 from rigslim.plugin import Metric, aggregate
 
 if TYPE_CHECKING:
@@ -22,11 +24,13 @@ def position_rms(X: np.ndarray, Xhat: np.ndarray) -> float:
 
 class PositionRMS(Metric):
     name = "position-rms"
-    summary = "RMS over vertices of |v(alpha) - vhat| per test frame, % of the rest bounding-box diagonal"
+    summary = ("RMS over vertices of |v(alpha) - vhat| per test frame, in world units (m for glTF) and % of the "
+               "world-space diagonal of the first test frame")
 
     def compute(self, evaluation: Evaluation, params: Params,
                 ctx: StepContext | None = None) -> dict[str, Any]:
-        scale = 100.0 / evaluation.mesh.bbox_diagonal
-        per_frame = [scale * position_rms(evaluation.reduced_positions(j), evaluation.full_positions(j))
+        D = reference_diagonal(evaluation)
+        per_frame = [position_rms(evaluation.reduced_positions(j), evaluation.full_positions(j))
                      for j in range(len(evaluation))]
-        return {"position_rms_pct": aggregate(per_frame)}
+        return {"position_rms_pct": aggregate(100.0 * np.asarray(per_frame) / D),
+                "position_rms_m": aggregate(per_frame), "reference_diagonal_m": D}

@@ -46,10 +46,12 @@ PACKAGES = {
     "cube2-data": "1.3-1",
     "redeclipse-data": "1.6.0-1",
     "minetest-data": "5.6.1+dfsg+~1.9.0mt8+dfsg-2",
+    "0ad-data": "0.0.26-1",
 }
 CUBE2 = "usr/share/games/cube2/packages/models"
 RE = "usr/share/games/redeclipse/data/actors"
 MT = "usr/share/games/minetest/games/minetest_game/mods/player_api"
+ZERO_AD = "usr/share/games/0ad/mods/public/public.zip"
 
 
 @dataclass
@@ -112,6 +114,19 @@ CHARACTERS = [
               test=[("walk", 0.3), ("walk_mine", 0.4)], front=180,
               notes="84 faces, 6 joints, one timeline split into player_api's frame ranges, played at its 30 fps; "
                     "the issue's 84-face blocky character"),
+    Character("wolf", "quadruped (wolf, with tail)", "0ad-data", "art/meshes/skeletal/wolf.dae.cached.pmd",
+              "CC-BY-SA-3.0", "Wildfire Games (0 A.D.)", "pmd_wolf",
+              fit=["walk", "idle", "attack"], holdout=["run", "death"],
+              test=[("run", 0.2), ("attack", 1.0)], front=180,
+              notes="in usr/share/games/0ad/mods/public/public.zip; 0 A.D.'s cached PMD/PSA converted by "
+                    "pmd2gltf.py (skeleton from art/skeletons/wolf.xml); no texture (0 A.D. ships "
+                    "its textures as DDS); one primitive, 696 faces"),
+    Character("mangonel", "mechanical (trebuchet, with ropes)", "0ad-data",
+              "art/meshes/structural/han_mangonel.dae.cached.pmd", "CC-BY-SA-3.0", "Wildfire Games (0 A.D.)",
+              "pmd_mangonel", fit=["attack"], test=[("attack", 1.0), ("attack", 2.0)], front=0,
+              notes="in usr/share/games/0ad/mods/public/public.zip; rigid parts (beams, arm, counterweight) "
+                    "and rope chains, 1-2 influences; `idle` is a held pose (0.1 s): "
+                    "one moving clip, fit on even frames of attack, test on odd ones"),
 ]
 
 
@@ -223,6 +238,35 @@ def b3d_minetest(c: Character, work: Path, out: Path) -> None:
     run([PY, HERE / "clips.py", tmp, "-o", out, "--fps", "60",
          *[x for n, (a, b) in ranges.items() for x in ("--split", f"{n}={a + 1}:{b + 1}", "--retime", f"{n}=2")],
          "--texture", f"0={d / 'models' / 'character.png'}"])
+
+
+def _zero_ad(work: Path, members: list[str]) -> Path:
+    """Extract ``members`` of 0ad-data's public.zip into ``work/0ad`` (the package is downloaded if needed)."""
+    import zipfile
+
+    root = work / "0ad"
+    missing = [m for m in members if not (root / m).exists()]
+    if missing:
+        with zipfile.ZipFile(package_root(work, "0ad-data") / ZERO_AD) as z:
+            for m in missing:
+                z.extract(m, root)
+    return root
+
+
+def pmd_wolf(c: Character, work: Path, out: Path) -> None:
+    clips = [("walk", "wolf_walk"), ("run", "wolf_run"), ("attack", "wolf_attack_01"), ("idle", "wolf_idle_01"),
+             ("death", "wolf_death_01")]
+    psa = [f"art/animation/quadraped/{f}.dae.cached.psa" for _, f in clips]
+    root = _zero_ad(work, [c.source, "art/skeletons/wolf.xml", *psa])
+    run([PY, HERE / "pmd2gltf.py", root / c.source, root / "art/skeletons/wolf.xml", "-o", out, "--name", "wolf",
+         *[x for (n, _), p in zip(clips, psa, strict=True) for x in ("--anim", f"{n}={root / p}")]])
+
+
+def pmd_mangonel(c: Character, work: Path, out: Path) -> None:
+    psa = {n: f"art/animation/mechanical/han_mangonel_{n}.dae.cached.psa" for n in ("idle", "attack")}
+    root = _zero_ad(work, [c.source, "art/skeletons/han_mangonel.xml", *psa.values()])
+    run([PY, HERE / "pmd2gltf.py", root / c.source, root / "art/skeletons/han_mangonel.xml", "-o", out,
+         "--name", "han_mangonel", *[x for n, p in psa.items() for x in ("--anim", f"{n}={root / p}")]])
 
 
 def describe(c: Character, path: Path) -> dict:

@@ -68,6 +68,7 @@ class GltfDocument:
     buffers: list[bytes]
     _typed: object = field(default=None, repr=False)
     allow_external_uris: bool | None = None
+    decoded: list = field(default_factory=list)
 
     @property
     def typed(self):
@@ -205,7 +206,12 @@ def load_gltf(path, *, allow_external_uris: bool | None = None) -> GltfDocument:
         raise InputError(f"the document does not follow the glTF 2.0 schema ({type(e).__name__}: {e})",
                          source=path, field="json",
                          fix="re-export the file; check it with the glTF-Validator") from None
+    from rigslim.io.gltf.extensions import fallback_buffer, prepare_extensions
+
     for i, buf in enumerate(doc.get("buffers", [])):
+        if "uri" not in buf and fallback_buffer(buf) and not (i == 0 and binary is not None):
+            out.buffers.append(b"")          # no data: its views are decoded from a compressed stream
+            continue
         if "uri" in buf:
             raw = out.uri_bytes(buf["uri"], f"buffers[{i}]", buf["byteLength"])
         elif i == 0 and binary is not None:
@@ -217,6 +223,7 @@ def load_gltf(path, *, allow_external_uris: bool | None = None) -> GltfDocument:
             raise InputError(f"buffers[{i}] holds {len(raw)} bytes, byteLength says {buf['byteLength']}",
                              source=path, field=f"buffers[{i}].byteLength", fix="re-export the file")
         out.buffers.append(bytes(raw[:buf["byteLength"]]))
+    prepare_extensions(out)
     return out
 
 

@@ -14,6 +14,19 @@ from rigslim.io.gltf.seams import face_charts
 from rigslim.io.gltf.skin import GltfSkin, skinning_sets
 
 
+def input_joints_valid(skin: GltfSkin) -> bool:
+    """Whether every JOINTS_n the reader used is stored as the specification allows (unsigned byte or short,
+    not normalized); otherwise the writer rewrites the skinning attributes instead of keeping their bytes."""
+    js = skin.document.json
+    for sl in skin.slices:
+        attrs = js["meshes"][sl.mesh]["primitives"][sl.primitive]["attributes"]
+        for s in skinning_sets(attrs):
+            acc = js["accessors"][attrs[f"JOINTS_{s}"]]
+            if acc["componentType"] not in (5121, 5123) or acc.get("normalized", False):
+                return False
+    return True
+
+
 def input_weights_normalized(skin: GltfSkin, tolerance: float = 5e-4) -> bool:
     """Whether every file vertex's decoded weights (all sets) sum to one within ``tolerance``.
 

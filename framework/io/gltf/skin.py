@@ -73,8 +73,32 @@ class GltfSkin:
         return rows if self.vertex_map is None else self.vertex_map[rows]
 
 
+def joint_indices(doc: GltfDocument, index: int, where: str) -> np.ndarray:
+    """A JOINTS_n accessor as joint numbers: its stored values, never normalized.
+
+    The specification allows only unsigned byte or short, not ``normalized`` (a normalized JOINTS_0 read as
+    fractions bound every vertex to joint 0); such files and float joints are read by their stored numbers,
+    which must then be whole (the writer rewrites them as unsigned integers). Anything else is refused.
+    """
+    raw = np.asarray(read_accessor(doc, index, normalize=False))
+    if raw.dtype.kind == "f":
+        bad = ~np.isfinite(raw) | (raw != np.rint(raw))
+        if bad.any():
+            v = int(np.argmax(bad.any(axis=-1))) if raw.ndim > 1 else int(np.argmax(bad))
+            raise InputError(f"float joint index {raw.reshape(len(raw), -1)[v].tolist()} of vertex {v} is not a "
+                             "whole number", source=doc.path, field=where,
+                             fix="re-export with UNSIGNED_BYTE or UNSIGNED_SHORT joints")
+        raw = np.rint(raw)
+    return raw.astype(np.int64)
+
+
 def weld_vertices(V: np.ndarray, F: np.ndarray, weights: sp.csr_matrix):
-    """Merge vertices at identical positions (glTF splits them at UV seams and hard edges).
+    """Merge file vertices that are one skinned vertex: the same position *and* the same weights.
+
+    glTF splits a surface's vertices at UV seams, hard edges and material boundaries; solvers and decimators
+    need them joined. Welding is a connectivity device only: corners that the file keeps apart with different
+    weights (separate parts that touch, each bound to its own joint) stay apart, and no file vertex ever gets
+    another's weights.
 
     Parameters
     ----------
@@ -87,22 +111,39 @@ def weld_vertices(V: np.ndarray, F: np.ndarray, weights: sp.csr_matrix):
         order of first occurrence.
     V, F, weights
         The welded mesh (faces that became degenerate are dropped) and its
-        weights: the mean of the merged rows, ``A_w = D^{-1} P^T A`` with
-        ``P`` the (m, m_w) merge indicator and ``D`` the group sizes, so
-        rows still sum to one.
+        weights: the row every merged vertex has (``A_w[g] = A[first(g)]``, bit for bit).
+
+    Notes
+    -----
+    Two vertices merge when ``x_a = x_b`` and ``A[a, :] = A[b, :]`` exactly (compared as bytes, with
+    ``-0.0`` read as ``0.0``).
     """
-    _, first, inverse = np.unique(V, axis=0, return_index=True, return_inverse=True)
+    A = sp.csr_matrix(weights, copy=True)
+    A.sum_duplicates()
+    A.eliminate_zeros()
+    A.sort_indices()
+    m = len(V)
+    counts = np.diff(A.indptr)
+    width = int(counts.max(initial=0))
+    slot = np.arange(A.nnz) - np.repeat(A.indptr[:-1], counts)
+    row = np.repeat(np.arange(m), counts)
+    cols = np.full((m, width), -1.0)
+    vals = np.zeros((m, width))
+    cols[row, slot] = A.indices
+    vals[row, slot] = A.data
+    key = np.ascontiguousarray(np.concatenate([np.asarray(V, np.float64) + 0.0, cols, vals + 0.0], axis=1))
+    void = key.view(np.dtype((np.void, key.dtype.itemsize * key.shape[1]))).ravel()
+    _, first, inverse = np.unique(void, return_index=True, return_inverse=True)
     inverse = inverse.reshape(-1)
     order = np.argsort(first, kind="stable")
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
     vertex_map = rank[inverse]
-    Vw = V[first[order]]
+    keep_rows = first[order]
+    Vw = np.asarray(V)[keep_rows]
     Fw = vertex_map[F]
     keep = (Fw[:, 0] != Fw[:, 1]) & (Fw[:, 1] != Fw[:, 2]) & (Fw[:, 2] != Fw[:, 0])
-    P = sp.csr_matrix((np.ones(len(V)), (np.arange(len(V)), vertex_map)), shape=(len(V), len(Vw)))
-    sizes = np.asarray(P.sum(axis=0)).ravel()
-    Aw = sp.csr_matrix(sp.diags(1.0 / sizes) @ (P.T @ weights))
+    Aw = sp.csr_matrix(sp.csr_matrix(weights)[keep_rows])
     Aw.sort_indices()
     return vertex_map, Vw, Fw[keep], Aw
 
@@ -291,9 +332,6 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, we
             sets = skinning_sets(attrs)
             if "POSITION" not in attrs or not sets:
                 continue
-            if prim.get("extensions", {}).get("KHR_draco_mesh_compression") is not None:
-                raise InputError("Draco-compressed primitives are not supported", source=doc.path, field=where,
-                                 fix="re-export without Draco compression")
             _expect_type(doc, attrs["POSITION"], ("VEC3",), f"{where}.attributes.POSITION")
             for s_ in sets:
                 _expect_type(doc, attrs[f"JOINTS_{s_}"], ("VEC4",), f"{where}.attributes.JOINTS_{s_}")
@@ -315,7 +353,7 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, we
                                  field=f"{where}.indices", fix="re-export the file")
             F = _triangles(prim.get("mode", 4), idx)
             for s in sets:
-                J = np.asarray(read_accessor(doc, attrs[f"JOINTS_{s}"]), np.int64).reshape(m, -1)
+                J = joint_indices(doc, attrs[f"JOINTS_{s}"], f"{where}.attributes.JOINTS_{s}").reshape(m, -1)
                 W = np.asarray(read_accessor(doc, attrs[f"WEIGHTS_{s}"]), float).reshape(m, -1)
                 nz = W != 0
                 if (J[nz] >= n).any() or (J[nz] < 0).any():

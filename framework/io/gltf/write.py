@@ -17,6 +17,7 @@ import base64
 import copy
 import json
 import struct
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -319,12 +320,130 @@ def _merge_clamp(total: dict, stats: dict) -> None:
     total["most_negative"] = min(total.get("most_negative", 0.0), stats["most_negative"])
 
 
-def _put_sets(blob: _Blob, attrs: dict, indices, values, n_joints: int, kind: str, n_sets: int | None) -> None:
+def _put_sets(blob: _Blob, attrs: dict, indices, values, n_joints: int, kind: str, n_sets: int | None,
+              exact: SourceRows | None = None) -> str:
+    """Write JOINTS_n/WEIGHTS_n accessors into ``attrs``; returns the weight encoding used.
+
+    With ``exact``, the rows it marks are written with the source file's own values (the encoding becomes the
+    finer of ``kind`` and the source's, :func:`lossless_encoding`), every other row quantised as usual.
+    """
     jdt, jct = (np.uint8, 5121) if n_joints <= 256 else (np.uint16, 5123)
+    if exact is not None and exact.mask.any():
+        kind = lossless_encoding(kind, exact.kind)
     _, wct, wnorm, _ = QUANTIZATIONS[kind]
-    for s, (J, W) in enumerate(skinning_sets_arrays(indices, values, kind, n_sets)):
+    sets = skinning_sets_arrays(indices, values, kind, n_sets)
+    if exact is not None and exact.mask.any():
+        J = np.concatenate([j for j, _ in sets], axis=1)
+        Q = np.concatenate([q for _, q in sets], axis=1)
+        EJ, EQ = exact.slots(kind, J.shape[1])
+        J[exact.mask], Q[exact.mask] = EJ, EQ
+        sets = [(J[:, 4 * i:4 * i + 4], Q[:, 4 * i:4 * i + 4]) for i in range(len(sets))]
+    for s, (J, W) in enumerate(sets):
         attrs[f"JOINTS_{s}"] = blob.new_accessor(J.astype(jdt), jct, "VEC4")
         attrs[f"WEIGHTS_{s}"] = blob.new_accessor(W, wct, "VEC4", normalized=wnorm)
+    return kind
+
+
+#: Weight encodings from coarsest to finest.
+_FINENESS = ("ubyte", "ushort", "float")
+
+
+def lossless_encoding(requested: str, source: str) -> str:
+    """The encoding that stores both newly computed weights (at least ``requested``) and the source's own
+    ``source``-encoded values exactly: ubyte codes are exact in ushort (``q * 257``), ushort only in ushort,
+    float32 only in float; the finer of the two otherwise."""
+    if requested == source or (source == "ubyte" and requested == "ushort"):
+        return requested
+    return max(requested, source, key=_FINENESS.index)
+
+
+@dataclass
+class SourceRows:
+    """The file's own skinning values of one primitive's vertices whose weights did not change.
+
+    Attributes
+    ----------
+    mask : (m,) bool
+        Vertices written with the source's values.
+    joints, codes : (r, c) arrays
+        Their JOINTS_n and raw (undecoded) WEIGHTS_n values, all sets side by side (r = mask.sum()).
+    kind : {"ubyte", "ushort", "float"}
+        The source's weight encoding.
+    """
+
+    mask: np.ndarray
+    joints: np.ndarray
+    codes: np.ndarray
+    kind: str
+
+    def slots(self, kind: str, width: int) -> tuple[np.ndarray, np.ndarray]:
+        """(r, width) joints and values in encoding ``kind``, largest first, zeros padded."""
+        scale = {"ubyte": 255, "ushort": 65535}
+        Q = self.codes
+        if kind == self.kind:
+            out = Q
+        elif self.kind == "ubyte" and kind == "ushort":
+            out = Q.astype(np.int64) * 257
+        elif kind == "float":
+            out = (Q.astype(np.float64) / scale[self.kind]).astype(np.float32)
+        else:  # pragma: no cover - lossless_encoding never asks for a coarser encoding
+            raise ValueError(f"{self.kind} weights cannot be written exactly as {kind}")
+        order = np.argsort(-np.asarray(out, np.float64), axis=1, kind="stable")
+        J = np.take_along_axis(self.joints, order, 1)
+        W = np.take_along_axis(np.asarray(out), order, 1)
+        c = J.shape[1]
+        if c < width:
+            J, W = np.pad(J, ((0, 0), (0, width - c))), np.pad(W, ((0, 0), (0, width - c)))
+        elif np.any(W[:, width:] != 0):  # pragma: no cover - callers keep only rows with <= width weights
+            raise ValueError("a kept row has more weights than the output's sets hold")
+        J, W = J[:, :width], W[:, :width]
+        dtype = QUANTIZATIONS[kind][0]
+        return np.where(W != 0, J, 0), W.astype(dtype)
+
+
+_KINDS = {5126: "float", 5123: "ushort", 5121: "ubyte"}
+
+
+def source_rows(source: GltfSkin, part, indices: np.ndarray, values: np.ndarray) -> SourceRows | None:
+    """Which vertices of one primitive keep exactly the weights they were read with, and the file's values.
+
+    A vertex qualifies when its reduced row (``indices``/``values``, the primitive's file rows) is the row the
+    reader gave it (same joints, bit-equal values) and its stored values are valid as they are (integer codes
+    summing exactly to 255 / 65535, float rows summing to one within float32 round-off, 2.5e-7 per slot). None when
+    no vertex does or the sets mix encodings.
+    """
+    from rigslim.io.gltf.document import read_accessor
+
+    doc = source.document
+    attrs = doc.json["meshes"][part.mesh]["primitives"][part.primitive]["attributes"]
+    sets = skinning_sets(attrs)
+    cts = {doc.json["accessors"][attrs[f"WEIGHTS_{s}"]]["componentType"] for s in sets}
+    if len(cts) != 1 or next(iter(cts)) not in _KINDS:
+        return None
+    kind = _KINDS[next(iter(cts))]
+    m = part.count
+    J = np.concatenate([np.asarray(read_accessor(doc, attrs[f"JOINTS_{s}"], normalize=False)).reshape(m, -1)
+                        for s in sets], axis=1)
+    Q = np.concatenate([np.asarray(read_accessor(doc, attrs[f"WEIGHTS_{s}"], normalize=False)).reshape(m, -1)
+                        for s in sets], axis=1)
+    rows = source.file_rows(part)
+    read = sp.csr_matrix(source.weights)[rows]
+    mine = sp.csr_matrix((np.asarray(values, float).ravel(), (np.repeat(np.arange(m), indices.shape[1]),
+                                                              np.asarray(indices, np.int64).ravel())),
+                         shape=read.shape)
+    mine.eliminate_zeros()
+    diff = abs(mine - read)
+    same = (np.asarray(diff.max(axis=1).todense()).ravel() == 0) & (np.diff(mine.indptr) == np.diff(read.indptr))
+    if kind == "float":
+        valid = np.abs(Q.astype(np.float64).sum(axis=1) - 1.0) <= 2.5e-7 * Q.shape[1]   # float32 round-off
+    else:
+        valid = Q.astype(np.int64).sum(axis=1) == (255 if kind == "ubyte" else 65535)
+    valid &= (Q >= 0).all(axis=1) & np.isfinite(Q.astype(np.float64)).all(axis=1)
+    valid &= (np.asarray(J, np.float64) == np.rint(np.asarray(J, np.float64))).all(axis=1)
+    mask = same & valid
+    if not mask.any():
+        return None
+    return SourceRows(mask, np.asarray(J[mask], np.int64), Q[mask], kind)
 
 
 def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float", sets: int | None = None,
@@ -449,10 +568,16 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
 
     # 2b. the new skinning attributes
     if reduced is not None:
+        encodings, kept = [], 0
         for sl in source.slices:
             attrs = js["meshes"][sl.mesh]["primitives"][sl.primitive]["attributes"]
             rows = source.file_rows(sl)
-            _put_sets(blob, attrs, reduced.indices[rows], reduced.values[rows], n_joints, quantize, sets)
+            I, W = reduced.indices[rows], reduced.values[rows]
+            exact = source_rows(source, sl, I, W)
+            encodings.append(_put_sets(blob, attrs, I, W, n_joints, quantize, sets, exact))
+            kept += int(exact.mask.sum()) if exact is not None else 0
+        stats["weight_encodings"] = encodings
+        stats["vertices_kept_exact"] = kept
 
     # 3. simplified levels as meshes of their own
     if levels:

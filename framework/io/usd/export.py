@@ -278,3 +278,72 @@ def set_influences(prim, indices: np.ndarray, values: np.ndarray, *, clamp_negat
     api.CreateJointIndicesPrimvar(False, k).Set(Vt.IntArray.FromNumpy(I.ravel()))
     api.CreateJointWeightsPrimvar(False, k).Set(Vt.FloatArray.FromNumpy(Q.astype(np.float32).ravel()))
     return stats
+
+
+def add_gltf_looks(stage, gltf) -> dict:
+    """UVs and material slots of a glTF skin on the exported mesh (:func:`build_stage` of ``gltf.mesh``).
+
+    - ``TEXCOORD_n`` (when every skinned primitive has it) becomes the ``faceVarying`` primvar ``st``
+      (``st1``, ...), ``st = (u, 1 - v)`` (glTF's texture origin is the top left, USD's the bottom left),
+      taken at each face corner's own file vertex, so UV seams stay seams;
+    - each primitive's faces become a ``GeomSubset`` of the ``materialBind`` family (a partition) bound to
+      a ``Material`` named after the glTF material, with a ``UsdPreviewSurface`` carrying its base colour
+      factor, metallic and roughness factors (textures are not converted).
+
+    Returns ``{"uv_sets": n, "materials": m}``.
+    """
+    Usd, UsdGeom, _, Sdf, Gf, Vt = pxr_modules()
+    from pxr import UsdShade
+
+    from rigslim.io.gltf.primitives import primitive_data, welded_faces
+
+    data = primitive_data(gltf)
+    faces = welded_faces(gltf, data)
+    geom = next(p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
+    mesh = UsdGeom.Mesh(geom)
+    sets = 0
+    while all(f"TEXCOORD_{sets}" in d.attributes for d in data) and data:
+        uv = np.concatenate([d.attributes[f"TEXCOORD_{sets}"][Ff - sl.start] for d, sl, (_, Ff)
+                             in zip(data, gltf.slices, faces, strict=True)]).reshape(-1, 2)
+        uv = np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1)
+        values, index = np.unique(np.round(uv, 7), axis=0, return_inverse=True)
+        pv = UsdGeom.PrimvarsAPI(geom).CreatePrimvar("st" if sets == 0 else f"st{sets}",
+                                                     Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
+        pv.Set(Vt.Vec2fArray.FromNumpy(values.astype(np.float32)))
+        pv.SetIndices(Vt.IntArray.FromNumpy(np.asarray(index, np.int32).ravel()))
+        sets += 1
+    js = gltf.document.json
+    root = stage.GetDefaultPrim().GetPath()
+    taken: set[str] = set()
+    materials: dict = {}
+    start = 0
+    for d, sl, (Fw, _) in zip(data, gltf.slices, faces, strict=True):
+        m = js["meshes"][sl.mesh]["primitives"][sl.primitive].get("material")
+        if m not in materials:
+            spec = js.get("materials", [])[m] if m is not None else {}
+            materials[m] = _preview_material(stage, root, usd_identifier(spec.get("name") or f"material{m}", taken),
+                                             spec)
+        subset = UsdGeom.Subset.CreateUniqueGeomSubset(
+            mesh, f"primitive{d.index}", UsdGeom.Tokens.face,
+            Vt.IntArray.FromNumpy(np.arange(start, start + len(Fw), dtype=np.int32)), "materialBind", "partition")
+        UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(materials[m])
+        start += len(Fw)
+    return {"uv_sets": sets, "materials": len(materials)}
+
+
+def _preview_material(stage, root, name: str, spec: dict):
+    """A Material with a UsdPreviewSurface from a glTF material's factors."""
+    _, _, _, Sdf, Gf, _ = pxr_modules()
+    from pxr import UsdShade
+
+    material = UsdShade.Material.Define(stage, root.AppendChild("Looks").AppendChild(name))
+    shader = UsdShade.Shader.Define(stage, material.GetPath().AppendChild("PreviewSurface"))
+    shader.CreateIdAttr("UsdPreviewSurface")
+    pbr = spec.get("pbrMetallicRoughness", {})
+    r, g, b, a = (list(pbr.get("baseColorFactor", [1.0, 1.0, 1.0, 1.0])) + [1.0] * 4)[:4]
+    shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(float(r), float(g), float(b)))
+    shader.CreateInput("opacity", Sdf.ValueTypeNames.Float).Set(float(a))
+    shader.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(float(pbr.get("metallicFactor", 1.0)))
+    shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(float(pbr.get("roughnessFactor", 1.0)))
+    material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+    return material

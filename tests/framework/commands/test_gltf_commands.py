@@ -174,6 +174,8 @@ def test_reduce_without_animation_falls_back_to_k_largest(tmp_path, valid, capsy
     (["lod", "{src}", "-o", "x.obj"], "not a .glb"),
     (["lod", "{src}", "-o", "x.glb", "--ratios", "0.25,0.5"], "decreasing"),
     (["lod", "{src}", "-o", "x.glb", "--max-bones", "9"], "1 to 8"),
+    (["lod", "{src}", "-o", "x.glb", "--max-error", "2cm"], "--max-error"),
+    (["lod", "{src}", "-o", "x.glb", "--max-error", "-1"], "--max-error"),
     (["reduce", "{src}", "-o", "x.glb", "-k", "0"], "1 to 8"),
     (["reduce", "{src}", "-o", "x.glb", "--clip", "nope"], "no animation named"),
     (["compare", "{src}", "{src}", "--level", "1"], "no LOD level 1"),
@@ -188,6 +190,28 @@ def test_bad_input_is_one_line_and_exit_2(argv, match, tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert match in err and "\n" not in err and "Traceback" not in err
     assert not (tmp_path / "x.glb").exists()
+
+
+def test_lod_max_error_stops_levels_and_says_so(tmp_path, capsys):
+    """A level that reaches --max-error stops there: stderr and the report say target, faces and error."""
+    src = GLTF / "animation_with_skeleton.glb"
+    out, rep = tmp_path / "a.glb", tmp_path / "a.json"
+    assert main(["lod", str(src), "-o", str(out), "--ratios", "0.5,0.1", "--max-error", "none",
+                 "--report", str(rep)]) == 0
+    free = json.loads(rep.read_text())
+    assert free["max_error"] is None and [t["stopped"] for t in free["targets"]] == [None, None]
+    assert all(t["max_error"] is None for t in free["targets"])
+    capsys.readouterr()
+    assert main(["lod", str(src), "-o", str(out), "--ratios", "0.5,0.1", "--max-error", "0.05",
+                 "--report", str(rep)]) == 0
+    err = capsys.readouterr().err
+    doc = json.loads(rep.read_text())
+    t = doc["targets"][-1]
+    assert doc["max_error"] == "0.05%" and t["stopped"] == "max_error"
+    assert t["faces"] > free["targets"][-1]["faces"] and t["error"] <= t["max_error"]
+    assert f"stopped at {t['faces']} faces" in err and "--max-error 0.05%" in err
+    assert doc["levels"][-1]["faces"] == t["faces"] and doc["levels"][-1]["stopped"] == "max_error"
+    check_lod_structure(src, out, len([x for x in doc["targets"] if x["same_as"] is None]))
 
 
 def test_inspect_json(capsys):
@@ -299,9 +323,10 @@ def test_lod_on_freshly_converted_assimp_characters(name, tmp_path, valid):
     subprocess.run(["assimp", "export", str(ASSIMP_FBX / name), str(glb), "-fglb2"], check=True,
                    capture_output=True, timeout=120)
     out = tmp_path / "lod.glb"
-    assert main(["lod", str(glb), "-o", str(out)]) == 0
+    assert main(["lod", str(glb), "-o", str(out), "--report", str(tmp_path / "r.json")]) == 0
     valid(out)
-    check_lod_structure(glb, out, 2)
+    targets = json.loads((tmp_path / "r.json").read_text())["targets"]   # --max-error 1 % may stop the 25 %
+    check_lod_structure(glb, out, len([t for t in targets if t["same_as"] is None]))
     assert main(["reduce", str(glb), "-o", str(tmp_path / "k2.glb"), "-k", "2", "--solve", "k-largest"]) == 0
     valid(tmp_path / "k2.glb")
 

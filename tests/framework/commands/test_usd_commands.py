@@ -57,7 +57,8 @@ def test_reduce_usd_to_usd_writes_element_size_k(exported, tmp_path, capsys):
 
 def test_lod_usd_to_usdz_and_compare_a_level(exported, tmp_path, capsys):
     out = tmp_path / "lod.usdz"
-    code, text, err = run(["lod", exported, "-o", out, "--ratios", "0.5,0.25", "--max-bones", "2"], capsys)
+    argv = ["lod", exported, "-o", out, "--ratios", "0.5,0.25", "--max-bones", "2", "--max-error", "none"]
+    code, text, err = run(argv, capsys)
     assert code == 0, err
     assert check_usd(out) == []
     faces = [read_usd_skin(out, lod=i).mesh.n_faces for i in range(3)]

@@ -220,3 +220,52 @@ def test_every_clip_of_a_multi_clip_character_is_exported(tmp_path):
             a = linear_blend(g.mesh.V, g.weights, g.poses.T[f])
             b = linear_blend(u.mesh.V, u.weights, u.poses.T[f])
             assert np.abs(a - b).max() <= 2e-5 * np.linalg.norm(a.max(axis=0) - a.min(axis=0)), (name, f)
+
+
+def test_a_gltf_export_carries_uvs_and_material_slots(tmp_path):
+    """tube_two_materials.glb (3 primitives, 2 materials, a UV seam): st per face corner, one subset per primitive."""
+    from pathlib import Path
+
+    from pxr import Usd, UsdGeom, UsdShade
+
+    from rigslim.io.gltf.primitives import primitive_data, welded_faces
+    from rigslim.io.gltf.skin import read_gltf_skin
+
+    gltf = Path(__file__).resolve().parents[3] / "examples" / "data" / "gltf" / "tube_two_materials.glb"
+    (tmp_path / "export.yaml").write_text(f"""\
+inputs:
+  gltf: {gltf}
+poses:
+  examples: "0:31:3"
+  test: "1:31:3"
+steps:
+  - decimate: quartic
+    targets: [0.5]
+  - write: tube.usda
+""")
+    run_pipeline(tmp_path / "export.yaml")
+    out = tmp_path / "tube.usda"
+    assert check_usd(out) == []
+    skin = read_gltf_skin(gltf, weld=True)
+    data = primitive_data(skin)
+    corners = np.concatenate([d.attributes["TEXCOORD_0"][Ff - sl.start]
+                              for d, sl, (_, Ff) in zip(data, skin.slices, welded_faces(skin, data), strict=True)]
+                             ).reshape(-1, 2)
+    stage = Usd.Stage.Open(str(out))
+    body = stage.GetPrimAtPath("/tube_two_materials/Body")
+    st = UsdGeom.PrimvarsAPI(body).GetPrimvar("st")
+    assert st.GetInterpolation() == "faceVarying"
+    uv = np.array(st.ComputeFlattened()).reshape(-1, 2)
+    np.testing.assert_allclose(uv, np.stack([corners[:, 0], 1 - corners[:, 1]], 1), atol=1e-6)
+    subsets = UsdGeom.Subset.GetAllGeomSubsets(UsdGeom.Imageable(body))
+    assert len(subsets) == 3
+    bound = {str(UsdShade.MaterialBindingAPI(s.GetPrim()).GetDirectBinding().GetMaterialPath()) for s in subsets}
+    assert len(bound) == 2                      # three primitives, two materials
+    vset = stage.GetPrimAtPath("/tube_two_materials").GetVariantSets().GetVariantSet("LOD")
+    vset.SetVariantSelection("LOD1")
+    level = stage.GetPrimAtPath("/tube_two_materials/Body")
+    n = len(level.GetAttribute("faceVertexCounts").Get())
+    members = np.sort(np.concatenate([np.array(s.GetIndicesAttr().Get())
+                                      for s in UsdGeom.Subset.GetAllGeomSubsets(UsdGeom.Imageable(level))]))
+    np.testing.assert_array_equal(members, np.arange(n))
+    assert np.array(UsdGeom.PrimvarsAPI(level).GetPrimvar("st").ComputeFlattened()).shape == (3 * n, 2)

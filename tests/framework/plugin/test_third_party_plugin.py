@@ -7,27 +7,15 @@ site-packages are added through a ``.pth`` file), never into the environment run
 import json
 import shutil
 import subprocess
-import sys
-import sysconfig
 from pathlib import Path
+
+from support.venvs import layered_venv
 
 ROOT = Path(__file__).resolve().parents[3]
 
 
-def _layered_venv(tmp_path: Path) -> Path:
-    """A fresh venv that sees this environment's packages after its own; returns its python."""
-    venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, capture_output=True)
-    python = venv / "bin" / "python"
-    site = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-                          check=True, capture_output=True, text=True).stdout.strip()
-    outer = sysconfig.get_paths()["purelib"]
-    Path(site, "zz-outer-environment.pth").write_text(f"import site; site.addsitedir({outer!r})\n")
-    return python
-
-
 def test_install_and_use_third_party_plugin(tmp_path):
-    python = _layered_venv(tmp_path)
+    python = layered_venv(tmp_path)
     source = tmp_path / "rigslim-absweights"
     shutil.copytree(ROOT / "examples/rigslim-absweights", source,
                     ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))

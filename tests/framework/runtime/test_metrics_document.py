@@ -19,7 +19,8 @@ def test_upgrade_moves_level_keys_into_level_records():
     original = copy.deepcopy(V1)
     v2 = upgrade(V1)
     assert V1 == original  # the input is not modified
-    assert v2["schema_version"] == SCHEMA_VERSION == 2
+    assert v2["schema_version"] == SCHEMA_VERSION == 3
+    assert v2["units"]["pct"].startswith("percent of the rest")  # old percentages keep their definition
     first, second = v2["evaluations"]
     assert first["metrics"] == {"hausdorff_rms_pct": AGG}
     assert first["levels"] == [
@@ -55,5 +56,5 @@ steps:
   - evaluate: [position-rms]
 """)
     document = run_pipeline(path).document
-    assert document["schema_version"] == 2
+    assert document["schema_version"] == 3
     assert all("@" not in key for ev in document["evaluations"] for key in ev["metrics"])

@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from rigslim.errors import StepError
+from rigslim.plugin.contract import StepContext
+from rigslim.plugin.host import get_host
 from rigslim.plugins.decimation.levels import choose_levels, collapse_distances, parse_max_error
 from tests.plugins.decimation.test_decimation_collapse import decimate, tube
 
@@ -66,3 +68,22 @@ def test_collapse_distances_are_zero_on_a_plane_and_bounded_by_the_bound():
     assert lv2[-1].n_faces > levels[-1].n_faces                      # stopped before 10 %
     k = int(np.flatnonzero(h2.n_faces == lv2[-1].n_faces)[0]) + 1
     assert np.maximum.accumulate(d)[k - 1] <= bound_pct / 100 * diag * 1.05   # the test pose's diagonal differs
+
+
+def test_seams_from_arrays_lock_and_collapse_along():
+    """``asset.extras["seams"] = (locked, charts)``: seam locks for any input (e.g. Blender's arrays)."""
+    asset = tube(n_around=12, n_along=12)
+    V, F = asset.mesh.V, asset.mesh.F
+    charts = (V[F].mean(axis=1)[:, 0] > 0).astype(np.int64)       # two charts split by the x = 0 plane
+    counts = np.zeros((len(V), 2), int)
+    np.add.at(counts, (F.ravel(), np.repeat(charts, 3)), 1)
+    locked = (counts > 0).all(axis=1)
+    asset.extras["seams"] = (locked, charts)
+    plugin = get_host().get("articulated-decimation", "quartic")
+    ctx = StepContext()
+    plugin.apply(asset, plugin.parse_params({"targets": [0.25]}), ctx)
+    assert ctx.report["locked_seam_vertices"] == int(locked.sum())
+    assert ctx.report["seam_vertices_collapsing_along"] > 0
+    asset.extras["seams"] = (locked[:-1], charts)
+    with pytest.raises(StepError, match="seams"):
+        plugin.apply(asset, plugin.parse_params({"targets": [0.25]}), StepContext())

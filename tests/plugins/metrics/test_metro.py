@@ -85,14 +85,18 @@ def test_simplification_from_yaml(write_pipeline, tmp_path, method):
         assert set(metrics[key]) == {"mean", "max", "per_frame"}
         assert len(metrics[key]["per_frame"]) == len(doc["frames"]["test"])
     fine, coarse = f"{method}-10pct", f"{method}-600f"
-    assert doc["schema_version"] == 2 and not any("@" in key for key in metrics)
+    assert doc["schema_version"] == 3 and not any("@" in key for key in metrics)
     levels = {lv["name"]: lv for lv in doc["evaluations"][0]["levels"]}
     assert list(levels) == [fine, coarse]
     assert metrics["hausdorff_rms_pct"] == levels[fine]["hausdorff_rms_pct"]
     assert 0 < levels[fine]["hausdorff_rms_pct"]["mean"] < levels[coarse]["hausdorff_rms_pct"]["mean"]
     assert metrics["hausdorff_rms_pct"]["mean"] < 1.0               # % of the diagonal
     assert levels[coarse]["faces"] <= 600
-    assert set(levels[coarse]) == {"name", "faces", "hausdorff_rms_pct", "hausdorff_max_pct"}
+    assert set(levels[coarse]) == {"name", "faces", "hausdorff_rms_pct", "hausdorff_max_pct", "hausdorff_rms_m",
+                                   "hausdorff_max_m"}
+    D = metrics["reference_diagonal_m"]    # the one unit: world units and % of the first test frame's diagonal
+    assert levels[coarse]["hausdorff_rms_m"]["mean"] == pytest.approx(levels[coarse]["hausdorff_rms_pct"]["mean"]
+                                                                      * D / 100, rel=1e-12)
     if method != "static-qslim":
         hier = read_hierarchy(tmp_path / "out" / "h.npz")
         assert hier.prefix(hier.n_collapses).n_faces == levels[coarse]["faces"]

@@ -1,0 +1,179 @@
+"""Scale benchmark (issue 21 item 7): peak memory and wall time of the glTF commands on big skinned meshes.
+
+The meshes are generated here: a tube of ``rings x segments`` quads (two triangles each) along x, bound to two
+bones (a smooth 2-influence blend around the middle) and bent by a 1 s clip of 31 keys; ``--triangles`` sets the
+size (default 2.6M for ``reduce`` and ``compare``, 1M for ``lod``). Each command runs as its own process
+(``rigslim reduce|lod|compare``), and its peak resident set size is the kernel's ``ru_maxrss`` of that child
+(``os.wait4``), so the Python interpreter, numpy temporaries and native libraries all count.
+
+Targets (issue 21): ``reduce`` of 2.6M triangles < 4 GB; ``lod`` of 1M triangles < 8 GB; ``compare`` of
+2.6M triangles < 60 s.
+
+Usage::
+
+    flock /tmp/rigslim-bench.lock .venv/bin/python benchmarks/scale.py [--quick] [--only reduce,lod,compare]
+
+``--quick`` runs 10x smaller meshes (a smoke test of the script). Writes docs/results/scale.{json,md}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.datasets import machine, write_results  # noqa: E402
+
+RIGSLIM = ([str(Path(sys.executable).with_name("rigslim"))] if Path(sys.executable).with_name("rigslim").exists()
+           else [sys.executable, "-m", "rigslim.cli"])
+TARGETS = {"reduce": ("peak_gb", 4.0), "lod": ("peak_gb", 8.0), "compare": ("seconds", 60.0)}
+
+
+def tube(triangles: int):
+    """(V, F, W) of a 2-bone tube with about ``triangles`` triangles: rings along x in [0, 2], segments around."""
+    quads = triangles // 2
+    segments = max(8, int(np.sqrt(quads / 2)))
+    rings = max(2, quads // segments + 1)
+    x = np.linspace(0.0, 2.0, rings)
+    a = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
+    V = np.empty((rings * segments, 3))
+    V[:, 0] = np.repeat(x, segments)
+    V[:, 1] = 0.2 * np.tile(np.cos(a), rings)
+    V[:, 2] = 0.2 * np.tile(np.sin(a), rings)
+    r = np.arange(rings - 1)[:, None] * segments
+    s = np.arange(segments)[None, :]
+    p00 = (r + s).ravel()
+    p01 = (r + (s + 1) % segments).ravel()
+    p10, p11 = p00 + segments, p01 + segments
+    F = np.concatenate([np.stack([p00, p01, p11], 1), np.stack([p00, p11, p10], 1)]).astype(np.int64)
+    t = np.clip((V[:, 0] - 0.8) / 0.4, 0.0, 1.0)
+    w1 = t * t * (3 - 2 * t)                       # smoothstep blend of bone 1 over x in [0.8, 1.2]
+    W = np.stack([1 - w1, w1], 1)
+    return V, F, W
+
+
+def write_tube(path: Path, triangles: int) -> dict:
+    """The tube as a skinned .glb (rigslim's exporter), bent by bone 1 about z over 31 frames."""
+    import scipy.sparse as sp
+
+    from rigslim.io.gltf.write import export_skinned
+    from rigslim.io.transforms import trs_matrix
+    from rigslim.model.handles import Handles
+    from rigslim.model.mesh import Mesh
+    from rigslim.model.poses import Poses
+
+    V, F, W = tube(triangles)
+    rows = np.repeat(np.arange(len(V)), 2)
+    A = sp.csr_matrix((W.ravel(), (rows, np.tile([0, 1], len(V)))), shape=(len(V), 2))
+    A.eliminate_zeros()
+    handles = Handles("skeleton", ["root", "tip"], joints=np.array([[0.0, 0, 0], [1.0, 0, 0], [2.0, 0, 0]]),
+                      bones=np.array([[0, 1], [1, 2]]), parents=np.array([-1, 0]))
+    frames = 31
+    ang = 0.9 * np.sin(np.linspace(0, 2 * np.pi, frames))
+    T = np.tile(np.eye(4)[:3], (frames, 2, 1, 1))
+    for f, g in enumerate(ang):
+        q = np.array([0.0, 0.0, np.sin(g / 2), np.cos(g / 2)])
+        pivot = np.array([1.0, 0, 0])
+        M = trs_matrix(pivot, q, np.ones(3)) @ trs_matrix(-pivot, np.array([0, 0, 0, 1.0]), np.ones(3))
+        T[f, 1] = M[:3]
+    export_skinned(path, Mesh(V, F), handles, A, Poses(T, np.arange(frames)), fps=30.0, quantize="ubyte")
+    return {"vertices": int(len(V)), "triangles": int(len(F)), "bytes": path.stat().st_size}
+
+
+def run_one(cmd: list[str], timeout: float) -> dict:
+    """Run ``cmd`` through a fresh helper process whose RUSAGE_CHILDREN peak is that command's alone: wall time,
+    peak RSS (GB), exit status and the output's tail."""
+    helper = ("import json, os, subprocess, sys, time, resource\n"
+              "t0 = time.perf_counter()\n"
+              "p = subprocess.run(json.loads(sys.argv[1]), capture_output=True, text=True,\n"
+              "                   timeout=float(sys.argv[2]))\n"
+              "ru = resource.getrusage(resource.RUSAGE_CHILDREN)\n"
+              "print(json.dumps({'rc': p.returncode, 'seconds': time.perf_counter() - t0,\n"
+              "                  'peak_gb': ru.ru_maxrss * 1024 / 1e9, 'stdout': p.stdout[-600:],\n"
+              "                  'stderr': p.stderr[-600:]}))\n")
+    import json
+
+    t0 = time.perf_counter()
+    try:
+        p = subprocess.run([sys.executable, "-c", helper, json.dumps(cmd), str(timeout)], capture_output=True,
+                           text=True, timeout=timeout + 60)
+    except subprocess.TimeoutExpired:
+        return {"status": "timeout", "seconds": time.perf_counter() - t0, "peak_gb": None}
+    if p.returncode != 0:
+        return {"status": "timeout" if "TimeoutExpired" in p.stderr else "error", "peak_gb": None,
+                "seconds": time.perf_counter() - t0, "tail": p.stderr[-600:]}
+    r = json.loads(p.stdout)
+    return {"status": "ok" if r["rc"] == 0 else f"exit {r['rc']}", "seconds": r["seconds"], "peak_gb": r["peak_gb"],
+            "stdout": r["stdout"], "tail": r["stderr"]}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="10x smaller meshes")
+    ap.add_argument("--only", default="reduce,lod,compare")
+    ap.add_argument("--timeout", type=float, default=3600.0)
+    args = ap.parse_args()
+    div = 10 if args.quick else 1
+    only = args.only.split(",")
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="rigslim-scale-") as tmp:
+        tmp = Path(tmp)
+        big = tmp / "tube-2.6M.glb"
+        mid = tmp / "tube-1M.glb"
+        sizes = {}
+        if {"reduce", "compare"} & set(only):
+            sizes["big"] = write_tube(big, 2_600_000 // div)
+        if "lod" in only:
+            sizes["mid"] = write_tube(mid, 1_000_000 // div)
+        jobs = {
+            "reduce": (big, RIGSLIM + ["reduce", str(big), "-o", str(tmp / "reduced.glb"), "-k", "1"]),
+            "lod": (mid, RIGSLIM + ["lod", str(mid), "-o", str(tmp / "lod.glb"), "--ratios", "0.5,0.25"]),
+            "compare": (big, RIGSLIM + ["compare", str(big), str(tmp / "reduced.glb"), "--json"]),
+        }
+        for name in ("reduce", "lod", "compare"):
+            if name not in only:
+                continue
+            src, cmd = jobs[name]
+            if name == "compare" and not (tmp / "reduced.glb").exists():
+                cmd[cmd.index(str(tmp / "reduced.glb"))] = str(src)
+            print(f"{name}: {' '.join(cmd[len(RIGSLIM):])}", flush=True)
+            r = run_one(cmd, args.timeout)
+            key, limit = TARGETS[name]
+            size = sizes["mid" if name == "lod" else "big"]
+            row = {"command": name, **size, **r, "target": f"{key} < {limit:g}" + ("" if div == 1 else " (full size)"),
+                   "met": bool(r["status"] == "ok" and r.get(key) is not None and r[key] < limit)}
+            rows.append(row)
+            print(f"  {r['status']}: {r['seconds']:.1f} s, peak {r['peak_gb'] or float('nan'):.2f} GB "
+                  f"({size['triangles']:,} triangles); target {row['target']}: "
+                  f"{'met' if row['met'] else 'missed'}", flush=True)
+            if r["status"] != "ok":
+                print("  " + (r.get("tail") or "")[-400:].replace("\n", "\n  "), flush=True)
+    doc = {"machine": machine(), "quick": args.quick, "loadavg": os.getloadavg(), "rows": rows}
+    md = ["# Scale: the glTF commands on big skinned meshes", "",
+          "Generated by `benchmarks/scale.py` (a 2-bone tube; each command a process of its own, peak RSS = the "
+          "child's ru_maxrss).", "",
+          f"Machine: {doc['machine']}; load average at the end {doc['loadavg'][0]:.2f}.", "",
+          "| command | triangles | vertices | status | wall s | peak GB | target | met |",
+          "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        md.append(f"| {r['command']} | {r['triangles']:,} | {r['vertices']:,} | {r['status']} | {r['seconds']:.1f} | "
+                  f"{r['peak_gb'] if r['peak_gb'] is None else round(r['peak_gb'], 2)} | {r['target']} | "
+                  f"{'yes' if r['met'] else 'no'} |")
+    if not args.quick:
+        write_results("scale", doc, "\n".join(md) + "\n")
+    else:
+        print("\n".join(md))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
