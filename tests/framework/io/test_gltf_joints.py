@@ -26,8 +26,7 @@ def test_a_joint_with_an_attached_node_is_needed():
     names = skin.handles.names
     hand = names.index("Hand.Left")
     assert hand in need and "Weapon" in need[hand]
-    for h, why in need.items():                   # every reason is an attachment here (one skin, no pattern)
-        assert why.startswith("attached")
+    assert all(why.startswith("attached") for why in need.values())    # one skin, no pattern: attachments only
     assert names.index("Head") not in need
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.gltf_validator import threejs_available, threejs_skinned_positions, validate_gltf, validator_available
 
 from rigslim.commands.compare import posed_surfaces
 from rigslim.io.gltf.document import load_gltf, read_accessor
@@ -19,7 +20,6 @@ from rigslim.io.gltf.lod import lod_nodes
 from rigslim.io.gltf.skin import skinning_sets
 from rigslim.io.gltf.write import split_levels, write_gltf
 from rigslim.runtime.run import run_pipeline
-from support.gltf_validator import threejs_available, threejs_skinned_positions, validate_gltf, validator_available
 
 ROOT = Path(__file__).resolve().parents[3]
 CHARACTER = ROOT / "examples" / "data" / "gltf" / "suite" / "mrfixit.glb"

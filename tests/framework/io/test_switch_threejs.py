@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.posed_render import PosedRenderer, available
 
 from rigslim.commands.cli import main
 from rigslim.commands.compare import posed_surfaces
 from rigslim.numerics.screen_coverage import coverage_distance
-from support.posed_render import PosedRenderer, available
 
 ROOT = Path(__file__).resolve().parents[3]
 CHARACTER = ROOT / "examples" / "data" / "gltf" / "suite" / "wuson.glb"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from support.synthetic import tube_asset
 
 from rigslim.errors import StepError
 from rigslim.model.hierarchy import SimplifiedLevel
@@ -15,7 +16,6 @@ from rigslim.plugins.decimation.joint_budget import (
     default_solver,
     level_target,
 )
-from support.synthetic import tube_asset
 
 
 def _level(asset, k=4):

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from support.synthetic import tube_asset
 
 from rigslim.model.hierarchy import SimplifiedLevel
 from rigslim.model.weights import ReducedWeights
 from rigslim.plugins.decimation.joint_budget import default_solver, level_target
 from rigslim.plugins.decimation.joint_refit import parent_rows, proxy_matrix, refit_rows, row_errors
-from support.synthetic import tube_asset
 
 
 def _level(asset, k):
