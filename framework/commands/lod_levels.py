@@ -112,6 +112,8 @@ def level_rows(result) -> list[dict]:
         row = {"label": lv.label, "faces": lv.n_faces, "vertices": lv.n_vertices, "joints": int(len(used)),
                "influences": int(counts.sum()), "max_bones": int(counts.max(initial=0)),
                "joint_matrices_per_draw": list((prims.get(lv.label) or {}).get("skin_joints", {}).values()) or None}
+        if (prims.get(lv.label) or {}).get("joints") is not None:     # as written (a weight may round to 0)
+            row["joints"] = int(prims[lv.label]["joints"])
         if lv.label in budget:
             b = budget[lv.label]
             row["joint_budget"] = {k: b.get(k) for k in ("budget", "joints_before", "dropped", "met", "strategy",

@@ -685,7 +685,7 @@ def _write_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp, lo
         order = np.argsort(-values, axis=1, kind="stable")[:, :width]
         I = np.take_along_axis(level.weights.indices, order, 1)
         W = np.take_along_axis(values, order, 1)
-        skins = _level_skins(js, blob, source, parts, I, W, level.label, ibm if level_skins else None)
+        skins = _level_skins(js, blob, source, parts, I, W, level.label, ibm if level_skins else None, quantize)
         by_mesh: dict[int, list] = {}
         for part in parts:
             sl = source.slices[part.slice_index]
@@ -733,14 +733,15 @@ def _write_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp, lo
                         anim["channels"].append({"sampler": ch["sampler"],
                                                  "target": {"node": len(js["nodes"]) - 1, "path": "weights"}})
         summary.append({"label": level.label, "primitive_faces": [n for ps in by_mesh.values() for _, _, n in ps],
-                        "skin_joints": {int(mi): skins[mi].n_joints for mi in by_mesh}})
+                        "skin_joints": {int(mi): skins[mi].n_joints for mi in by_mesh},
+                        "joints": len(set().union(*[set(skins[mi].used.tolist()) for mi in by_mesh]))})
     _link_levels(js, source, node_levels, lod, [lv.label for lv in levels], coverage)
     return summary
 
 
-def _level_skins(js, blob, source, parts, I, W, label, ibm) -> dict:
+def _level_skins(js, blob, source, parts, I, W, label, ibm, quantize: str = "float") -> dict:
     """Source mesh -> the :class:`~rigslim.io.gltf.level_skins.LevelSkin` of its level mesh (the joints its
-    primitives' vertices use)."""
+    primitives' vertices use once their weights are encoded: a weight that rounds to 0 uses no joint)."""
     rows: dict[int, list] = {}
     for part in parts:
         rows.setdefault(source.slices[part.slice_index].mesh, []).append(part.weight_rows)
@@ -748,7 +749,7 @@ def _level_skins(js, blob, source, parts, I, W, label, ibm) -> dict:
     n = len(source.joints)
     for mi, r in rows.items():
         r = np.concatenate(r)
-        used = used_joints(I[r], W[r]) if ibm is not None else np.arange(n)    # None: the source skin
+        used = used_joints(I[r], quantize_weights(W[r], quantize)) if ibm is not None else np.arange(n)
         out[mi] = level_skin(js, blob, source, used, label, ibm)
     return out
 
