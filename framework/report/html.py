@@ -111,7 +111,7 @@ def _other_metrics(rows: list[EvaluationRow], shown: set[str]) -> list[str]:
             text = f"{_fmt(v.get('mean'))} (max {_fmt(v.get('max'))})" if isinstance(v, dict) else \
                 _fmt(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else "&ndash;"
             cells.append(f"<td>{text}</td>")
-        out.append(f'<tr><td class="l">{html.escape(r.label)}</td>' + "".join(cells) + "</tr>")
+        out.append(f'<tr><th class="l" scope="row">{html.escape(r.label)}</th>' + "".join(cells) + "</tr>")
     out.append("</tbody></table>")
     return out
 

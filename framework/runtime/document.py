@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
 
@@ -51,14 +51,23 @@ class PipelineDoc(BaseModel):
 
 @dataclass
 class Step:
-    """One parsed step."""
+    """One parsed step: exactly one of ``plugin``, ``metrics`` and ``output`` says what it runs."""
 
     index: int           # 1-based
     key: str             # stage key in YAML ("solve")
     stage: str           # stage name ("weight-solver")
-    plugin: Any          # plugin name, or for evaluate a list of (name, params)
     params: dict
     name: str
+    plugin: str | None = None                     # the plugin a generate/select/solve/... step runs
+    metrics: list[tuple[str, dict]] = field(default_factory=list)  # evaluate: (metric name, parameters)
+    output: str | None = None                     # write/report: the output path (as written)
+
+    @property
+    def label(self) -> str:
+        """What the step runs, for messages and the metrics document: the plugin, the metrics or the path."""
+        if self.key == "evaluate":
+            return ",".join(n for n, _ in self.metrics)
+        return self.plugin if self.plugin is not None else str(self.output)
 
 
 def _format_validation(err: ValidationError) -> tuple[str, str]:
@@ -123,26 +132,22 @@ def _parse_step(index: int, raw: dict, path: Path, host: PluginHost) -> Step:
     params = {k: v for k, v in raw.items() if k not in (key, "name")}
     value = raw[key]
     if key == "evaluate":
-        plugin: str | list[tuple[str, dict]] = _parse_metrics(value, index, path, host)
-        name = raw.get("name") or f"evaluate{index}"
-    elif key in ("write", "report"):
+        metrics = _parse_metrics(value, index, path, host)
+        return Step(index, key, stage, params, str(raw.get("name") or f"evaluate{index}"), metrics=metrics)
+    if key in ("write", "report"):
         if not isinstance(value, str):
             raise PipelineError(f"{key} needs an output path", source=path, field=f"steps[{index}].{key}",
                                 fix="write e.g. 'write: out/weights.npz' or 'report: out/report.html'")
-        plugin = value
-        name = raw.get("name") or f"{key}{index}"
-    else:
-        if not isinstance(value, str):
-            raise PipelineError(f"'{key}' needs a plugin name", source=path, field=f"steps[{index}].{key}",
-                                fix=closest("", host.plugins(stage)))
-        try:
-            plugin_obj = host.get(stage, value)
-        except PluginNotFound as e:
-            raise PipelineError(e.problem, source=path, field=f"steps[{index}].{key}", fix=e.fix) from None
-        _check_params(plugin_obj, params, path, f"steps[{index}]")
-        plugin = value
-        name = raw.get("name") or value
-    return Step(index, key, stage, plugin, params, str(name))
+        return Step(index, key, stage, params, str(raw.get("name") or f"{key}{index}"), output=value)
+    if not isinstance(value, str):
+        raise PipelineError(f"'{key}' needs a plugin name", source=path, field=f"steps[{index}].{key}",
+                            fix=closest("", host.plugins(stage)))
+    try:
+        plugin_obj = host.get(stage, value)
+    except PluginNotFound as e:
+        raise PipelineError(e.problem, source=path, field=f"steps[{index}].{key}", fix=e.fix) from None
+    _check_params(plugin_obj, params, path, f"steps[{index}]")
+    return Step(index, key, stage, params, str(raw.get("name") or value), plugin=value)
 
 
 def _parse_metrics(value, index, path, host) -> list[tuple[str, dict]]:
@@ -207,7 +212,7 @@ def _apply_override(item: str, steps: list[Step], path: Path, host: PluginHost) 
     value = item.split("=", 1)[1]
     target, param = lhs.rsplit(".", 1) if "." in lhs else (lhs, None)
     matches = [s for s in steps if target in (s.name, s.key, str(s.index)) or
-               (isinstance(s.plugin, str) and s.plugin == target)]
+               (s.plugin is not None and s.plugin == target)]
     if not matches:
         names = [s.name for s in steps] + [s.key for s in steps]
         raise PipelineError(f"--set names no step '{target}'", source=path, field="--set", fix=closest(target, names))
@@ -225,18 +230,20 @@ def _apply_override(item: str, steps: list[Step], path: Path, host: PluginHost) 
                 raise PipelineError(f"--set '{item}' gives {parsed!r}, not {what}", source=path, field="--set",
                                     fix=f"write e.g. --set {target}=NAME (rigslim plugins lists the names)"
                                     if what == "a plugin name" else f"write e.g. --set {target}=out/file")
-            if step.key not in ("write", "report") and step.name == step.plugin:
+            if step.key in ("write", "report"):
+                step.output = parsed
+                continue
+            if step.name == step.plugin:
                 step.name = parsed  # a default name (the plugin's) follows the plugin
             step.plugin = parsed
-            if step.key not in ("write", "report"):
-                try:
-                    plugin = host.get(step.stage, parsed)
-                except PluginNotFound as e:
-                    raise PipelineError(e.problem, source=path, field="--set", fix=e.fix) from None
-                # Parameters of the old plugin that the new one does not take are dropped.
-                step.params = {k: v for k, v in step.params.items() if k in plugin.Params.model_fields}
-                _check_params(plugin, step.params, path, f"steps[{step.index}]")
+            try:
+                plugin = host.get(step.stage, parsed)
+            except PluginNotFound as e:
+                raise PipelineError(e.problem, source=path, field="--set", fix=e.fix) from None
+            # Parameters of the old plugin that the new one does not take are dropped.
+            step.params = {k: v for k, v in step.params.items() if k in plugin.Params.model_fields}
+            _check_params(plugin, step.params, path, f"steps[{step.index}]")
             continue
         step.params[param] = parsed
-        if step.key not in ("write", "report"):
+        if step.plugin is not None:
             _check_params(host.get(step.stage, step.plugin), step.params, path, f"steps[{step.index}]")

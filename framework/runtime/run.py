@@ -80,7 +80,7 @@ def _run_pipeline(path, *, overrides, metrics_path, host, console, on_evaluation
     for step in steps:
         ctx = reporter.context(base)
         t = time.perf_counter()
-        with reporter.status(f"step {step.index}: {step.key} {step.plugin if isinstance(step.plugin, str) else ''}"):
+        with reporter.status(f"step {step.index}: {step.key} {step.label if step.key != 'evaluate' else ''}"):
             try:
                 entry = _run_step(step, asset, host, ctx, base, path, document)
             except RigslimError as e:
@@ -113,11 +113,12 @@ def _run_step(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base
     of their own; every other step runs its plugin's :meth:`rigslim.plugin.Plugin.apply`, which stores the
     stage's result in the asset.
     """
-    entry = {"stage": step.key, "plugin": step.plugin if isinstance(step.plugin, str) else "metrics",
+    entry = {"stage": step.key, "plugin": step.label if step.key != "evaluate" else "metrics",
              "name": step.name}
     runner = _STEP_RUNNERS.get(step.key)
     if runner is not None:
         return runner(step, asset, host, ctx, base, source, document, entry)
+    assert step.plugin is not None  # a plugin step (evaluate, write and report have runners of their own)
     plugin = host.get(step.stage, step.plugin)
     params = plugin.parse_params(step.params)
     with host.calling(step.stage, step.plugin, f"steps[{step.index}].{step.key}"):
@@ -130,7 +131,7 @@ def _run_evaluate(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, 
     evaluation = Evaluation(asset, host, ctx)
     metrics: dict = {}
     levels: list[dict] = []
-    for name, p in step.plugin:
+    for name, p in step.metrics:
         metric = host.metric(name)
         params = metric.parse_params(p)
         with host.calling("metric", name, f"steps[{step.index}].evaluate.{name}"), \
@@ -154,13 +155,13 @@ def _run_evaluate(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, 
         asset.extras.setdefault("evaluated_normals", {})[step.index] = (asset.normal_estimator,
                                                                         dict(asset.normal_params))
     document["evaluations"].append(evaluation_entry)
-    entry["plugin"] = ",".join(n for n, _ in step.plugin)
+    entry["plugin"] = step.label
     return entry
 
 
 def _run_write(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base: Path, source: Path,
                document: dict, entry: dict) -> dict:
-    out = Path(step.plugin)
+    out = Path(str(step.output))
     out = out if out.is_absolute() else base / out
     params = dict(step.params)
     name = params.pop("writer", "report" if step.key == "report" else None)

@@ -46,7 +46,7 @@ def test_replace_then_set_a_parameter_of_the_new_plugin(write_pipeline):
 def test_stage_key_form_and_write_path(write_pipeline):
     path = write_pipeline(PIPELINE)
     s = steps_of(path, "select.select=best-fit", "write=out/other.npz")
-    assert s["select"].plugin == "best-fit" and s["write"].plugin == "out/other.npz"
+    assert s["select"].plugin == "best-fit" and s["write"].output == "out/other.npz"
 
 
 @pytest.mark.parametrize("item,message", [
