@@ -49,24 +49,40 @@ def reduced_from_gltf(path, asset):
 
 def lod_rows(path) -> list[dict]:
     """One row per (original node, level): ``node``, ``level``, ``level_node``, ``mesh``, ``primitives``,
-    ``materials``, ``triangles``, ``vertices``; level 0 is the original mesh."""
-    from rigslim.io.gltf.document import load_gltf
-    from rigslim.io.gltf.lod import lod_nodes
+    ``materials``, ``triangles``, ``vertices``, ``joints`` (the level skin's: joint matrices per draw),
+    ``influences`` (non-zero weights: vertices x influences), ``error_max_m`` / ``error_rms_m`` (the
+    test-pose error the writer measured, ``extras.rigslim_lod``) and ``coverage`` (the ``MSFT_screencoverage``
+    down to which the level shows); level 0 is the original mesh."""
+    import numpy as np
 
-    js = load_gltf(path).json
+    from rigslim.io.gltf.document import load_gltf, read_accessor
+    from rigslim.io.gltf.lod import lod_nodes
+    from rigslim.io.gltf.skin import skinning_sets
+
+    doc = load_gltf(path)
+    js = doc.json
     rows = []
 
     def mesh_row(node_index, level, level_node):
-        mi = js["nodes"][level_node]["mesh"]
+        node = js["nodes"][level_node]
+        mi = node["mesh"]
         mesh = js["meshes"][mi]
-        tris = verts = 0
+        tris = verts = infl = 0
         for prim in mesh["primitives"]:
             if "indices" in prim:
                 tris += js["accessors"][prim["indices"]]["count"] // 3
             verts += js["accessors"][prim["attributes"]["POSITION"]]["count"]
+            for s in skinning_sets(prim["attributes"]):
+                infl += int((np.asarray(read_accessor(doc, prim["attributes"][f"WEIGHTS_{s}"])) > 0).sum())
+        measured = (node.get("extras") or {}).get("rigslim_lod") or ({} if level else {"error_max_m": 0.0,
+                                                                                      "error_rms_m": 0.0})
+        coverage = (js["nodes"][node_index].get("extras") or {}).get("MSFT_screencoverage") or []
         return {"node": js["nodes"][node_index].get("name", str(node_index)), "level": level,
                 "level_node": level_node, "mesh": mesh.get("name", str(mi)), "primitives": len(mesh["primitives"]),
-                "materials": [p.get("material") for p in mesh["primitives"]], "triangles": tris, "vertices": verts}
+                "materials": [p.get("material") for p in mesh["primitives"]], "triangles": tris, "vertices": verts,
+                "joints": len(js["skins"][node["skin"]]["joints"]) if "skin" in node else None, "influences": infl,
+                "error_max_m": measured.get("error_max_m"), "error_rms_m": measured.get("error_rms_m"),
+                "coverage": coverage[level] if level < len(coverage) else None}
 
     for i, ids in lod_nodes(js).items():
         if "mesh" not in js["nodes"][i]:
@@ -107,14 +123,27 @@ def lod_section(documents) -> str:
             body = "".join(
                 f"<tr><td>{html.escape(str(r['node']))}</td><td>{r['level']}</td><td>{html.escape(str(r['mesh']))}"
                 f"</td><td>{r['primitives']}</td><td>{html.escape(', '.join(map(str, r['materials'])))}</td>"
-                f"<td>{r['triangles']}</td><td>{r['vertices']}</td></tr>" for r in rows)
+                f"<td>{r['triangles']}</td><td>{r['vertices']}</td><td>{_cell(r['joints'])}</td>"
+                f"<td>{r['influences']}</td><td>{_cell(r['error_max_m'])}</td><td>{_cell(r['error_rms_m'])}</td>"
+                f"<td>{_cell(r['coverage'])}</td></tr>" for r in rows)
             parts.append(f"<h3>{html.escape(str(path))}</h3><table><tr><th>node</th><th>level</th><th>mesh</th>"
-                         f"<th>primitives</th><th>materials</th><th>triangles</th><th>vertices</th></tr>{body}"
-                         "</table>")
+                         f"<th>primitives</th><th>materials</th><th>triangles</th><th>vertices</th><th>joints</th>"
+                         f"<th>influences</th><th>error max (m)</th><th>error RMS (m)</th><th>coverage</th></tr>"
+                         f"{body}</table>")
     if not parts:
         return ""
     return ("<h2>Levels of detail</h2><div class=\"meta\">MSFT_lod chains of the glTF files the runs wrote: "
-            "each original node and its own level nodes (level 0: the original mesh).</div>" + "".join(parts))
+            "each original node and its own level nodes (level 0: the original mesh); joints: the level skin's "
+            "(joint matrices per draw); influences: non-zero weights (vertices x influences); error: max and RMS "
+            "test-pose distance to the full mesh; coverage: the MSFT_screencoverage down to which the level "
+            "shows.</div>" + "".join(parts))
+
+
+def _cell(x) -> str:
+    """A table cell's number: 4 significant digits, or a dash for none."""
+    if x is None:
+        return "-"
+    return f"{x:.4g}" if isinstance(x, float) else html.escape(str(x))
 
 
 def world_diagonal(path) -> float:

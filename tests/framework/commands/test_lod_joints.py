@@ -98,3 +98,39 @@ def test_report_rows_say_faces_joints_influences_error_and_coverage(drone):
         assert extra["level"] == i + 1 and extra["error_max_m"] == row["error_max_m"]
     assert report["levels"][0]["error_max_m"] <= report["levels"][1]["error_max_m"] or \
         report["levels"][0]["switch_distance_m"] == report["levels"][1]["switch_distance_m"]
+
+
+def test_the_report_shows_faces_joints_influences_error_and_coverage_per_level(tmp_path):
+    """``rigslim report`` of a run on a suite character: one row per level with all five."""
+    from rigslim.report.gltf import lod_rows
+
+    yml = tmp_path / "drone.yaml"
+    yml.write_text(f"""
+inputs:
+  gltf: {{path: {DRONE}, animation: left}}
+poses: {{examples: "0::4", test: "2::4"}}
+steps:
+  - decimate: quartic
+    targets: [0.5, 0.25]
+    max_bones: 4
+    joint_budget: [12, 6]
+  - evaluate:
+      - metro: {{samples: 1000}}
+  - write: out/drone-lod.glb
+    lod: true
+    quantize: ubyte
+""")
+    assert main(["run", str(yml), "--metrics", str(tmp_path / "m.json"), "-q"]) == 0
+    out = tmp_path / "report.html"
+    assert main(["report", str(tmp_path / "m.json"), "-o", str(out), "--no-renders", "-q"]) == 0
+    text = out.read_text()
+    assert "<th>joints</th><th>influences</th><th>error max (m)</th><th>error RMS (m)</th><th>coverage</th>" in text
+    rows = lod_rows(tmp_path / "out" / "drone-lod.glb")
+    assert [r["level"] for r in rows] == [0, 1, 2]
+    assert rows[0]["joints"] == 24 and rows[1]["joints"] <= 12 and rows[2]["joints"] <= 6
+    assert rows[0]["error_max_m"] == 0.0 < rows[1]["error_max_m"] <= rows[2]["error_max_m"]
+    assert rows[0]["coverage"] >= rows[1]["coverage"] >= rows[2]["coverage"] == 0.0
+    assert rows[2]["influences"] <= rows[1]["influences"] <= rows[0]["influences"]
+    for r in rows:
+        assert f"<td>{r['triangles']}</td><td>{r['vertices']}</td><td>{r['joints']}</td><td>{r['influences']}</td>" \
+            in text
