@@ -79,6 +79,10 @@ class GltfWriter(Writer):
         """... and a viewport this many pixels high ..."""
         aspect: float = Field(16.0 / 9.0, gt=0)
         """... and this width / height (coverage is the bounding sphere's share of the screen area)."""
+        switch_frames: int = Field(12, ge=0)
+        """Measured coverage: at most this many test frames, evenly spread (0: every test frame) ..."""
+        switch_samples: int = Field(10000, ge=100)
+        """... and this many surface samples per side and frame."""
         level_skins: bool = True
         """Each level mesh gets a skin of only the joints its vertices use (false: the source skin)."""
 
@@ -105,7 +109,8 @@ class GltfWriter(Writer):
                 from rigslim.io.gltf.switch import level_switch
 
                 switch = level_switch(asset, levels, pixel_error=params.pixel_error, fov=params.fov,
-                                      resolution=params.resolution, aspect=params.aspect)
+                                      resolution=params.resolution, aspect=params.aspect,
+                                      frames=params.switch_frames, samples=params.switch_samples)
                 ctx.report["switch"] = switch
             stats = write_gltf(path, source, reduced, quantize=params.quantize, sets=params.sets, levels=levels,
                                lod=params.lod, embed=params.embed, clamp_negative=params.clamp_negative,
