@@ -23,6 +23,7 @@ from rigslim.commands.gltf_common import (
 from rigslim.commands.lod_levels import (
     decimate_params,
     level_rows,
+    print_levels,
     sidecar_path,
     switch_camera,
     write_params,
@@ -149,6 +150,7 @@ def cmd_lod(args) -> int:
     faces = ", ".join(f"{r['faces']}" for r in rows)
     print(f"wrote {', '.join(str(p) for p in outputs)}: {len(rows)} levels ({faces} faces of "
           f"{doc['input_faces']}), at most {args.max_bones} bones per vertex, {seconds:.2f} s")
+    print_levels(rows)
     for t in targets:
         _say_where_it_stopped(t, max_error, doc["locked_seam_vertices"])
     return 0

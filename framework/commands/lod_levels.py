@@ -20,7 +20,7 @@ import numpy as np
 from rigslim.errors import InputError
 
 __all__ = ["SIDECAR_SCHEMA", "add_level_arguments", "decimate_params", "level_rows", "parse_max_joints",
-           "sidecar_path", "write_params", "write_sidecar"]
+           "print_levels", "sidecar_path", "switch_camera", "write_params", "write_sidecar"]
 
 #: Schema name of ``OUT.lod.json``.
 SIDECAR_SCHEMA = "rigslim-lod-sidecar"
@@ -37,6 +37,8 @@ def add_level_arguments(p) -> None:
                    help="with --max-joints: drop leaf joints only, any joint, or the better of both (default global)")
     p.add_argument("--pixel-error", type=float, default=1.0, metavar="P",
                    help="switch coverage: where a level's test-pose error projects to P pixels (default 1)")
+    p.add_argument("--switch-error", choices=["max", "rms"], default="max",
+                   help="switch coverage from each level's largest test-pose error (default) or its RMS")
     p.add_argument("--fov", type=float, default=60.0, metavar="DEG", help="... for this vertical field of view "
                    "(default 60)")
     p.add_argument("--resolution", type=int, default=1080, metavar="H", help="... and a viewport H pixels high "
@@ -90,7 +92,8 @@ def write_params(args) -> dict:
     if args.resolution < 1:
         raise InputError(f"--resolution {args.resolution} is not a pixel count", field="--resolution",
                          fix="give the viewport height in pixels, e.g. 1080")
-    return {"pixel_error": float(args.pixel_error), "fov": float(args.fov), "resolution": int(args.resolution)}
+    return {"pixel_error": float(args.pixel_error), "fov": float(args.fov), "resolution": int(args.resolution),
+            "switch_error": getattr(args, "switch_error", "max")}
 
 
 def _steps(result, stage: str) -> list[dict]:
@@ -125,13 +128,26 @@ def level_rows(result) -> list[dict]:
     return rows
 
 
+def print_levels(rows: list[dict]) -> None:
+    """One stdout line per level: faces, joints, influences, error and where it switches in."""
+    for r in rows:
+        line = f"  {r['label']}: {r['faces']} faces, {r['joints']} joints, {r['influences']} influences"
+        if r.get("error_max_m") is not None:
+            line += (f", test-pose error max {r['error_max_m']:.3g} m (RMS {r['error_rms_m']:.3g} m), from "
+                     f"{r['switch_distance_m']:.3g} m / coverage {r['screen_coverage']:.3g}")
+        b = r.get("joint_budget")
+        if b and not b.get("met", True):
+            line += f" (joint budget {b['budget']} not met: the rest are joints the file needs)"
+        print(line)
+
+
 def switch_camera(result) -> dict | None:
     """The write step's coverage camera and ``MSFT_screencoverage`` (None when unmeasured)."""
     sw = ((_steps(result, "write") or [{}])[-1].get("report") or {}).get("switch")
     if not sw:
         return None
-    return {k: sw[k] for k in ("pixel_error", "fov_deg", "resolution", "aspect", "bounding_radius_m", "test_frames",
-                               "coverage")}
+    return {k: sw.get(k) for k in ("pixel_error", "fov_deg", "resolution", "aspect", "error", "bounding_radius_m",
+                                   "test_frames", "coverage")}
 
 
 def sidecar_path(out: Path) -> Path:
@@ -172,7 +188,7 @@ def write_sidecar(path: Path, *, source: Path, outputs: list[Path], rows: list[d
                        "min_coverage": cov[i] if len(cov) > i else None,
                        "switch_distance_m": row.get("switch_distance_m")})
     doc = header | {"sidecar_schema": SIDECAR_SCHEMA, "sidecar_version": SIDECAR_VERSION, "camera": {
-        k: cam.get(k) for k in ("pixel_error", "fov_deg", "resolution", "aspect")},
+        k: cam.get(k) for k in ("pixel_error", "fov_deg", "resolution", "aspect", "error")},
         "bounding_radius_m": cam.get("bounding_radius_m"), "test_frames": cam.get("test_frames"),
         "coverage": "pi r^2 / (4 aspect d^2 tan^2(fov / 2)): the bounding sphere's share of the screen area "
                     "(Babylon.js's MSFT_screencoverage); show level i while min_coverage <= coverage < max_coverage",

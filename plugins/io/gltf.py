@@ -79,6 +79,9 @@ class GltfWriter(Writer):
         """... and a viewport this many pixels high ..."""
         aspect: float = Field(16.0 / 9.0, gt=0)
         """... and this width / height (coverage is the bounding sphere's share of the screen area)."""
+        switch_error: Literal["max", "rms"] = "max"
+        """Measured coverage from each level's largest test-pose error (every point within ``pixel_error``)
+        or its RMS (on average)."""
         switch_frames: int = Field(12, ge=0)
         """Measured coverage: at most this many test frames, evenly spread (0: every test frame) ..."""
         switch_samples: int = Field(10000, ge=100)
@@ -110,7 +113,8 @@ class GltfWriter(Writer):
 
                 switch = level_switch(asset, levels, pixel_error=params.pixel_error, fov=params.fov,
                                       resolution=params.resolution, aspect=params.aspect,
-                                      frames=params.switch_frames, samples=params.switch_samples)
+                                      frames=params.switch_frames, samples=params.switch_samples,
+                                      error=params.switch_error)
                 ctx.report["switch"] = switch
             stats = write_gltf(path, source, reduced, quantize=params.quantize, sets=params.sets, levels=levels,
                                lod=params.lod, embed=params.embed, clamp_negative=params.clamp_negative,

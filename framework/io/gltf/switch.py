@@ -47,7 +47,7 @@ def _measured(asset, levels, frames: list[int], samples: int) -> list[dict]:
 
 
 def level_switch(asset, levels, *, pixel_error: float, fov: float, resolution: int, aspect: float,
-                 frames: int = 12, samples: int = 10000) -> dict:
+                 frames: int = 12, samples: int = 10000, error: str = "max") -> dict:
     """The switch hints of ``levels`` (module docstring).
 
     Returns
@@ -59,7 +59,8 @@ def level_switch(asset, levels, *, pixel_error: float, fov: float, resolution: i
         ``resolution``, ``aspect``, ``bounding_radius_m``, ``test_frames`` (how many were measured).
 
     ``frames``: at most this many test frames are measured, evenly spread (0: all); ``samples``: surface
-    samples per side and frame.
+    samples per side and frame; ``error``: the coverage bounds the ``max`` error (every point of every
+    measured frame within P pixels) or the ``rms`` one (on average).
     """
     asset.require("mesh", "weights", "poses", "split", step="write: gltf (LOD switch coverage)")
     T = asset.test_poses().T
@@ -67,7 +68,8 @@ def level_switch(asset, levels, *, pixel_error: float, fov: float, resolution: i
     chosen = measured_frames(len(T), frames)
     errors = _measured(asset, levels, chosen, samples)
     T = T[chosen]
-    series = coverage_series([e["error_max"] for e in errors], radius, pixel_error=pixel_error, fov=fov,
+    key = "error_rms" if error == "rms" else "error_max"
+    series = coverage_series([e[key] for e in errors], radius, pixel_error=pixel_error, fov=fov,
                              resolution=resolution, aspect=aspect)
     rows, extras = [], []
     for i, (lv, e) in enumerate(zip(levels, errors, strict=True)):
@@ -76,5 +78,5 @@ def level_switch(asset, levels, *, pixel_error: float, fov: float, resolution: i
         rows.append(row)
         extras.append({"rigslim_lod": {"level": i + 1} | {k: v for k, v in row.items() if k != "faces"}})
     return {"coverage": series["coverage"], "node_extras": extras, "levels": rows, "pixel_error": pixel_error,
-            "fov_deg": fov, "resolution": resolution, "aspect": aspect, "bounding_radius_m": radius,
+            "fov_deg": fov, "resolution": resolution, "aspect": aspect, "error": error, "bounding_radius_m": radius,
             "test_frames": int(len(T))}

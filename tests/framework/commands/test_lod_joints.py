@@ -134,3 +134,19 @@ steps:
     for r in rows:
         assert f"<td>{r['triangles']}</td><td>{r['vertices']}</td><td>{r['joints']}</td><td>{r['influences']}</td>" \
             in text
+
+
+def test_switch_error_rms_switches_no_later_than_max(tmp_path):
+    """A smaller error (the RMS) shows at a larger coverage: nearer."""
+    cov = {}
+    for kind in ("max", "rms"):
+        out, rep = tmp_path / f"{kind}.glb", tmp_path / f"{kind}.json"
+        assert main(["lod", str(HUESITOS), "-o", str(out), "--ratios", "0.5,0.25", "--max-error", "none",
+                     "--switch-error", kind, "--report", str(rep)]) == 0
+        report = json.loads(rep.read_text())
+        assert report["switch"]["error"] == kind
+        cov[kind] = report["switch"]["coverage"]
+        rows = report["levels"]
+        assert all(r["error_rms_m"] <= r["error_max_m"] for r in rows)
+    assert all(r >= m for r, m in zip(cov["rms"], cov["max"], strict=True))
+    assert cov["rms"][0] > cov["max"][0]
