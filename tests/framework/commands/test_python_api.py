@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 import shutil
+import sys
 from pathlib import Path
 
 import pytest
@@ -24,8 +25,19 @@ def test_public_names():
         rigslim.not_a_name  # noqa: B018
 
 
-def test_python_md_examples_run(tmp_path, monkeypatch, capsys):
-    """The page's examples run from a copy of the repository root (outputs land in the copy)."""
+def _quoted(block: str) -> dict[int, str]:
+    """Line number -> the figure a ``print(...)  # FIGURE`` line of ``block`` quotes."""
+    quoted = {}
+    for number, line in enumerate(block.splitlines(), start=1):
+        match = re.match(r"\s*print\(.*\)\s+#\s*(.+?)\s*$", line)
+        if match:
+            quoted[number] = match.group(1)
+    return quoted
+
+
+def test_python_md_examples_run(tmp_path, monkeypatch):
+    """The page's examples run from a copy of the repository root (outputs land in the copy),
+    and every figure the page quotes after a ``print(...)`` is what that line prints."""
     (tmp_path / "examples").mkdir()
     (tmp_path / "examples" / "data").symlink_to(ROOT / "examples" / "data", target_is_directory=True)
     for yaml in (ROOT / "examples").glob("*.yaml"):
@@ -33,11 +45,25 @@ def test_python_md_examples_run(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     blocks = _blocks()
     assert len(blocks) >= 4
-    namespace: dict = {}
+    printed: dict[tuple[str, int], list[str]] = {}
+
+    def record(*args: object, sep: str = " ", **_: object) -> None:
+        caller = sys._getframe(1)
+        key = (caller.f_code.co_filename, caller.f_lineno)
+        printed.setdefault(key, []).append(sep.join(str(arg) for arg in args))
+
+    namespace: dict = {"print": record}
     for i, block in enumerate(blocks):
         exec(compile(block, f"docs/python.md block {i + 1}", "exec"), namespace)
-    out = capsys.readouterr().out
-    # the figures the page quotes are the ones it prints
-    assert "0.161485 %" in out and "0.0391851 rad" in out
-    assert "(6034, 4)" in out and "quartic-10pct 1206 605" in out
-    assert "False" not in out
+    quoted = {
+        (f"docs/python.md block {i + 1}", line): figure
+        for i, block in enumerate(blocks)
+        for line, figure in _quoted(block).items()
+    }
+    assert len(quoted) >= 10
+    for (where, line), figure in quoted.items():
+        assert printed.get((where, line)) == [figure], f"{where} line {line} quotes {figure!r}"
+    # the lines that print a check without quoting it print True
+    for key, texts in printed.items():
+        if key not in quoted:
+            assert "False" not in texts, key
