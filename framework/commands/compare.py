@@ -46,7 +46,7 @@ def posed_surfaces(path: Path, *, clip, times, level: int = 0):
     """
     from rigslim.io.gltf.document import load_gltf
     from rigslim.io.gltf.lod import level_document
-    from rigslim.io.gltf.skin import _read_gltf_skin
+    from rigslim.io.gltf.skin import skin_from_document
     from rigslim.numerics.blend import linear_blend
 
     if is_usd(path):
@@ -54,7 +54,7 @@ def posed_surfaces(path: Path, *, clip, times, level: int = 0):
     doc = level_document(load_gltf(path), level)
     Ps, Fs, skins, start = [], [], [], 0
     for s in skins_used(doc.json) or [None]:          # every skin's meshes, as one surface
-        skin = _read_gltf_skin(doc, clip, DEFAULT_FPS, None, s, True, False, list(times))
+        skin = skin_from_document(doc, animation=clip, fps=DEFAULT_FPS, skin=s, times=list(times))
         Ps.append(np.stack([linear_blend(skin.mesh.V, skin.weights, skin.poses.T[j]) for j in range(len(times))]))
         Fs.append(np.asarray(skin.mesh.F) + start)
         start += skin.mesh.n_vertices

@@ -102,11 +102,11 @@ def _json_only(path: Path):
     """The document's JSON without its buffers or pygltflib's typed parse (0.5 s on a 12k-face file), when
     every animation sampler's input accessor has its ``max``; else None (the caller loads it fully; the
     pipeline's reader checks the whole file anyway)."""
-    from rigslim.io.gltf.document import GltfDocument, _parse_glb
+    from rigslim.io.gltf.document import GltfDocument, parse_glb
 
     try:
         data = path.read_bytes()
-        js = _parse_glb(data, path)[0] if data[:4] == b"glTF" else json.loads(data)
+        js = parse_glb(data, path)[0] if data[:4] == b"glTF" else json.loads(data)
         for anim in js.get("animations", []):
             for smp in anim.get("samplers", []):
                 if "max" not in js["accessors"][smp["input"]]:

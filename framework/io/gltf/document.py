@@ -135,7 +135,7 @@ class GltfDocument:
                              field=field_name, fix="keep the .bin/.png files next to the .gltf") from None
 
 
-def _parse_glb(data: bytes, path) -> tuple[dict, bytes | None]:
+def parse_glb(data: bytes, path) -> tuple[dict, bytes | None]:
     """JSON and BIN chunks of a GLB container (glTF 2.0 section 4.4)."""
     if len(data) < 20:
         raise InputError("file is too short to be a GLB", source=path, field="header", fix="re-export the file")
@@ -189,7 +189,7 @@ def load_gltf(path, *, allow_external_uris: bool | None = None) -> GltfDocument:
     binary = None
     try:
         if data[:4] == b"glTF":
-            doc, binary = _parse_glb(data, path)
+            doc, binary = parse_glb(data, path)
         else:
             doc = json.loads(data.decode("utf-8-sig"))
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
@@ -298,7 +298,7 @@ def read_accessor(doc: GltfDocument, index: int, *, normalize: bool = True) -> n
     return arr[:, 0] if ncomp == 1 else arr
 
 
-def _expect_type(doc: GltfDocument, index: int, types: tuple[str, ...], where: str) -> None:
+def expect_accessor_type(doc: GltfDocument, index: int, types: tuple[str, ...], where: str) -> None:
     """Refuse an accessor whose ``type`` is not one the property requires (glTF 2.0 section 3.7)."""
     kind = doc.json["accessors"][index].get("type")
     if kind not in types:

@@ -9,7 +9,7 @@ import numpy as np
 
 from rigslim.errors import InputError, StepError
 from rigslim.io.gltf.document import GltfDocument, read_accessor
-from rigslim.io.gltf.primitives import PrimitiveData, _vertex_map, primitive_data, welded_faces
+from rigslim.io.gltf.primitives import PrimitiveData, primitive_data, welded_faces, welded_vertex_map
 from rigslim.io.gltf.seams import face_charts
 from rigslim.io.gltf.skin import GltfSkin, skinning_sets
 
@@ -103,7 +103,7 @@ def hierarchy_attributes(skin: GltfSkin, hier, data: list[PrimitiveData]) -> lis
     primitive; row ``m + i`` interpolates collapse i's endpoints with
     :func:`collapse_parameters` (an endpoint without a value gives the other's).
     """
-    vmap = _vertex_map(skin)
+    vmap = welded_vertex_map(skin)
     m, N = hier.n_original, len(hier.V)
     blocks, widths = [], []
     for d, sl in zip(data, skin.slices, strict=False):
@@ -296,7 +296,7 @@ def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | No
     ids = np.asarray(level.vertex_ids, np.int64)
     rep = level_representatives(hier, ids)
     level_keys = set(map(tuple, np.sort(ids[np.asarray(level.mesh.F)], axis=1).tolist()))
-    vmap = _vertex_map(skin)
+    vmap = welded_vertex_map(skin)
     charts = face_charts(skin, data)
     C = int(charts.max(initial=0)) + 1
     out = []

@@ -8,7 +8,7 @@ import numpy as np
 
 from rigslim.errors import InputError, StepError
 from rigslim.io.gltf.document import read_accessor
-from rigslim.io.gltf.skin import GltfSkin, _triangles, skinning_sets
+from rigslim.io.gltf.skin import GltfSkin, primitive_triangles, skinning_sets
 
 #: Attributes that never lock a vertex (hard edges are interpolated, not kept).
 SOFT_ATTRIBUTES = ("NORMAL", "TANGENT")
@@ -74,18 +74,19 @@ def primitive_data(skin: GltfSkin) -> list[PrimitiveData]:
                             for name in sorted(t)})
         idx = (np.asarray(read_accessor(doc, prim["indices"]), np.int64) if "indices" in prim
                else np.arange(sl.count, dtype=np.int64))
-        out.append(PrimitiveData(i, sl.count, values, targets, _triangles(prim.get("mode", 4), idx)))
+        out.append(PrimitiveData(i, sl.count, values, targets, primitive_triangles(prim.get("mode", 4), idx)))
     return out
 
 
-def _vertex_map(skin: GltfSkin) -> np.ndarray:
+def welded_vertex_map(skin: GltfSkin) -> np.ndarray:
+    """(N_file,) the welded vertex each file vertex became (``GltfSkin.vertex_map``; the identity unwelded)."""
     total = sum(s.count for s in skin.slices)
     return np.arange(total) if skin.vertex_map is None else np.asarray(skin.vertex_map, np.int64)
 
 
 def welded_faces(skin: GltfSkin, data: list[PrimitiveData]) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per primitive: the welded faces the reader kept and their file-vertex corners (global file ids)."""
-    vmap = _vertex_map(skin)
+    vmap = welded_vertex_map(skin)
     out = []
     for d, sl in zip(data, skin.slices, strict=False):
         Ff = d.faces + sl.start

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from rigslim.errors import InputError
-from rigslim.io.gltf.document import GltfDocument, _expect_type, read_accessor
+from rigslim.io.gltf.document import GltfDocument, expect_accessor_type, read_accessor
 from rigslim.io.transforms import slerp, trs_matrix
 
 
@@ -179,7 +179,7 @@ def sampler_keys(doc: GltfDocument, animation: int, index: int, path: str) -> tu
     """
     sampler = doc.json["animations"][animation]["samplers"][index]
     where = f"animations[{animation}].samplers[{index}]"
-    _expect_type(doc, sampler["input"], ("SCALAR",), f"{where}.input")
+    expect_accessor_type(doc, sampler["input"], ("SCALAR",), f"{where}.input")
     times = np.asarray(read_accessor(doc, sampler["input"]), np.float64)
     if times.ndim != 1:
         raise InputError("key times are not SCALAR", source=doc.path, field=f"{where}.input", fix="re-export the file")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rigslim.io.gltf.primitives import SOFT_ATTRIBUTES, PrimitiveData, _vertex_map, primitive_data, welded_faces
+from rigslim.io.gltf.primitives import SOFT_ATTRIBUTES, PrimitiveData, primitive_data, welded_faces, welded_vertex_map
 from rigslim.io.gltf.skin import GltfSkin
 
 
@@ -19,7 +19,7 @@ def seam_vertices(skin: GltfSkin, data: list[PrimitiveData] | None = None) -> np
         NORMAL/TANGENT (or different morph target deltas).
     """
     data = primitive_data(skin) if data is None else data
-    vmap = _vertex_map(skin)
+    vmap = welded_vertex_map(skin)
     m = skin.mesh.n_vertices
     keys = []
     for d, sl in zip(data, skin.slices, strict=False):

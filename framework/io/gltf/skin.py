@@ -8,7 +8,14 @@ import numpy as np
 import scipy.sparse as sp
 
 from rigslim.errors import InputError
-from rigslim.io.gltf.document import MAX_FRAME_NODES, MAX_FRAMES, GltfDocument, _expect_type, load_gltf, read_accessor
+from rigslim.io.gltf.document import (
+    MAX_FRAME_NODES,
+    MAX_FRAMES,
+    GltfDocument,
+    expect_accessor_type,
+    load_gltf,
+    read_accessor,
+)
 from rigslim.io.gltf.scene import animation_duration, find_animation, local_matrices, node_parents, world_matrices
 from rigslim.model.handles import Handles
 from rigslim.model.mesh import Mesh
@@ -148,7 +155,7 @@ def weld_vertices(V: np.ndarray, F: np.ndarray, weights: sp.csr_matrix):
     return vertex_map, Vw, Fw[keep], Aw
 
 
-def _triangles(mode: int, idx: np.ndarray) -> np.ndarray:
+def primitive_triangles(mode: int, idx: np.ndarray) -> np.ndarray:
     """Triangles of a primitive (TRIANGLES, TRIANGLE_STRIP, TRIANGLE_FAN); none for points and lines."""
     if mode == 4:
         return idx[: len(idx) // 3 * 3].reshape(-1, 3)
@@ -279,50 +286,87 @@ def read_gltf_skin(path, *, animation=None, fps: float = 30.0, mesh=None, skin=N
     n and slots c.
     """
     doc = load_gltf(path, allow_external_uris=allow_external_uris)
+    return skin_from_document(doc, animation=animation, fps=fps, mesh=mesh, skin=skin, normalize=normalize,
+                              weld=weld, times=times)
+
+
+def skin_from_document(doc: GltfDocument, *, animation=None, fps: float = 30.0, mesh=None, skin=None,
+                       normalize: bool = True, weld: bool = False, times=None) -> GltfSkin:
+    """:func:`read_gltf_skin` of a document already loaded (:func:`~rigslim.io.gltf.document.load_gltf`).
+
+    The parameters after ``doc`` are :func:`read_gltf_skin`'s, keyword-only. The read runs in four phases:
+    the skin and its meshes (``_choose_skin``), the inverse bind matrices, the skinned primitives merged
+    into one mesh with its weights, then the joints as handles and the clip's sampled poses.
+    """
     try:
-        return _read_gltf_skin(doc, animation, fps, mesh, skin, normalize, weld, times)
+        return _skin_from_document(doc, animation, fps, mesh, skin, normalize, weld, times)
     except (KeyError, IndexError) as e:
         raise InputError(f"malformed document: a required property or index is missing or out of range ({e!r})",
                          source=doc.path, field="json", fix="re-export the file; check it with the glTF-Validator"
                          ) from None
 
 
-def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, weld, times) -> GltfSkin:
-    js = doc.json
+def _skin_from_document(doc: GltfDocument, animation, fps, mesh, skin, normalize, weld, times) -> GltfSkin:
     if not (np.isfinite(fps) and fps > 0):
         raise InputError(f"fps {fps} is not a positive number", source=doc.path, field="fps", fix="give e.g. fps: 30")
     skin_index, mesh_indices = _choose_skin(doc, skin, mesh)
-    sk = js["skins"][skin_index]
+    joints = [int(j) for j in doc.json["skins"][skin_index]["joints"]]
+    ibm = inverse_bind_matrices(doc, skin_index)
+    V, F, A, slices = _merged_primitives(doc, mesh_indices, len(joints))
+    weights = validate_weights(A, len(V), n_handles=len(joints), normalize=normalize,
+                               source=f"{doc.path} (WEIGHTS_n)")
+    vertex_map = None
+    if weld:
+        vertex_map, V, F, weights = weld_vertices(V, F, weights)
+    mesh_obj = Mesh(V, F, source=str(doc.path))
+    handles = _joint_handles(doc, joints, ibm)
+    anim = find_animation(doc, animation)
+    poses = _clip_poses(doc, anim, _sample_times(doc, anim, fps, times), joints, ibm)
+    return GltfSkin(doc, skin_index, joints, slices, mesh_obj, handles, weights, poses, anim, float(fps), vertex_map)
+
+
+def inverse_bind_matrices(doc: GltfDocument, skin_index: int) -> np.ndarray:
+    """(n, 4, 4) ``skins[skin_index].inverseBindMatrices`` as column-vector matrices (identity when absent).
+
+    Refused with the joint named: fewer matrices than joints, NaN/inf, a last row other than
+    ``[0, 0, 0, 1]`` (relative 1e-6), a singular 3x3 part (``|det| <= 1e-12 scale^3``).
+    """
+    sk = doc.json["skins"][skin_index]
     joints = [int(j) for j in sk["joints"]]
     n = len(joints)
-    if "inverseBindMatrices" in sk:
-        _expect_type(doc, sk["inverseBindMatrices"], ("MAT4",), f"skins[{skin_index}].inverseBindMatrices")
-        ibm = read_accessor(doc, sk["inverseBindMatrices"]).reshape(-1, 4, 4).transpose(0, 2, 1).astype(float)
-        if len(ibm) < n:
-            raise InputError(f"{len(ibm)} inverse bind matrices for {n} joints", source=doc.path,
-                             field=f"skins[{skin_index}].inverseBindMatrices", fix="re-export the file")
-        ibm = ibm[:n]
-        where = f"skins[{skin_index}].inverseBindMatrices"
-        if not np.isfinite(ibm).all():
-            raise InputError("inverse bind matrices contain NaN or inf", source=doc.path, field=where,
-                             fix="re-export the file")
-        with np.errstate(all="ignore"):
-            det = np.linalg.det(ibm[:, :3, :3])
-            scale = np.abs(ibm[:, :3, :3]).max(axis=(1, 2))
-        singular = ~(np.abs(det) > 1e-12 * np.maximum(scale, 1e-300) ** 3)
-        affine = np.abs(ibm[:, 3, :] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) <= 1e-6 * np.maximum(scale, 1.0)
-        if not affine.all():
-            j = int(np.argmin(affine))
-            raise InputError(f"the inverse bind matrix of joint {j} (node {joints[j]}) is not affine (last row "
-                             f"{np.round(ibm[j, 3], 6).tolist()}, not [0, 0, 0, 1])", source=doc.path,
-                             field=f"{where}[{j}]", fix="re-export the skin")
-        if singular.any():
-            j = int(np.argmax(singular))
-            raise InputError(f"the inverse bind matrix of joint {j} (node {joints[j]}) is singular", source=doc.path,
-                             field=f"{where}[{j}]", fix="re-export the skin with invertible bind matrices")
-    else:
-        ibm = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
+    if "inverseBindMatrices" not in sk:
+        return np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
+    expect_accessor_type(doc, sk["inverseBindMatrices"], ("MAT4",), f"skins[{skin_index}].inverseBindMatrices")
+    ibm = read_accessor(doc, sk["inverseBindMatrices"]).reshape(-1, 4, 4).transpose(0, 2, 1).astype(float)
+    if len(ibm) < n:
+        raise InputError(f"{len(ibm)} inverse bind matrices for {n} joints", source=doc.path,
+                         field=f"skins[{skin_index}].inverseBindMatrices", fix="re-export the file")
+    ibm = ibm[:n]
+    where = f"skins[{skin_index}].inverseBindMatrices"
+    if not np.isfinite(ibm).all():
+        raise InputError("inverse bind matrices contain NaN or inf", source=doc.path, field=where,
+                         fix="re-export the file")
+    with np.errstate(all="ignore"):
+        det = np.linalg.det(ibm[:, :3, :3])
+        scale = np.abs(ibm[:, :3, :3]).max(axis=(1, 2))
+    singular = ~(np.abs(det) > 1e-12 * np.maximum(scale, 1e-300) ** 3)
+    affine = np.abs(ibm[:, 3, :] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) <= 1e-6 * np.maximum(scale, 1.0)
+    if not affine.all():
+        j = int(np.argmin(affine))
+        raise InputError(f"the inverse bind matrix of joint {j} (node {joints[j]}) is not affine (last row "
+                         f"{np.round(ibm[j, 3], 6).tolist()}, not [0, 0, 0, 1])", source=doc.path,
+                         field=f"{where}[{j}]", fix="re-export the skin")
+    if singular.any():
+        j = int(np.argmax(singular))
+        raise InputError(f"the inverse bind matrix of joint {j} (node {joints[j]}) is singular", source=doc.path,
+                         field=f"{where}[{j}]", fix="re-export the skin with invertible bind matrices")
+    return ibm
 
+
+def _merged_primitives(doc: GltfDocument, mesh_indices: list[int], n: int):
+    """The skinned primitives of ``mesh_indices`` merged in order: positions (N, 3), triangles, the (N, n)
+    weights ``A[v, JOINTS_s[v, c]] += WEIGHTS_s[v, c]`` and each primitive's :class:`PrimitiveSlice`."""
+    js = doc.json
     Vs, Fs, rows, cols, vals, slices = [], [], [], [], [], []
     start = 0
     for mi in mesh_indices:
@@ -332,12 +376,12 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, we
             sets = skinning_sets(attrs)
             if "POSITION" not in attrs or not sets:
                 continue
-            _expect_type(doc, attrs["POSITION"], ("VEC3",), f"{where}.attributes.POSITION")
+            expect_accessor_type(doc, attrs["POSITION"], ("VEC3",), f"{where}.attributes.POSITION")
             for s_ in sets:
-                _expect_type(doc, attrs[f"JOINTS_{s_}"], ("VEC4",), f"{where}.attributes.JOINTS_{s_}")
-                _expect_type(doc, attrs[f"WEIGHTS_{s_}"], ("VEC4",), f"{where}.attributes.WEIGHTS_{s_}")
+                expect_accessor_type(doc, attrs[f"JOINTS_{s_}"], ("VEC4",), f"{where}.attributes.JOINTS_{s_}")
+                expect_accessor_type(doc, attrs[f"WEIGHTS_{s_}"], ("VEC4",), f"{where}.attributes.WEIGHTS_{s_}")
             if "indices" in prim:
-                _expect_type(doc, prim["indices"], ("SCALAR",), f"{where}.indices")
+                expect_accessor_type(doc, prim["indices"], ("SCALAR",), f"{where}.indices")
             V = np.asarray(read_accessor(doc, attrs["POSITION"]), float)
             m = len(V)
             for name in ["POSITION"] + [f"{a}_{s}" for s in sets for a in ("JOINTS", "WEIGHTS")]:
@@ -351,7 +395,7 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, we
             if idx.ndim != 1 or (len(idx) and (idx.min() < 0 or idx.max() >= m)):
                 raise InputError(f"indices must be SCALAR vertex numbers below {m}", source=doc.path,
                                  field=f"{where}.indices", fix="re-export the file")
-            F = _triangles(prim.get("mode", 4), idx)
+            F = primitive_triangles(prim.get("mode", 4), idx)
             for s in sets:
                 J = joint_indices(doc, attrs[f"JOINTS_{s}"], f"{where}.attributes.JOINTS_{s}").reshape(m, -1)
                 W = np.asarray(read_accessor(doc, attrs[f"WEIGHTS_{s}"]), float).reshape(m, -1)
@@ -374,13 +418,14 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, we
     F = np.concatenate(Fs)
     A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(len(V), n))
     A.sum_duplicates()
-    weights = validate_weights(A, len(V), n_handles=n, normalize=normalize, source=f"{doc.path} (WEIGHTS_n)")
-    vertex_map = None
-    if weld:
-        vertex_map, V, F, weights = weld_vertices(V, F, weights)
-    mesh_obj = Mesh(V, F, source=str(doc.path))
+    return V, F, A, slices
 
-    # handles: one per joint, placed at the joint's bind position
+
+def _joint_handles(doc: GltfDocument, joints: list[int], ibm: np.ndarray) -> Handles:
+    """One handle per joint at its bind position ``(IBM_i^-1)[:3, 3]``; a joint's parent is its nearest
+    ancestor node that is a joint, its bone runs to its first child joint."""
+    js = doc.json
+    n = len(joints)
     nodes = js.get("nodes", [])
     parent = node_parents(js)
     names = [nodes[j].get("name") or f"joint{i}" for i, j in enumerate(joints)]
@@ -398,9 +443,13 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, we
             first_child.setdefault(int(parents[i]), i)
     bones = np.array([[i, first_child.get(i, i)] for i in range(n)], np.int64)
     handles = Handles("skeleton", names, joints=position, bones=bones, parents=parents, source=str(doc.path))
+    return handles
 
-    # poses
-    anim = find_animation(doc, animation)
+
+def _sample_times(doc: GltfDocument, anim: int | None, fps: float, times) -> np.ndarray:
+    """The sample times in seconds: ``times`` as given, else ``f / fps`` for ``f = 0 .. floor(duration * fps +
+    0.001)`` (the rest pose alone without a clip); bounded by MAX_FRAMES and MAX_FRAME_NODES."""
+    nodes = doc.json.get("nodes", [])
     if times is not None:
         t = np.asarray(times, dtype=np.float64).reshape(-1)
         if not len(t) or not np.isfinite(t).all() or (t < 0).any():
@@ -419,9 +468,16 @@ def _read_gltf_skin(doc: GltfDocument, animation, fps, mesh, skin, normalize, we
         raise InputError(f"{len(t)} frames of {len(nodes)} nodes exceed the limit of {MAX_FRAME_NODES} sampled "
                          "transforms", source=doc.path, field="times" if times is not None else "fps",
                          fix="sample fewer frames")
+    return t
+
+
+def _clip_poses(doc: GltfDocument, anim: int | None, t: np.ndarray, joints: list[int], ibm: np.ndarray) -> Poses:
+    """``T_i^f = (G_f(joint_i) @ IBM_i)[:3, :]`` at the times ``t``: node transforms composed from the roots."""
+    js = doc.json
+    parent = node_parents(js)
     local = local_matrices(doc, anim, t)
-    world = world_matrices(local, parent) if len(nodes) else local
+    world = world_matrices(local, parent) if len(js.get("nodes", [])) else local
     T = np.einsum("jpab,jbc->pjac", world[joints], ibm)[:, :, :3, :]
     label = str(doc.path) if anim is None else f"{doc.path} animation {js['animations'][anim].get('name', anim)}"
     poses = Poses(T, np.arange(len(t)), source=label)
-    return GltfSkin(doc, skin_index, joints, slices, mesh_obj, handles, weights, poses, anim, float(fps), vertex_map)
+    return poses
