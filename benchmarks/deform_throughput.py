@@ -91,9 +91,9 @@ def run(levels: int, frames: int, backends: list[str], ks: list[int | None], dev
         log=print) -> dict:
     from benchmarks.datasets import elephant
     from rigslim.model.weights import influence_counts
+    from rigslim.numerics.largest_entries import k_largest
     from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
-    from rigslim.plugins.selection.k_largest import k_largest
-    from rigslim.plugins.solvers.k_largest import k_largest_weights
+    from rigslim.plugins.solvers.renormalised import renormalised_weights
 
     load_start = os.getloadavg()[0]
     t = time.perf_counter()
@@ -106,7 +106,7 @@ def run(levels: int, frames: int, backends: list[str], ks: list[int | None], dev
     poses = asset.poses.T[test[::step][:frames]]
     weight_sets = {}
     for k in ks:
-        weight_sets["full" if k is None else f"k={k}"] = W if k is None else k_largest_weights(W, k_largest(W, k))
+        weight_sets["full" if k is None else f"k={k}"] = W if k is None else renormalised_weights(W, k_largest(W, k))
 
     deformers = {"numpy": NumpyDeformer()}
     devices = {"numpy": f"{cpu_model()} ({os.cpu_count()} logical CPUs), numpy {np.__version__}"}
@@ -312,10 +312,10 @@ def run_quick(levels: int = 3, frames: int = 8, ks=(8, 4), copy_mib: int = 512, 
     from benchmarks.datasets import elephant
     from rigslim.model.weights import influence_counts
     from rigslim.numerics.area_weighted_normals import operator_for
+    from rigslim.numerics.largest_entries import k_largest
     from rigslim.plugins.deformers.cpu_deformer import CPUDeformer
     from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
-    from rigslim.plugins.selection.k_largest import k_largest
-    from rigslim.plugins.solvers.k_largest import k_largest_weights
+    from rigslim.plugins.solvers.renormalised import renormalised_weights
 
     started = time.perf_counter()
     load_start = os.getloadavg()[0]
@@ -385,7 +385,7 @@ def run_quick(levels: int = 3, frames: int = 8, ks=(8, 4), copy_mib: int = 512, 
 
     # Back end by back end (every k of one before the next): PoCL's and llvmpipe's worker threads stay busy
     # for a while after their last frame, and would otherwise eat into the next back end's cores.
-    reduced_by_k = {k: k_largest_weights(W, k_largest(W, k)) for k in ks}
+    reduced_by_k = {k: renormalised_weights(W, k_largest(W, k)) for k in ks}
     for backend, deformer in backends.items():
         for k in ks:
             reduced = reduced_by_k[k]

@@ -149,8 +149,8 @@ def run(levels: list[int], frames: int, device: str | None, log=print) -> dict:
     from benchmarks.datasets import elephant
     from rigslim.device.opencl import OpenCLUnavailable, get_runtime
 
-    k_largest = plugin_module("rigslim.plugins.selection.k_largest").k_largest
-    k_largest_weights = plugin_module("rigslim.plugins.solvers.k_largest").k_largest_weights
+    k_largest = plugin_module("rigslim.numerics.largest_entries").k_largest
+    renormalised_weights = plugin_module("rigslim.plugins.solvers.renormalised").renormalised_weights
 
     started = time.perf_counter()
     doc = {"benchmark": "device_check", "date_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()),
@@ -197,7 +197,7 @@ def run(levels: list[int], frames: int, device: str | None, log=print) -> dict:
         log(f"elephant subdivided {level}x: {mesh.n_vertices:,} vertices, {mesh.n_faces:,} triangles "
             f"[{time.perf_counter() - t:.1f} s]")
         for k in (8, 4):
-            reduced = k_largest_weights(W, k_largest(W, k))
+            reduced = renormalised_weights(W, k_largest(W, k))
             deformers = []
             if runtime is not None:
                 from rigslim.plugins.deformers.opencl_deformer import OpenCLDeformer

@@ -72,8 +72,8 @@ def timed(fn, repeat):
 
 
 def select(asset, selector, k, repeat, **params):
+    from rigslim.numerics.largest_entries import k_largest
     from rigslim.plugins.selection.best_fit import best_fit
-    from rigslim.plugins.selection.k_largest import k_largest
 
     if selector == "k-largest":
         return timed(lambda: (k_largest(asset.weights, k), {}), repeat)
@@ -82,11 +82,11 @@ def select(asset, selector, k, repeat, **params):
 
 def solve(asset, method, repeat, **params):
     from rigslim.plugin import StepContext
-    from rigslim.plugins.solvers.k_largest import k_largest_weights
     from rigslim.plugins.solvers.methods import GeometricSolver, PoissonSolver, SmoothSolver
+    from rigslim.plugins.solvers.renormalised import renormalised_weights
 
     if method == "k-largest":
-        return timed(lambda: (k_largest_weights(asset.weights, asset.influences), {}), repeat)
+        return timed(lambda: (renormalised_weights(asset.weights, asset.influences), {}), repeat)
     plugin = {"geometric": GeometricSolver, "smooth": SmoothSolver, "poisson": PoissonSolver}[method]()
 
     def run():

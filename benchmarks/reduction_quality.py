@@ -78,23 +78,23 @@ def nnls_reference(asset):
 
 
 def solve(asset, method, **params):
-    from rigslim.plugins.solvers.k_largest import k_largest_weights
-    from rigslim.plugins.solvers.methods import LaplacianParams, PoissonParams, ReductionParams, reduce_weights
+    from rigslim.plugins.solvers.methods import LaplacianParams, PoissonParams, ReductionParams, solve_weights
+    from rigslim.plugins.solvers.renormalised import renormalised_weights
 
     t0 = time.perf_counter()
     if method == "nnls":
         return nnls_reference(asset)
     if method == "k-largest":
-        return k_largest_weights(asset.weights, asset.influences), {"seconds": time.perf_counter() - t0}
+        return renormalised_weights(asset.weights, asset.influences), {"seconds": time.perf_counter() - t0}
     cls = {"geometric": ReductionParams, "smooth": LaplacianParams, "poisson": PoissonParams}[method]
-    red, rep = reduce_weights(asset, method, cls(**params))
+    red, rep = solve_weights(asset, method, cls(**params))
     rep["seconds"] = time.perf_counter() - t0
     return red, rep
 
 
 def main():
     from rigslim.model.poses import parse_frames
-    from rigslim.plugins.selection.k_largest import k_largest
+    from rigslim.numerics.largest_entries import k_largest
 
     asset = elephant(0)
     test = asset.split.test

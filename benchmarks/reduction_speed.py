@@ -92,15 +92,15 @@ def dem_bones_weights(asset, k):
 
 
 def run_method(asset, method, **params):
-    from rigslim.plugins.solvers.k_largest import k_largest_weights
-    from rigslim.plugins.solvers.methods import LaplacianParams, PoissonParams, ReductionParams, reduce_weights
+    from rigslim.plugins.solvers.methods import LaplacianParams, PoissonParams, ReductionParams, solve_weights
+    from rigslim.plugins.solvers.renormalised import renormalised_weights
 
     t0 = time.perf_counter()
     if method == "k-largest":
-        red = k_largest_weights(asset.weights, asset.influences)
+        red = renormalised_weights(asset.weights, asset.influences)
         return red, {"seconds": time.perf_counter() - t0}
     cls = {"geometric": ReductionParams, "smooth": LaplacianParams, "poisson": PoissonParams}[method]
-    red, rep = reduce_weights(asset, method, cls(**params))
+    red, rep = solve_weights(asset, method, cls(**params))
     rep["seconds"] = time.perf_counter() - t0
     return red, rep
 
@@ -115,7 +115,7 @@ def main():
                     help="run the plain local sweep rows (paper's solver) up to this subdivision level")
     args = ap.parse_args()
     from rigslim.device.opencl import get_runtime
-    from rigslim.plugins.selection.k_largest import k_largest
+    from rigslim.numerics.largest_entries import k_largest
 
     try:
         cl_name = get_runtime(None).name

@@ -5,7 +5,7 @@
 several (``rigslim.pipeline`` into :mod:`rigslim.runtime.document`, :mod:`~rigslim.runtime.inputs` and
 :mod:`~rigslim.runtime.run`) gives a read-only view whose names come from its parts, in order.
 :data:`MOVED` is the whole table (docs/layout.md, "Old import paths"); new code uses the new paths,
-which are also the only ones type checkers see.
+which are also the only ones type checkers see. :data:`RENAMED` lists the few public names renamed since.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ MOVED: dict[str, tuple[str, ...]] = {
     "rigslim.asset": ("rigslim.model.asset",),
     "rigslim.hierarchy": ("rigslim.model.hierarchy",),
     "rigslim.blend": ("rigslim.numerics.blend",),
+    "rigslim.numerics.k_largest": ("rigslim.numerics.largest_entries",),
     "rigslim.yamlio": ("rigslim.io.yamlio",),
     "rigslim.jsonsafe": ("rigslim.io.jsonsafe",),
     "rigslim.io.gltf_schema": ("rigslim.io.gltf.schema",),
@@ -50,6 +51,13 @@ MOVED: dict[str, tuple[str, ...]] = {
                     "rigslim.commands.plugins"),
     "rigslim.gltf_commands": ("rigslim.commands.gltf_common", "rigslim.commands.reduce", "rigslim.commands.lod",
                               "rigslim.commands.compare", "rigslim.commands.inspect", "rigslim.commands.cli"),
+}
+
+#: Public names renamed after the move so that one name says one thing: (module, old name) -> new name.
+#: Internal helpers no document names; the old name is gone (docs/layout.md, "Old import paths").
+RENAMED: dict[tuple[str, str], str] = {
+    ("rigslim.batch.task", "metric_columns"): "summary_metrics",
+    ("rigslim.report.batch", "metric_columns"): "error_columns",
 }
 
 

@@ -267,8 +267,8 @@ def _write_json(path: Path, data: dict) -> None:
 
 # --- the summary row -----------------------------------------------------------------------------
 
-def metric_columns(document: dict) -> dict:
-    """Flatten a metrics document's evaluations into summary columns.
+def summary_metrics(document: dict) -> dict:
+    """A metrics document's evaluations as the summary row's metric values, ``{column: value}``.
 
     The last evaluation's metrics become ``<metric>_mean`` / ``<metric>_max``
     (or ``<metric>`` for a single number): ``position_rms_pct_mean``,
@@ -435,5 +435,5 @@ def _run(doc: dict, folder: Path, timeout: float | None) -> dict:
                vertices=(document.get("mesh") or {}).get("vertices"),
                faces=(document.get("mesh") or {}).get("faces"),
                joints=(document.get("handles") or {}).get("count"),
-               input_influences=before, output_influences=after, **metric_columns(document))
+               input_influences=before, output_influences=after, **summary_metrics(document))
     return out

@@ -2,7 +2,7 @@
 
 - :mod:`~rigslim.numerics.blend`: the linear blend ``v' = sum_i a_i T_i [v; 1]`` and blended matrices (the
   numpy reference of every deformer);
-- :mod:`~rigslim.numerics.k_largest`: the k largest entries of each row (influence sets, [P10] section 3);
+- :mod:`~rigslim.numerics.largest_entries`: the k largest entries of each row (influence sets, [P10] section 3);
 - :mod:`~rigslim.numerics.small_qp`: batches of small equality- and bound-constrained QPs (the local
   solver's per-vertex solve, docs/algorithms.md section 2);
 - :mod:`~rigslim.numerics.area_weighted_normals`: area-weighted vertex normals (the reference normals);

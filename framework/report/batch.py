@@ -82,8 +82,9 @@ def read_summary(path) -> tuple[list[dict], list[str]]:
     return rows, columns
 
 
-def metric_columns(columns: list[str]) -> list[str]:
-    """The error columns: ``*_mean`` / ``*_max`` of position, normal and Hausdorff errors."""
+def error_columns(columns: list[str]) -> list[str]:
+    """Of a summary's column names, the error columns the report plots: ``*_mean`` / ``*_max`` of position,
+    normal and Hausdorff errors (the values come from :func:`rigslim.batch.task.summary_metrics`)."""
     return [c for c in columns if c.endswith(("_mean", "_max")) and
             any(c.split(".")[-1].startswith(p) for p in ("position_rms", "normal_rms", "hausdorff"))]
 
@@ -202,7 +203,7 @@ def build_batch_report(summary, *, worst: int = 10, metric: str | None = None, r
     """Read a batch summary.csv and build its report (see the module docstring)."""
     summary = Path(summary)
     rows, columns = read_summary(summary)
-    metrics = metric_columns(columns)
+    metrics = error_columns(columns)
     if metric is not None and metric not in columns:
         raise InputError(f"the summary has no column '{metric}'", source=summary, field="--metric",
                          fix="one of: " + ", ".join(metrics or columns))

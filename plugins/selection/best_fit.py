@@ -39,8 +39,8 @@ from numba import njit, prange
 from pydantic import Field
 
 from rigslim.model.weights import InfluenceSets
+from rigslim.numerics.largest_entries import check_k
 from rigslim.plugin import InfluenceSelector, Params
-from rigslim.plugins.selection.k_largest import check_k
 from rigslim.plugins.selection.sparse_fit import sparse_fit
 
 if TYPE_CHECKING:

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 
 from pydantic import Field
 
-from rigslim.numerics.k_largest import check_k, k_largest
+from rigslim.numerics.largest_entries import check_k, k_largest
 from rigslim.plugin import InfluenceSelector, Params
 
 if TYPE_CHECKING:
@@ -14,7 +14,7 @@ if TYPE_CHECKING:
     from rigslim.model.weights import InfluenceSets
     from rigslim.plugin import StepContext
 
-__all__ = ["KLargestSelector", "check_k", "k_largest"]
+__all__ = ["KLargestSelector"]
 
 
 class KLargestSelector(InfluenceSelector):

@@ -5,8 +5,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from rigslim import hookimpl
-from rigslim.plugins.solvers.k_largest import KLargestSolver
 from rigslim.plugins.solvers.methods import GeometricSolver, PoissonSolver, SmoothSolver
+from rigslim.plugins.solvers.renormalised import KLargestSolver
 
 if TYPE_CHECKING:
     from rigslim.plugin import WeightSolver

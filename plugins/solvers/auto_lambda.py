@@ -83,7 +83,7 @@ def kfold_splits(examples, folds: int | None = None) -> list[tuple[list[int], li
 
 def choose_position_weight(asset, params, grid=GRID) -> tuple[float, dict]:
     """Lambda of least held-out score (module docstring) and the report of the search."""
-    from rigslim.plugins.solvers.methods import reduce_weights
+    from rigslim.plugins.solvers.methods import solve_weights
 
     examples = list(asset.split.examples)
     if len(examples) < 3:
@@ -97,7 +97,7 @@ def choose_position_weight(asset, params, grid=GRID) -> tuple[float, dict]:
         per_fold = []
         lam_params = params.model_copy(update={"position_weight": float(lam)})
         for (_fit, held), sub in zip(splits, subs, strict=False):
-            reduced, rep = reduce_weights(sub, "poisson", lam_params)
+            reduced, rep = solve_weights(sub, "poisson", lam_params)
             p, n = held_out_errors(asset, reduced, held)
             p2 += len(held) * p * p
             n2 += len(held) * n * n

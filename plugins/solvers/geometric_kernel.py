@@ -14,7 +14,7 @@ solves them in numba, parallel over vertices, without forming the (m, k, 3p)
 basis: each vertex builds its k x k Gram matrix ``G = B B^T + eps I`` and
 ``c = B y + eps alpha0`` and runs the sum-to-one Lawson & Hanson method of
 :mod:`rigslim.numerics.simplex_nnls` (exact: the QP is strictly convex).
-:func:`rigslim.plugins.solvers.methods.reduce_weights` takes this path for
+:func:`rigslim.plugins.solvers.methods.solve_weights` takes this path for
 non-negative geometric fits on numpy; the batched active-set reference
 (:func:`rigslim.numerics.small_qp.solve_small_qps` through the local solver) is tested to agree.
 """

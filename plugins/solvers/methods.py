@@ -111,8 +111,13 @@ def project_feasible(prob, target, start) -> np.ndarray:
     return solve_small_qps(H, g, prob.C, prob.d, nonneg=prob.nonneg, x0=start).x
 
 
-def reduce_weights(asset, method: str, params, ctx=None) -> tuple[ReducedWeights, dict]:
-    """Run one optimising solver on an asset with influence sets; returns weights and report."""
+def solve_weights(asset, method: str, params, ctx=None) -> tuple[ReducedWeights, dict]:
+    """Solve the weight values of one optimising method on the asset's influence sets.
+
+    The ``solve`` step of the geometric, smooth and Poisson solvers: the influence sets are given
+    (``asset.influences``); :func:`rigslim.reduce_weights` is the public select-and-solve on arrays.
+    Returns the reduced weights and the solver's report.
+    """
     t0 = time.perf_counter()
     asset.require("mesh", "handles", "weights", "influences", step=f"solve: {method}")
     if method != "smooth":
@@ -205,7 +210,7 @@ class GeometricSolver(WeightSolver):
     Params = ReductionParams
 
     def solve(self, asset: Asset, params: Params, ctx: StepContext) -> ReducedWeights:
-        return reduce_weights(asset, "geometric", params, ctx)[0]
+        return solve_weights(asset, "geometric", params, ctx)[0]
 
 
 class SmoothSolver(WeightSolver):
@@ -214,7 +219,7 @@ class SmoothSolver(WeightSolver):
     Params = LaplacianParams
 
     def solve(self, asset: Asset, params: Params, ctx: StepContext) -> ReducedWeights:
-        return reduce_weights(asset, "smooth", params, ctx)[0]
+        return solve_weights(asset, "smooth", params, ctx)[0]
 
 
 class PoissonSolver(WeightSolver):
@@ -224,10 +229,10 @@ class PoissonSolver(WeightSolver):
 
     def solve(self, asset: Asset, params: Params, ctx: StepContext) -> ReducedWeights:
         if params.position_weight != "auto":
-            return reduce_weights(asset, "poisson", params, ctx)[0]
+            return solve_weights(asset, "poisson", params, ctx)[0]
         asset.require("mesh", "handles", "weights", "influences", "poses", "split", step="solve: poisson")
         lam, search = choose_position_weight(asset, params, params.position_weight_grid)
-        reduced, _ = reduce_weights(asset, "poisson", params.model_copy(update={"position_weight": lam}), ctx)
+        reduced, _ = solve_weights(asset, "poisson", params.model_copy(update={"position_weight": lam}), ctx)
         if ctx is not None and hasattr(ctx, "report"):
             ctx.report["position_weight"] = lam
             ctx.report["position_weight_auto"] = search

@@ -34,7 +34,7 @@ import scipy.sparse as sp
 
 from rigslim.errors import StepError
 from rigslim.numerics.blend import basis_positions, linear_blend
-from rigslim.plugins.solvers.k_largest import gather
+from rigslim.plugins.solvers.renormalised import gather
 
 #: Default ridge, relative to the mean diagonal of the local Hessians.
 RIDGE = 1e-9

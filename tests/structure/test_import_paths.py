@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from rigslim.compat import MOVED
+from rigslim.compat import MOVED, RENAMED
 
 OLD = json.loads((Path(__file__).with_name("old_public_names.json")).read_text())
 
@@ -26,7 +26,11 @@ TO_COMMANDS = {("rigslim.batch", "add_parser"): "rigslim.commands.batch",
 @pytest.mark.parametrize("module", sorted(OLD))
 def test_old_module_paths_keep_their_names(module):
     mod = importlib.import_module(module)
+    new_module = MOVED.get(module, (module,))[0]
     for name in OLD[module]:
+        if (new_module, name) in RENAMED:
+            assert hasattr(mod, RENAMED[new_module, name]) and not hasattr(mod, name), (module, name)
+            continue
         if (module, name) in TO_COMMANDS:
             assert hasattr(importlib.import_module(TO_COMMANDS[module, name]), name)
             continue

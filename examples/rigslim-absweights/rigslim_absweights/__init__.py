@@ -8,7 +8,7 @@ import numpy as np
 from pydantic import Field
 
 from rigslim import hookimpl
-from rigslim.numerics.k_largest import check_k, k_largest
+from rigslim.numerics.largest_entries import check_k, k_largest
 from rigslim.plugin import InfluenceSelector, Params
 
 if TYPE_CHECKING:

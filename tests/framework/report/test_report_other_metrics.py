@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from rigslim.batch.task import metric_columns
+from rigslim.batch.task import summary_metrics
 from rigslim.report import build_report
 
 DOC = {"schema_version": 2, "name": "run", "frames": {"test": [3, 5]},
@@ -23,6 +23,6 @@ def test_a_third_party_metric_is_in_the_report():
 
 
 def test_a_third_party_metric_is_in_the_batch_summary_columns():
-    cols = metric_columns(DOC)
+    cols = summary_metrics(DOC)
     assert cols["curvature_error_mean"] == 0.0123 and cols["curvature_error_max"] == 0.0456
     assert cols["skipped_vertices"] == 17

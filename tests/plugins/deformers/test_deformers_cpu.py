@@ -20,18 +20,18 @@ from rigslim.errors import StepError
 from rigslim.model.handles import Handles, cage_transforms
 from rigslim.model.mesh import Mesh
 from rigslim.model.weights import ReducedWeights
+from rigslim.numerics.largest_entries import k_largest
 from rigslim.plugins.deformers.cpu_deformer import CPUDeformer
 from rigslim.plugins.deformers.cpu_kernels import BLOCK, LANES, SUB, half_tables
 from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
-from rigslim.plugins.selection.k_largest import k_largest
-from rigslim.plugins.solvers.k_largest import k_largest_weights
+from rigslim.plugins.solvers.renormalised import renormalised_weights
 
 POSITION_TOL = 1e-5      # fraction of the bounding-box diagonal
 NORMAL_TOL = 1e-4        # radians
 
 
 def reduce_to(W, k):
-    return k_largest_weights(W, k_largest(W, k))
+    return renormalised_weights(W, k_largest(W, k))
 
 
 def jittered_box_cage(mesh: Mesh, jitter: float = 0.1) -> Handles:

@@ -10,10 +10,10 @@ from rigslim.errors import InputError, StepError
 from rigslim.model.weights import ReducedWeights
 from rigslim.numerics.blend import linear_blend, per_vertex_normals
 from rigslim.numerics.blended_normals import blended_matrix_normals
+from rigslim.numerics.largest_entries import k_largest
 from rigslim.plugins.deformers.base import fixed_k_arrays, handle_data, pack_weights, resolve_normals
 from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
-from rigslim.plugins.selection.k_largest import k_largest
-from rigslim.plugins.solvers.k_largest import k_largest_weights
+from rigslim.plugins.solvers.renormalised import renormalised_weights
 
 
 def test_callable_positions_and_normals(elephant):
@@ -59,7 +59,7 @@ def test_fixed_k_arrays_and_layouts_keep_the_weights(elephant):
         fixed_k_arrays(W, k=3)
     csr = pack_weights(W, "auto", W.shape[1])
     assert csr.layout == "csr" and csr.indptr.dtype == np.int32 and csr.values.dtype == np.float32
-    reduced = k_largest_weights(W, k_largest(W, 4))
+    reduced = renormalised_weights(W, k_largest(W, 4))
     fixed = pack_weights(reduced, "auto", W.shape[1])
     assert fixed.layout == "fixed" and fixed.indices.dtype == np.int32 and fixed.k == 4
     compact = pack_weights(reduced, "compact", W.shape[1])

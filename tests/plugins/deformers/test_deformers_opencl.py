@@ -16,10 +16,10 @@ import scipy.sparse as sp
 from rigslim.device.opencl import OpenCLUnavailable, get_runtime
 from rigslim.model.handles import Handles, cage_transforms
 from rigslim.model.mesh import Mesh
+from rigslim.numerics.largest_entries import k_largest
 from rigslim.plugins.deformers.numpy_deformer import NumpyDeformer
 from rigslim.plugins.deformers.opencl_deformer import OpenCLDeformer
-from rigslim.plugins.selection.k_largest import k_largest
-from rigslim.plugins.solvers.k_largest import k_largest_weights
+from rigslim.plugins.solvers.renormalised import renormalised_weights
 
 pytestmark = pytest.mark.opencl
 
@@ -36,7 +36,7 @@ def runtime():
 
 
 def reduce_to(W, k):
-    return k_largest_weights(W, k_largest(W, k))
+    return renormalised_weights(W, k_largest(W, k))
 
 
 def jittered_box_cage(mesh: Mesh, jitter: float = 0.1) -> Handles:

@@ -12,10 +12,10 @@ from rigslim.model.handles import Handles, cage_transforms
 from rigslim.model.mesh import Mesh
 from rigslim.numerics.affine_normals import affine_fit_rest, approximate_affine_normals
 from rigslim.numerics.blend import linear_blend, per_vertex_normals
+from rigslim.numerics.largest_entries import k_largest
 from rigslim.numerics.normal_error import normal_rms_angle
 from rigslim.plugins.normals.approximate_affine import ApproximateAffineNormals
-from rigslim.plugins.selection.k_largest import k_largest
-from rigslim.plugins.solvers.k_largest import k_largest_weights
+from rigslim.plugins.solvers.renormalised import renormalised_weights
 
 
 def box_cage(mesh: Mesh, margin: float = 0.15, levels: int = 1, jitter: float = 0.0, seed: int = 0) -> Handles:
@@ -71,7 +71,7 @@ def cage_case(elephant):
 
 
 def reduce_to(W, k):
-    return k_largest_weights(W, k_largest(W, k))
+    return renormalised_weights(W, k_largest(W, k))
 
 
 def test_identity_at_rest_full_and_reduced(cage_case):

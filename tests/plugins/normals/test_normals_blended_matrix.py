@@ -11,10 +11,10 @@ from rigslim.model.handles import Handles
 from rigslim.model.mesh import Mesh
 from rigslim.numerics.blend import blended_matrices, per_vertex_normals
 from rigslim.numerics.blended_normals import blended_matrix_normals, cofactor_apply
+from rigslim.numerics.largest_entries import k_largest
 from rigslim.numerics.normal_error import normal_rms_angle
 from rigslim.plugins.normals.blended_matrix import BlendedMatrixNormals
-from rigslim.plugins.selection.k_largest import k_largest
-from rigslim.plugins.solvers.k_largest import k_largest_weights
+from rigslim.plugins.solvers.renormalised import renormalised_weights
 
 
 def angles(N, M):
@@ -42,7 +42,7 @@ def test_identity_at_rest_and_rigid_motion_exact(elephant, rng):
 
 def test_matches_explicit_inverse_transpose_on_animation(elephant):
     mesh, W = elephant.mesh, elephant.weights
-    reduced = k_largest_weights(W, k_largest(W, 4))
+    reduced = renormalised_weights(W, k_largest(W, 4))
     N0 = per_vertex_normals(mesh.V, mesh.F)
     for weights in (W, reduced):
         for j in (50, 300):

@@ -164,7 +164,7 @@ def test_rank_entries_matches_the_lexsort_reference(k):
 
 def test_better_than_k_largest_on_examples(elephant):
     """On the example poses the geometric fit on best-fit sets is never worse than on k-largest sets."""
-    from rigslim.plugins.selection.k_largest import k_largest
+    from rigslim.numerics.largest_entries import k_largest
 
     asset = elephant_part(elephant)
     energies = {}

@@ -3,7 +3,7 @@ import pytest
 import scipy.sparse as sp
 
 from rigslim.errors import StepError
-from rigslim.plugins.selection.k_largest import check_k, k_largest
+from rigslim.numerics.largest_entries import check_k, k_largest
 
 
 def test_picks_largest_sorted_with_padding():

@@ -7,10 +7,10 @@ from support.synthetic import tube_asset
 
 from rigslim.errors import StepError
 from rigslim.model.poses import FrameSplit
+from rigslim.numerics.largest_entries import k_largest
 from rigslim.plugin import StepContext
-from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.auto_lambda import choose_position_weight, held_out_errors, kfold_splits
-from rigslim.plugins.solvers.methods import PoissonParams, PoissonSolver, reduce_weights
+from rigslim.plugins.solvers.methods import PoissonParams, PoissonSolver, solve_weights
 
 
 def asset_with_examples(count=7):
@@ -34,7 +34,7 @@ def test_auto_picks_the_least_score_and_refits_on_all_examples():
     assert ctx.report["position_weight"] == search["chosen"]
     assert min(scores) >= 2.0 - 1e-12   # each term is relative to its best value over the grid
     # the returned weights are the fit with the chosen lambda on ALL example poses
-    direct, _ = reduce_weights(asset, "poisson", PoissonParams(position_weight=search["chosen"]))
+    direct, _ = solve_weights(asset, "poisson", PoissonParams(position_weight=search["chosen"]))
     np.testing.assert_allclose(reduced.values, direct.values, atol=1e-10)
 
 
@@ -48,7 +48,7 @@ def test_held_out_errors_match_a_direct_computation():
     for fold, got in zip(search["folds"], search["grid"][0]["folds"], strict=False):
         held = fold["held_out_frames"]
         sub = FrameSplit(fold["fit_frames"], held, [])
-        reduced, _ = reduce_weights(dataclasses.replace(asset, split=sub), "poisson",
+        reduced, _ = solve_weights(dataclasses.replace(asset, split=sub), "poisson",
                                     PoissonParams(position_weight=0.1))
         p, n = held_out_errors(asset, reduced, held)
         assert got["position_rms_pct"] == pytest.approx(p)

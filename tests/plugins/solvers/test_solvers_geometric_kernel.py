@@ -6,11 +6,11 @@ from support.synthetic import tube_asset
 
 from rigslim.model.asset import Asset
 from rigslim.model.mesh import Mesh
+from rigslim.numerics.largest_entries import k_largest
 from rigslim.plugin import StepContext
 from rigslim.plugins.selection.best_fit import best_fit
-from rigslim.plugins.selection.k_largest import k_largest
 from rigslim.plugins.solvers.local_solver import local_solve
-from rigslim.plugins.solvers.methods import ReductionParams, reduce_weights
+from rigslim.plugins.solvers.methods import ReductionParams, solve_weights
 from rigslim.plugins.solvers.problem import build_problem
 
 
@@ -23,7 +23,7 @@ def reference(asset):
 
 def check(asset, atol):
     ctx = StepContext()
-    red, rep = reduce_weights(asset, "geometric", ReductionParams(), ctx)
+    red, rep = solve_weights(asset, "geometric", ReductionParams(), ctx)
     assert rep["backend"] == "numba" and ctx.report["path"] == "local"
     alpha, ref, prob, ref_vertex = reference(asset)
     assert rep["ridge"] == pytest.approx(prob.eps, rel=1e-12)
@@ -57,5 +57,5 @@ def test_other_settings_keep_the_general_path():
     asset = tube_asset()
     asset.influences = k_largest(asset.weights, 2)
     for params in (ReductionParams(nonnegative=False), ReductionParams(solver="global", nonnegative=False)):
-        _, rep = reduce_weights(asset, "geometric", params)
+        _, rep = solve_weights(asset, "geometric", params)
         assert rep.get("backend") != "numba"

@@ -5,7 +5,7 @@ import pytest
 import scipy.sparse as sp
 from support.synthetic import cage_asset, tube_asset
 
-from rigslim.plugins.selection.k_largest import k_largest
+from rigslim.numerics.largest_entries import k_largest
 from rigslim.plugins.solvers.global_solver import assemble_hessian, global_solve, linear_term
 from rigslim.plugins.solvers.problem import build_problem
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from support.synthetic import cage_asset, tube_asset
 
-from rigslim.plugins.selection.k_largest import k_largest
+from rigslim.numerics.largest_entries import k_largest
 from rigslim.plugins.solvers.global_solver import global_solve
 from rigslim.plugins.solvers.local_solver import feasible_start, local_solve
 from rigslim.plugins.solvers.multilevel_solver import multilevel_solve

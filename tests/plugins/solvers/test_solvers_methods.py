@@ -7,8 +7,8 @@ import pytest
 from support.synthetic import cage_asset, tube_asset
 
 from rigslim.errors import RigslimError, StepError
-from rigslim.plugins.selection.k_largest import k_largest
-from rigslim.plugins.solvers.methods import LaplacianParams, PoissonParams, ReductionParams, reduce_weights
+from rigslim.numerics.largest_entries import k_largest
+from rigslim.plugins.solvers.methods import LaplacianParams, PoissonParams, ReductionParams, solve_weights
 from rigslim.runtime.run import run_pipeline
 
 PARAMS = {"geometric": ReductionParams, "smooth": LaplacianParams, "poisson": PoissonParams}
@@ -28,7 +28,7 @@ def test_invariants_tube(method, solver):
     asset.influences = k_largest(asset.weights, 2)
     nonneg = solver != "global"
     params = PARAMS[method](solver=solver, nonnegative=nonneg, max_sweeps=50)
-    red, rep = reduce_weights(asset, method, params)
+    red, rep = solve_weights(asset, method, params)
     _check_invariants(red, 2, nonneg)
     assert rep["method"] == method and rep["energy"] <= rep.get("energy_start", np.inf) + 1e-9
 
@@ -37,7 +37,7 @@ def test_invariants_tube(method, solver):
 def test_invariants_cage_negative_allowed(method):
     asset = cage_asset()
     asset.influences = k_largest(asset.weights, 4)
-    red, rep = reduce_weights(asset, method, PARAMS[method](nonnegative=False))
+    red, rep = solve_weights(asset, method, PARAMS[method](nonnegative=False))
     _check_invariants(red, 4, False)
     assert rep["path"] == "global" and rep["gap"] == 0.0
 
@@ -47,19 +47,19 @@ def test_k_equal_n_returns_input(method):
     for asset, n in ((tube_asset(), 4), (cage_asset(), 8)):
         asset.influences = k_largest(asset.weights, n)
         for nonneg in (False, True):
-            red, _ = reduce_weights(asset, method, PARAMS[method](nonnegative=nonneg))
+            red, _ = solve_weights(asset, method, PARAMS[method](nonnegative=nonneg))
             np.testing.assert_allclose(red.to_sparse().toarray(), asset.weights.toarray(), atol=1e-6)
 
 
 def test_default_nonnegative_rule():
     tube = tube_asset()
     tube.influences = k_largest(tube.weights, 2)
-    assert reduce_weights(tube, "poisson", PoissonParams(max_sweeps=5))[1]["nonnegative"] is True
+    assert solve_weights(tube, "poisson", PoissonParams(max_sweeps=5))[1]["nonnegative"] is True
     cage = cage_asset()  # mean value coordinates in a convex cage: all positive
     cage.influences = k_largest(cage.weights, 4)
-    assert reduce_weights(cage, "poisson", PoissonParams(max_sweeps=5))[1]["nonnegative"] is True
+    assert solve_weights(cage, "poisson", PoissonParams(max_sweeps=5))[1]["nonnegative"] is True
     cage.weights.data[0] = -abs(cage.weights.data[0])  # one negative input weight: default off
-    assert reduce_weights(cage, "poisson", PoissonParams(max_sweeps=5))[1]["nonnegative"] is False
+    assert solve_weights(cage, "poisson", PoissonParams(max_sweeps=5))[1]["nonnegative"] is False
 
 
 def test_geometric_is_per_vertex_optimal_with_nonnegativity(elephant):
@@ -68,7 +68,7 @@ def test_geometric_is_per_vertex_optimal_with_nonnegativity(elephant):
     from rigslim.plugins.solvers.problem import build_problem
 
     elephant.influences = k_largest(elephant.weights, 4)
-    red, rep = reduce_weights(elephant, "geometric", ReductionParams())
+    red, rep = solve_weights(elephant, "geometric", ReductionParams())
     prob = build_problem(elephant, "geometric")
     def per_vertex(a):
         return ((np.einsum("mkd,mk->md", prob.B, a) - prob.Y) ** 2).sum(axis=1)
@@ -87,14 +87,14 @@ def test_smooth_on_cage_needs_linear_precision():
     asset = cage_asset()
     asset.influences = k_largest(asset.weights, 4)
     with pytest.raises(StepError, match="linear precision"):
-        reduce_weights(asset, "smooth", LaplacianParams(linear_precision=False))
+        solve_weights(asset, "smooth", LaplacianParams(linear_precision=False))
 
 
 def test_global_with_nonnegative_is_an_error():
     asset = tube_asset()
     asset.influences = k_largest(asset.weights, 2)
     with pytest.raises(StepError) as err:
-        reduce_weights(asset, "poisson", PoissonParams(solver="global", nonnegative=True))
+        solve_weights(asset, "poisson", PoissonParams(solver="global", nonnegative=True))
     assert err.value.field == "solver" and "auto" in err.value.fix
 
 
@@ -107,8 +107,8 @@ def test_position_weight_lowers_position_error_on_examples():
     def err(red):
         return sum(np.sum((linear_blend(asset.mesh.V, red, t) - linear_blend(asset.mesh.V, asset.weights, t)) ** 2)
                    for t in T)
-    e0 = err(reduce_weights(asset, "poisson", PoissonParams(nonnegative=False))[0])
-    e1 = err(reduce_weights(asset, "poisson", PoissonParams(nonnegative=False, position_weight=10.0))[0])
+    e0 = err(solve_weights(asset, "poisson", PoissonParams(nonnegative=False))[0])
+    e1 = err(solve_weights(asset, "poisson", PoissonParams(nonnegative=False, position_weight=10.0))[0])
     assert e1 < e0
 
 
@@ -155,8 +155,8 @@ def test_bad_parameter_is_a_one_line_error(write_pipeline):
 def test_auto_uses_amg_cg_above_limit():
     asset = tube_asset()
     asset.influences = k_largest(asset.weights, 2)
-    _, direct = reduce_weights(asset, "poisson", PoissonParams(nonnegative=False))
-    red, rep = reduce_weights(asset, "poisson", PoissonParams(global_max_unknowns=10, nonnegative=False,
+    _, direct = solve_weights(asset, "poisson", PoissonParams(nonnegative=False))
+    red, rep = solve_weights(asset, "poisson", PoissonParams(global_max_unknowns=10, nonnegative=False,
                                                               residual_tolerance=1e-9))
     assert direct["path"] == "global" and rep["path"] == "global: amg-cg" and rep["iterations"] >= 1
     assert rep["converged"] and rep["kkt_residual"] <= 1e-9
@@ -167,7 +167,7 @@ def test_auto_uses_amg_cg_above_limit():
 def test_auto_nonnegative_above_limit_reports_kkt():
     asset = tube_asset()
     asset.influences = k_largest(asset.weights, 2)
-    red, rep = reduce_weights(asset, "poisson", PoissonParams(global_max_unknowns=10, nonnegative=True))
+    red, rep = solve_weights(asset, "poisson", PoissonParams(global_max_unknowns=10, nonnegative=True))
     assert rep["path"] == "auto: amg-cg, projection, local"
     assert rep["energy"] >= rep["equality_optimum"] * (1 - 1e-9)
     assert 0 <= rep["kkt_residual"] < 1e-5

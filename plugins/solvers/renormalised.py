@@ -1,4 +1,8 @@
-"""The k-largest solver: keep the selected input weights and renormalise ([P10] section 3)."""
+"""The ``k-largest`` weight solver: keep the selected input weights and renormalise them ([P10] section 3).
+
+Named for what it computes, apart from the ranking (:mod:`rigslim.numerics.largest_entries`) and the
+k-largest selector (:mod:`rigslim.plugins.selection.k_largest`).
+"""
 
 from __future__ import annotations
 
@@ -25,7 +29,7 @@ def gather(A: sp.csr_matrix, influences: InfluenceSets) -> np.ndarray:
     return np.where(influences.valid, vals, 0.0)
 
 
-def k_largest_weights(A: sp.csr_matrix, influences: InfluenceSets) -> ReducedWeights:
+def renormalised_weights(A: sp.csr_matrix, influences: InfluenceSets) -> ReducedWeights:
     """Input weights restricted to the influence sets and renormalised.
 
     ``alpha_{v,l} = a_{v,i_l} / sum_l' a_{v,i_l'}``
@@ -51,4 +55,4 @@ class KLargestSolver(WeightSolver):
 
     def solve(self, asset: Asset, params: Params, ctx: StepContext) -> ReducedWeights:
         asset.require("weights", "influences", step="solve: k-largest")
-        return k_largest_weights(asset.weights, asset.influences)
+        return renormalised_weights(asset.weights, asset.influences)

@@ -1,6 +1,9 @@
 """The k largest entries of each row of a sparse matrix: the influence sets of [P10] section 3.
 
-Shared by the k-largest selector, the k-largest solver, selectors of plugin packages and the benchmarks.
+The ranking only: the ``select`` step that uses it is the k-largest selector
+(:mod:`rigslim.plugins.selection.k_largest`), the ``solve`` step that keeps the selected input weights is
+:mod:`rigslim.plugins.solvers.renormalised`. Shared with selectors of plugin packages and the benchmarks.
+(Was ``rigslim.numerics.k_largest``; that path still imports, see :mod:`rigslim.compat`.)
 """
 
 from __future__ import annotations
