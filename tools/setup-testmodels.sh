@@ -27,8 +27,8 @@ if [ "$need_apt" -eq 1 ]; then
     SUDO=""
     if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
     export DEBIAN_FRONTEND=noninteractive
-    $SUDO apt-get update -qq
-    $SUDO apt-get install -y -qq --no-install-recommends assimp-utils assimp-testmodels
+    $SUDO apt-get -o DPkg::Lock::Timeout=600 update -qq
+    $SUDO apt-get -o DPkg::Lock::Timeout=600 install -y -qq --no-install-recommends assimp-utils assimp-testmodels
 fi
 if [ "$need_npm" -eq 1 ]; then
     if ! command -v npm >/dev/null; then
