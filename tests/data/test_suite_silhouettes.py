@@ -29,7 +29,7 @@ Each character is tested twice: with the default error bound (``--max-error``
 shape guards alone must keep the silhouette). Characters whose unbounded level
 fails today are ``xfail(strict=True)`` with the defect
 seen on the sheets; when a fix lands the test turns XPASS and fails, and the
-mark is to be removed (/work/coord/requests/lod.md names them).
+mark is to be removed.
 
 A self-check renders a level with a spike added (vertices of one foot pulled
 down) and asserts that it fails the threshold, and mask_difference is
