@@ -2,40 +2,34 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from rigslim.commands.gltf_common import (
     DEFAULT_FPS,
+    _check_fps,
     _check_input,
     _emit_report,
     _header,
     _jsonable,
     clip_frames,
+    command_session,
     is_usd,
     skins_used,
 )
 from rigslim.errors import InputError
+from rigslim.io.jsonsafe import dumps_strict
 
 
 def parse_frames_spec(spec: str | None, count: int) -> list[int]:
-    """``a:b:c`` (Python range), or a comma list; default every frame."""
+    """``--frames``: ``a:b:c`` (Python slice), ``a,b,c`` or one frame (:func:`rigslim.model.poses.parse_frames`,
+    the one frame-spec parser); default every frame of the clip's ``count``."""
+    from rigslim.model.poses import parse_frames
+
     if spec is None:
         return list(range(count))
-    try:
-        if ":" in spec:
-            parts = [int(x) if x else None for x in spec.split(":")]
-            frames = list(range(count))[slice(*parts)]
-        else:
-            frames = [int(x) for x in spec.split(",") if x.strip()]
-    except ValueError:
-        frames = []
-    if not frames or min(frames) < 0:
-        raise InputError(f"--frames '{spec}' gives no frames of the clip's {count}", field="--frames",
-                         fix="write e.g. --frames 1:30:2 or --frames 3,7")
-    return frames
+    return parse_frames(spec, count, field_name="--frames")
 
 
 def posed_surfaces(path: Path, *, clip, times, level: int = 0):
@@ -104,14 +98,14 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
 
             raise StepError("rigslim compare measures Hausdorff distances with pymeshlab, which is not installed",
                             field="compare", fix="pip install 'rigslim[metro]'") from None
-    count, clip_name, _ = clip_frames(ref, clip, fps)
-    chosen = parse_frames_spec(frames, count)
-    if max(chosen) >= count:
-        raise InputError(f"--frames reaches frame {max(chosen)} but the clip has {count} at {fps:g} fps",
-                         field="--frames", fix=f"use frames 0..{count - 1}")
-    times = [f / fps for f in chosen]
-    Pr, Fr, sr = posed_surfaces(ref, clip=clip, times=times)
-    Pc, Fc, sc = posed_surfaces(cand, clip=clip if clip is not None else None, times=times, level=level)
+    from rigslim.io.gltf.document import load_gltf, read_once
+
+    with read_once():           # each file parsed once (the command's own session, if any, shares it)
+        count, clip_name, _ = clip_frames(ref, clip, fps, None if is_usd(ref) else load_gltf(ref))
+        chosen = parse_frames_spec(frames, count)
+        times = [f / fps for f in chosen]
+        Pr, Fr, sr = posed_surfaces(ref, clip=clip, times=times)
+        Pc, Fc, sc = posed_surfaces(cand, clip=clip if clip is not None else None, times=times, level=level)
     lo, hi = Pr[0].min(axis=0), Pr[0].max(axis=0)
     diag = float(np.linalg.norm(hi - lo))
     if diag <= 0:
@@ -146,11 +140,13 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
 
 def cmd_compare(args) -> int:
     ref, cand = _check_input(args.reference, "REFERENCE"), _check_input(args.candidate, "CANDIDATE")
-    res = compare(ref, cand, clip=args.clip, frames=args.frames, level=args.level, fps=args.fps,
-                  samples=args.samples)
-    _emit_report(args, res)
+    _check_fps(args.fps)
+    with command_session(args, [ref, cand], {}):
+        res = compare(ref, cand, clip=args.clip, frames=args.frames, level=args.level, fps=args.fps,
+                      samples=args.samples)
+        _emit_report(args, res)
     if args.json:
-        print(json.dumps({k: v for k, v in res.items() if not k.startswith("per_frame")}, default=_jsonable))
+        print(dumps_strict({k: v for k, v in res.items() if not k.startswith("per_frame")}, default=_jsonable))
         return 0
     print(f"{cand.name} (level {args.level}, {res['faces']} faces) vs {ref.name} ({res['reference_faces']} faces), "
           f"{len(res['frames'])} frames of {res['clip'] or 'the rest pose'}:")

@@ -1,18 +1,20 @@
-"""What the one-command glTF front ends share: input checks, clip frames, the pipeline run, the ``--report``
-document."""
+"""What the one-command glTF front ends share: input checks, the command session (the input read once, no
+output naming an input, one output transaction), clip frames, the pipeline run, the ``--report`` document."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import copy
 import json
-import tempfile
+import re
 import time
 from pathlib import Path
 
 import numpy as np
 import yaml
 
-from rigslim.errors import InputError
+from rigslim.errors import InputError, RigslimError
 
 #: Version of the ``--report`` / ``--json`` documents of these commands.
 REPORT_SCHEMA = "rigslim-gltf-command"
@@ -44,6 +46,11 @@ def _check_input(path, what: str = "input") -> Path:
     return p.resolve()
 
 
+def _check_fps(fps: float) -> None:
+    if not fps > 0:
+        raise InputError(f"--fps {fps:g} is not a positive frame rate", field="--fps", fix="give e.g. --fps 30")
+
+
 def _check_output(path) -> Path:
     p = Path(path)
     if p.suffix.lower() not in GLTF_SUFFIXES + USD_SUFFIXES:
@@ -72,8 +79,13 @@ def write_step(out: Path, **params) -> dict:
     return {"write": str(out), **usd}
 
 
-def clip_frames(path: Path, clip, fps: float) -> tuple[int, str | None, float]:
-    """Frame count of a clip sampled at ``fps`` (1 without animation), its name and its duration."""
+def clip_frames(path: Path, clip, fps: float, doc=None) -> tuple[int, str | None, float]:
+    """Frame count of a clip sampled at ``fps`` (1 without animation), its name and its duration.
+
+    ``doc``: the file's loaded :class:`~rigslim.io.gltf.document.GltfDocument` (the commands pass the one
+    they read once); without it, only the file's JSON is parsed when every sampler's input has its ``max``.
+    An unknown clip is reported against ``--clip``.
+    """
     if is_usd(path):
         from rigslim.io.usd.summary import clip_info
 
@@ -81,11 +93,16 @@ def clip_frames(path: Path, clip, fps: float) -> tuple[int, str | None, float]:
     from rigslim.io.gltf.document import load_gltf
     from rigslim.io.gltf.scene import animation_duration, find_animation
 
-    doc = _json_only(path)
-    light = doc is not None
-    if not light:
-        doc = load_gltf(path)
-    anim = find_animation(doc, clip)
+    light = False
+    if doc is None:
+        doc = _json_only(path)
+        light = doc is not None
+        if not light:
+            doc = load_gltf(path)
+    try:
+        anim = find_animation(doc, clip)
+    except InputError as e:
+        raise _renamed(e, "--clip") from None
     if anim is None:
         return 1, None, 0.0
     if light:           # the largest key time, from the accessors' max (the reader checks the keys themselves)
@@ -96,6 +113,13 @@ def clip_frames(path: Path, clip, fps: float) -> tuple[int, str | None, float]:
         duration = animation_duration(doc, anim)
     name = doc.json["animations"][anim].get("name", str(anim))
     return int(np.floor(duration * fps + 1e-3)) + 1, name, duration
+
+
+def _renamed(e: RigslimError, option: str) -> RigslimError:
+    """``e`` with its field replaced by the command-line option the value came from."""
+    e.field = option
+    e.args = (e.one_line(),)
+    return e
 
 
 def _json_only(path: Path):
@@ -160,29 +184,90 @@ def _poses(frames: int) -> dict:
     return {"examples": f"0:{frames}:{step}", "test": f"{max(1, step // 2)}:{frames}:{step}"}
 
 
+#: The command-line option behind each field of the pipelines ``reduce`` and ``lod`` build: a step's stage
+#: key (its plugin) or parameter, and the glTF/USD input's parameters. Errors the pipeline run reports
+#: against these fields name the option instead (``steps[2].solve`` -> ``--solve``).
+OPTION_OF_FIELD = {
+    "reduce": {"select": "--select", "k": "-k", "by": "--select", "solve": "--solve", "evaluate": "--solve",
+               "write": "-o", "quantize": "--quantize"},
+    "lod": {"decimate": "--method", "targets": "--ratios", "max_bones": "--max-bones", "max_error": "--max-error",
+            "joint_budget": "--max-joints", "keep_joints": "--keep-joints", "joint_choice": "--joint-choice",
+            "evaluate": "--measure", "write": "-o", "quantize": "--quantize", "pixel_error": "--pixel-error",
+            "fov": "--fov", "resolution": "--resolution", "switch_error": "--switch-error"},
+    "inputs": {"animation": "--clip", "times": "--clip", "fps": "--fps", "path": "IN", "skin": "IN"},
+}
+
+_STEP_FIELD = re.compile(r"steps\[(\d+)\](?:\.([\w-]+))?")
+
+
+def option_for_field(command: str, pipeline: dict, field: str | None) -> str | None:
+    """The command-line option a field of the command's pipeline comes from (None: no option sets it).
+
+    ``steps[N].KEY``: the option of parameter KEY of step N, else of the step's stage key;
+    ``inputs.gltf.animation`` (``inputs.usd.*``): ``--clip``, ``--fps``...; ``poses``: ``--clip``.
+    """
+    options = OPTION_OF_FIELD.get(command, {})
+    field = field or ""
+    m = _STEP_FIELD.match(field)
+    if m:
+        steps = pipeline.get("steps", [])
+        index = int(m.group(1))
+        stage = next(iter(steps[index - 1]), None) if 1 <= index <= len(steps) else None
+        return options.get(m.group(2) or "") or options.get(stage or "")
+    parts = field.split(".")
+    if parts[0] == "inputs":
+        return OPTION_OF_FIELD["inputs"].get(parts[2] if len(parts) > 2 else "path")
+    if parts[0] == "poses":
+        return "--clip"
+    return None
+
+
+def _as_option_error(e: RigslimError, command: str, pipeline: dict, label: str) -> None:
+    """Rewrite in place an error the run reported against the in-memory pipeline so it names the option."""
+    source = e.source or ""
+    if source != label and not source.startswith(label + " "):
+        return              # about a file (the input, an output): already names it
+    field = e.field
+    if source.startswith(label + " "):       # a plugin's failure: "LABEL steps[N] (stage)"
+        field = source[len(label) + 1:].split(" ")[0] + (f".{e.field}" if e.field else "")
+    option = option_for_field(command, pipeline, field)
+    e.source = None if option else f"rigslim {command}"
+    e.field = option or field
+    e.args = (e.one_line(),)
+
+
 def _run(pipeline: dict, args, console) -> tuple[object, float]:
-    """Write the pipeline as YAML (temporary, or --save-pipeline) and run it."""
+    """Run the pipeline document in memory; stage ``--save-pipeline`` (committed with the outputs).
+
+    Errors the run reports against the document name the command-line option (:func:`option_for_field`).
+    """
+    from rigslim.io.atomic import atomic_path
     from rigslim.runtime.run import run_pipeline
 
-    text = yaml.safe_dump(pipeline, sort_keys=False)
+    command = pipeline["name"].split("-", 1)[0]
     if getattr(args, "save_pipeline", None):
-        Path(args.save_pipeline).write_text(text)
-    with tempfile.TemporaryDirectory(prefix="rigslim-cmd-") as tmp:
-        yml = Path(tmp) / f"{pipeline['name']}.yaml"
-        yml.write_text(text)
-        t0 = time.perf_counter()
-        result = run_pipeline(yml, console=console)
-        return result, time.perf_counter() - t0
+        with atomic_path(args.save_pipeline) as tmp:
+            Path(tmp).write_text(yaml.safe_dump(pipeline, sort_keys=False))
+    label = f"rigslim {command}"
+    t0 = time.perf_counter()
+    try:
+        result = run_pipeline(Path(label), console=console, raw=copy.deepcopy(pipeline))
+    except RigslimError as e:
+        _as_option_error(e, command, pipeline, label)
+        raise
+    return result, time.perf_counter() - t0
 
 
-def _chain(src: Path, out: Path, make, args, console, tmp: Path):
+def _chain(src: Path, out: Path, make, args, console, tmp: Path, doc=None):
     """Run ``make(input, output, skin)`` pipelines once per skin, each reading the previous one's output.
 
-    One skin: one run, ``skin`` None (the reader's default). Returns ``[(pipeline, result, seconds), ...]``.
+    One skin: one run, ``skin`` None (the reader's default). ``tmp``: a
+    :func:`~rigslim.io.atomic.scratch_folder` for the intermediate files; ``doc``: the input's loaded
+    document. Returns ``[(pipeline, result, seconds), ...]``.
     """
     from rigslim.io.gltf.document import load_gltf
 
-    skins = [] if is_usd(src) else skins_used(load_gltf(src).json)    # USD: the reader picks the skeleton
+    skins = [] if is_usd(src) else skins_used((doc or load_gltf(src)).json)    # USD: the reader picks the skeleton
     if len(skins) <= 1:
         pipeline = make(src, out, None)
         return [(pipeline, *_run(pipeline, args, console))]
@@ -199,6 +284,37 @@ def _chain(src: Path, out: Path, make, args, console, tmp: Path):
     return runs
 
 
+@contextlib.contextmanager
+def command_session(args, inputs: list[Path], outputs: dict):
+    """What each one-command front end runs in: its inputs read once, its outputs checked, one transaction.
+
+    Inside :func:`rigslim.io.gltf.document.read_once`, the glTF inputs are loaded (and yielded, None for
+    USD); no output (``outputs``: option -> path, plus ``--report`` and ``--save-pipeline``) may be an
+    input or a file one references (:func:`rigslim.io.atomic.refuse_input_as_output`), nor two outputs
+    one file; each output's folder must be writable; then every file the command writes is staged in one
+    :func:`~rigslim.io.atomic.output_transaction` and committed together when the block ends without error
+    (nothing is written otherwise).
+    """
+    from rigslim.io.atomic import check_output, output_transaction, refuse_input_as_output
+    from rigslim.io.gltf.document import load_gltf, read_once
+    from rigslim.runtime.run import referenced_files
+
+    outs = dict(outputs)
+    for option, path in outputs.items():       # a .gltf output brings its buffer, OUT.bin
+        if Path(path).suffix.lower() == ".gltf":
+            outs[f"{option} (its buffer)"] = Path(path).with_suffix(".bin")
+    for option, attr in (("--report", "report"), ("--save-pipeline", "save_pipeline")):
+        if getattr(args, attr, None):
+            outs[option] = Path(getattr(args, attr))
+    with read_once():
+        docs = [None if is_usd(p) else load_gltf(p) for p in inputs]
+        refuse_input_as_output(outs, list(inputs) + [f for d in docs if d is not None for f in referenced_files(d)])
+        for path in outs.values():
+            check_output(path)
+        with output_transaction():
+            yield docs
+
+
 def _console(args):
     from rich.console import Console
 
@@ -206,11 +322,13 @@ def _console(args):
 
 
 def _emit_report(args, doc: dict) -> None:
+    """Stage the ``--report`` document (strict JSON: :func:`rigslim.io.jsonsafe.dumps_strict`)."""
     if getattr(args, "report", None):
         from rigslim.io.atomic import atomic_path
+        from rigslim.io.jsonsafe import dumps_strict
 
         with atomic_path(args.report) as tmp:
-            Path(tmp).write_text(json.dumps(doc, indent=2, default=_jsonable) + "\n")
+            Path(tmp).write_text(dumps_strict(doc, indent=2, default=_jsonable) + "\n")
 
 
 def _jsonable(x):
@@ -228,14 +346,15 @@ def _header(command: str) -> dict:
             "rigslim_version": rigslim.__version__}
 
 
-def _joint_count(path: Path) -> int:
+def _joint_count(path: Path, doc=None) -> int:
+    """The most joints a skin of the file lists (``doc``: the file's loaded document)."""
     if is_usd(path):
         from rigslim.io.usd.summary import joint_count
 
         return joint_count(path)
     from rigslim.io.gltf.document import load_gltf
 
-    skins = load_gltf(path).json.get("skins", [])
+    skins = (doc or load_gltf(path)).json.get("skins", [])
     if not skins:
         raise InputError("the file has no skin", source=path, field="skins", fix="give a skinned glTF")
     return max(len(s.get("joints", [])) for s in skins)

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
-from rigslim.commands.gltf_common import _check_input, _emit_report, _header, _jsonable
+from rigslim.commands.gltf_common import _check_input, _emit_report, _header, _jsonable, command_session
+from rigslim.io.jsonsafe import dumps_strict
 
 
 def inspect(path: Path) -> dict:
@@ -93,10 +93,12 @@ def _print_usd(info: dict) -> None:
 
 
 def cmd_inspect(args) -> int:
-    info = inspect(_check_input(args.input))
-    _emit_report(args, info)
+    src = _check_input(args.input)
+    with command_session(args, [src], {}):
+        info = inspect(src)
+        _emit_report(args, info)
     if args.json:
-        print(json.dumps(info, indent=2, default=_jsonable))
+        print(dumps_strict(info, indent=2, default=_jsonable))
         return 0
     if "skeletons" in info:
         _print_usd(info)

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import sys
-import tempfile
 from pathlib import Path
 
 from rigslim.commands.gltf_common import (
     _chain,
+    _check_fps,
     _check_input,
     _check_output,
     _console,
@@ -16,6 +16,7 @@ from rigslim.commands.gltf_common import (
     _header,
     _poses,
     clip_frames,
+    command_session,
     input_section,
     is_usd,
     write_step,
@@ -85,6 +86,7 @@ def lod_pipeline(src: Path, out: Path, *, ratios, max_bones: int, clip, fps: flo
 
 
 def cmd_lod(args) -> int:
+    from rigslim.io.atomic import scratch_folder
     from rigslim.io.gltf.write import split_levels
 
     src, out = _check_input(args.input), _check_output(args.output)
@@ -95,18 +97,22 @@ def cmd_lod(args) -> int:
     if not 1 <= args.max_bones <= (64 if is_usd(out) else 8):
         raise InputError(f"--max-bones {args.max_bones}: glTF holds 1 to 8 influences per vertex",
                          field="--max-bones", fix="give 1..8 (4 for three.js and most engines)")
+    _check_fps(args.fps)
     max_error = parse_max_error_option(args.max_error)
     joints, coverage = decimate_params(args, len(ratios)), write_params(args)
-    frames, clip, duration = clip_frames(src, args.clip, args.fps)
-    if frames < 2:
-        print(f"rigslim lod: {src.name} has no animation: simplifying for the rest pose only", file=sys.stderr)
-    console = _console(args)
-    with tempfile.TemporaryDirectory(prefix="rigslim-lod-", dir=out.parent if out.parent.exists() else None) as tmp:
-        target = Path(tmp) / f"lod{out.suffix}" if args.split else out
+    outputs = {"-o": out} if not args.split else \
+        {f"--split (level {r:g})": p for r, p in zip(ratios, split_names(out, ratios), strict=True)} | \
+        {"--split (sidecar)": sidecar_path(out)}
+    with command_session(args, [src], outputs) as (source,), scratch_folder("rigslim-lod-") as tmp:
+        frames, clip, duration = clip_frames(src, args.clip, args.fps, source)
+        if frames < 2:
+            print(f"rigslim lod: {src.name} has no animation: simplifying for the rest pose only", file=sys.stderr)
+        console = _console(args)
+        target = tmp / f"lod{out.suffix}" if args.split else out
         runs = _chain(src, target, lambda i, o, s: lod_pipeline(
             i, o, ratios=ratios, max_bones=args.max_bones, clip=args.clip, fps=args.fps, frames=frames,
             quantize=args.quantize, method=args.method, measure=args.measure, skin=s, max_error=max_error,
-            joints=joints, coverage=coverage), args, console, Path(tmp))
+            joints=joints, coverage=coverage), args, console, tmp, source)
         pipeline, result, _ = runs[0]
         seconds = sum(r[2] for r in runs)
         step = next(s for s in result.document["steps"] if s["stage"] == "decimate")
@@ -116,6 +122,25 @@ def cmd_lod(args) -> int:
         if args.split:
             outputs = split_names(out, [t["target"] for t in kept])
             split_levels(target, outputs)
+        doc, rows = _lod_document(args, src, outputs, runs, result, targets, kept, step, clip, duration, frames,
+                                  ratios, max_error, seconds)
+        if args.split and not is_usd(out):
+            doc["sidecar"] = str(sidecar_path(out))
+            write_sidecar(sidecar_path(out), source=src, outputs=outputs, rows=rows, result=result,
+                          header=_header("lod"))
+        _emit_report(args, doc)
+    faces = ", ".join(f"{r['faces']}" for r in rows)
+    print(f"wrote {', '.join(str(p) for p in outputs)}: {len(rows)} levels ({faces} faces of "
+          f"{doc['input_faces']}), at most {args.max_bones} bones per vertex, {seconds:.2f} s")
+    print_levels(rows)
+    for t in targets:
+        _say_where_it_stopped(t, max_error, doc["locked_seam_vertices"])
+    return 0
+
+
+def _lod_document(args, src, outputs, runs, result, targets, kept, step, clip, duration, frames, ratios,
+                  max_error, seconds) -> tuple[dict, list[dict]]:
+    """The ``--report`` document of ``rigslim lod`` and its level rows."""
     write = result.document["steps"][-1].get("report", {})
     rows = []
     for t, row in zip(kept, level_rows(result), strict=False):
@@ -133,7 +158,7 @@ def cmd_lod(args) -> int:
                              "levels": rows, "seconds": seconds,
                              # the command report keeps KEY@LEVEL names (rigslim-gltf-command v1)
                              "metrics": flat_metrics(result.evaluations[-1]) if result.evaluations else {},
-                             "pipeline": pipeline, "run": result.document}
+                             "pipeline": runs[0][0], "run": result.document}
     if len(runs) > 1:          # one decimation per skin; the top-level levels are the first skin's
         doc["per_skin"] = []
         for p, r, t in runs:
@@ -142,18 +167,7 @@ def cmd_lod(args) -> int:
                                     "input_faces": st.get("input_faces"),
                                     "levels": [lv["faces"] for lv in st.get("levels", [])]})
     doc["switch"] = switch_camera(result)
-    if args.split and not is_usd(out):
-        doc["sidecar"] = str(sidecar_path(out))
-        write_sidecar(sidecar_path(out), source=src, outputs=outputs, rows=rows, result=result,
-                      header=_header("lod"))
-    _emit_report(args, doc)
-    faces = ", ".join(f"{r['faces']}" for r in rows)
-    print(f"wrote {', '.join(str(p) for p in outputs)}: {len(rows)} levels ({faces} faces of "
-          f"{doc['input_faces']}), at most {args.max_bones} bones per vertex, {seconds:.2f} s")
-    print_levels(rows)
-    for t in targets:
-        _say_where_it_stopped(t, max_error, doc["locked_seam_vertices"])
-    return 0
+    return doc, rows
 
 
 def _say_where_it_stopped(t: dict, max_error: str | None, seam_vertices) -> None:

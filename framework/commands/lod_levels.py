@@ -11,7 +11,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -170,6 +169,7 @@ def write_sidecar(path: Path, *, source: Path, outputs: list[Path], rows: list[d
     ``switch_distance_m`` on; file paths are relative to the sidecar's folder.
     """
     from rigslim.io.atomic import atomic_path
+    from rigslim.io.jsonsafe import dumps_strict
 
     cam = switch_camera(result) or {}
     cov = cam.get("coverage") or []
@@ -194,7 +194,7 @@ def write_sidecar(path: Path, *, source: Path, outputs: list[Path], rows: list[d
                     "(Babylon.js's MSFT_screencoverage); show level i while min_coverage <= coverage < max_coverage",
         "levels": levels}
     with atomic_path(path) as tmp:
-        Path(tmp).write_text(json.dumps(doc, indent=2) + "\n")
+        Path(tmp).write_text(dumps_strict(doc, indent=2) + "\n")
     return doc
 
 

@@ -11,7 +11,7 @@ def _cmd_report(args) -> int:
     from rich.console import Console
 
     from rigslim.errors import InputError
-    from rigslim.io.atomic import check_output, output_transaction
+    from rigslim.io.atomic import check_output, output_transaction, refuse_input_as_output
     from rigslim.report import build_report, load_document, write_report
     from rigslim.runtime.progress import Reporter
 
@@ -27,6 +27,7 @@ def _cmd_report(args) -> int:
     except ValueError:
         raise InputError(f"--size '{args.size}' is not WIDTHxHEIGHT", field="--size",
                          fix="write e.g. --size 320x270") from None
+    refuse_input_as_output({"-o": args.output}, args.metrics)
     check_output(args.output)
     documents = [(load_document(p), p) for p in args.metrics]
     console = Console(stderr=True, quiet=args.quiet)

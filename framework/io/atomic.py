@@ -27,7 +27,15 @@ one, ``rigslim report`` its page and renders) nothing is renamed until the
 transaction ends: the staged files are committed together (device
 write-throughs first, since they can still fail or block on a FIFO, then the
 renames, with SIGINT and SIGTERM held back), or all removed if anything
-failed before.
+failed before. :func:`staged_view` lets a command read what it staged (to
+measure the file it is about to commit), and :func:`scratch_folder` gives a
+private folder whose files are written at once (intermediate files that are
+read back within the command and never committed).
+
+:func:`refuse_input_as_output` is the one check every command and pipeline
+runs before any work: no output may name an input file (the same path after
+``./``, ``..`` and symbolic links, or the same inode: a hard link), and no two
+outputs may name one file.
 """
 
 from __future__ import annotations
@@ -380,11 +388,116 @@ def check_output(path) -> None:
 def _inside_staged_dir(path: Path) -> bool:
     tx = _current.get()
     dirs = set(tx.dirs) if tx is not None else set()
-    dirs |= _standalone_dirs
+    dirs |= _standalone_dirs | _scratch_dirs
     return any(str(p) in dirs for p in path.parents)
 
 
 _standalone_dirs: set[str] = set()
+_scratch_dirs: set[str] = set()
+
+
+@contextlib.contextmanager
+def scratch_folder(prefix: str = "rigslim-"):
+    """A private temporary folder (removed at the end) whose files :func:`atomic_path` writes at once.
+
+    For intermediate files a command reads back itself (one skin's result, the LOD file ``--split`` cuts
+    up): they are not outputs, so they are neither staged in the transaction nor committed.
+    """
+    with tempfile.TemporaryDirectory(prefix=prefix) as tmp:
+        names = {tmp, os.path.realpath(tmp)}
+        _scratch_dirs.update(names)
+        try:
+            yield Path(tmp)
+        finally:
+            _scratch_dirs.difference_update(names)
+
+
+def _real(path) -> str:
+    return os.path.realpath(os.path.abspath(path))
+
+
+@contextlib.contextmanager
+def staged_view(path):
+    """Yield a path to read ``path`` as the current transaction will commit it.
+
+    Outside a transaction, or when nothing is staged for ``path``, that is ``path`` itself. Otherwise the
+    staged files of ``path``'s folder are linked (or copied) under their final names into a scratch folder,
+    so a ``.gltf`` finds its staged ``.bin`` beside it; the folder is removed at the end.
+    """
+    tx = _current.get()
+    target = Path(_real(path))
+    item = None if tx is None else next((s for s in tx.staged if _real(s.target) == str(target) and s.kind == "file"),
+                                        None)
+    if item is None:
+        yield Path(path)
+        return
+    assert tx is not None
+    with scratch_folder("rigslim-view-") as folder:
+        for s in tx.staged:
+            if s.kind == "file" and Path(_real(s.target)).parent == target.parent:
+                dst = folder / Path(_real(s.target)).name
+                try:
+                    os.link(s.tmp, dst)
+                except OSError:
+                    shutil.copyfile(s.tmp, dst)
+        yield folder / target.name
+
+
+# --------------------------------------------------------------------------- outputs that are inputs
+
+
+def _identity(path: Path) -> tuple[str, tuple[int, int] | None, bool]:
+    """The real path, ``(st_dev, st_ino)`` of an existing file, and whether it is a regular file (or new)."""
+    real = _real(path)
+    try:
+        st = os.stat(real)
+    except OSError:
+        return real, None, True
+    return real, (st.st_dev, st.st_ino), stat.S_ISREG(st.st_mode)
+
+
+def refuse_input_as_output(outputs, inputs, *, distinct: bool = True) -> None:
+    """Raise :class:`OutputError` (one line) if an output is an input file (or, ``distinct``, two outputs
+    are one file).
+
+    Parameters
+    ----------
+    outputs : mapping of str to path-like
+        Each output under the name the user gave it (``-o``, ``--report``, ``steps[4].write``); None is skipped.
+    inputs : iterable of path-like
+        Every file the command or pipeline reads: the inputs, the files they reference (a ``.gltf``'s
+        buffers and images) and the pipeline document itself.
+    distinct : bool
+        Also refuse two outputs naming one file (a pipeline may write one output twice: the last wins).
+
+    Notes
+    -----
+    Two paths name the same file when their real paths (``./``, ``..`` and symbolic links resolved) are
+    equal, or when both exist and have the same ``(st_dev, st_ino)`` (hard links, bind mounts). Device
+    nodes and FIFOs (``/dev/null``) may be given as several outputs: they are written through, never replaced.
+    """
+    ins = []
+    for p in inputs:
+        if p is not None:
+            ins.append((Path(p), *_identity(Path(p))[:2]))
+    seen: dict = {}
+    for label, out in outputs.items():
+        if out is None:
+            continue
+        real, ident, regular = _identity(Path(out))
+        for inp, in_real, in_ident in ins:
+            if real == in_real or (ident is not None and ident == in_ident):
+                raise OutputError(f"{out} is the input {inp} (same file)", field=label,
+                                  fix="write to another path")
+        if not (regular and distinct):
+            continue
+        for key in (real, ident):
+            if key is not None and key in seen:
+                raise OutputError(f"{out} is also the {seen[key]} output (same file)", field=label,
+                                  fix="give each output a path of its own")
+        seen[real] = label
+        if ident is not None:
+            seen[ident] = label
 
 
 @contextlib.contextmanager

@@ -11,7 +11,7 @@ import numpy as np
 
 import rigslim
 from rigslim.errors import PipelineError, RigslimError
-from rigslim.io.atomic import atomic_path, check_output, output_transaction
+from rigslim.io.atomic import atomic_path, check_output, output_transaction, refuse_input_as_output
 from rigslim.model.asset import Asset
 from rigslim.model.weights import influence_counts
 from rigslim.plugin.contract import StepContext, returned
@@ -58,12 +58,13 @@ def _run_pipeline(path, *, overrides, metrics_path, host, console, on_evaluation
     t0 = time.perf_counter()
     with reporter.status("reading inputs"):
         asset = read_inputs(doc, base, host, reporter.context(base), path)
+    _refuse_inputs_as_outputs(path, base, steps, metrics_path, asset, read_file=raw is None)
     document = {
         "schema_version": SCHEMA_VERSION,
         "units": dict(UNITS),
         "rigslim_version": rigslim.__version__,
         "pipeline": str(path),
-        "pipeline_file": str(path.resolve()),
+        "pipeline_file": str(path.resolve()) if raw is None or path.is_file() else None,
         "name": doc.name or path.stem,
         "inputs": asset.provenance.get("inputs", {}),
         "mesh": ({"vertices": asset.mesh.n_vertices, "faces": asset.mesh.n_faces,
@@ -103,6 +104,48 @@ def _run_pipeline(path, *, overrides, metrics_path, host, console, on_evaluation
     if metrics_path is not None:
         write_metrics(metrics_path, document)
     return RunResult(asset, document, document["evaluations"])
+
+
+def referenced_files(doc) -> list[Path]:
+    """The files a glTF document's buffers and images name by URI (``data:`` URIs and other schemes aside),
+    resolved against the document's folder as its reader resolves them."""
+    from urllib.parse import unquote
+
+    out = []
+    for kind in ("buffers", "images"):
+        for item in doc.json.get(kind, []) or []:
+            uri = item.get("uri") if isinstance(item, dict) else None
+            if isinstance(uri, str) and uri and not uri.startswith("data:") and ":" not in uri.split("/")[0]:
+                out.append(Path(doc.path).parent / unquote(uri))
+    return out
+
+
+def _refuse_inputs_as_outputs(path: Path, base: Path, steps: list[Step], metrics_path, asset: Asset,
+                              read_file: bool) -> None:
+    """One line, before any step runs, if a ``write:``/``report:`` step or the metrics names a file the run
+    read: an input, a file a glTF input references, or the pipeline document itself."""
+    inputs: list = [path] if read_file or path.is_file() else []
+    inputs += list((asset.provenance.get("inputs") or {}).values())
+    skin = asset.extras.get("gltf")
+    if getattr(skin, "document", None) is not None:
+        inputs += referenced_files(skin.document)
+    outputs = {}
+    for step in steps:
+        if step.key in ("write", "report"):
+            out = Path(str(step.output))
+            out = out if out.is_absolute() else base / out
+            outputs[f"steps[{step.index}].{step.key}"] = out
+            if out.suffix.lower() == ".gltf" and not step.params.get("embed"):   # the glTF writer's OUT.bin
+                outputs[f"steps[{step.index}].{step.key} (its buffer)"] = out.with_suffix(".bin")
+    if metrics_path is not None:
+        outputs["--metrics"] = metrics_path
+    try:
+        refuse_input_as_output(outputs, inputs, distinct=False)
+    except RigslimError as e:
+        if e.field and e.field.startswith("steps["):
+            e.source = str(path)
+            e.args = (e.one_line(),)
+        raise
 
 
 def _run_step(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, base: Path, source: Path,

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import base64
 import binascii
+import contextlib
+import contextvars
 import json
 import os
 import re
@@ -165,6 +167,37 @@ def external_uris_allowed(flag: bool | None = None) -> bool:
     return os.environ.get("RIGSLIM_ALLOW_EXTERNAL_URIS", "").strip().lower() in ("1", "true", "yes")
 
 
+_loaded: contextvars.ContextVar[dict | None] = contextvars.ContextVar("rigslim_gltf_loaded", default=None)
+
+
+@contextlib.contextmanager
+def read_once():
+    """Within this block, :func:`load_gltf` parses each file once and hands the same document out again.
+
+    A file is the same while its real path, ``(st_dev, st_ino)``, ``st_mtime_ns`` and ``st_size`` are
+    (and the URI policy it was loaded under); a file rewritten in between is read anew. The ``rigslim``
+    commands read their input through it once per command. Callers must not modify the document they get
+    (copy its ``json`` first, as the writers do). Nested blocks share the outermost one's documents.
+    """
+    if _loaded.get() is not None:
+        yield
+        return
+    token = _loaded.set({})
+    try:
+        yield
+    finally:
+        _loaded.reset(token)
+
+
+def _file_key(path: Path, allow_external_uris: bool | None):
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return (os.path.realpath(path), st.st_dev, st.st_ino, st.st_mtime_ns, st.st_size,
+            external_uris_allowed(allow_external_uris))
+
+
 def load_gltf(path, *, allow_external_uris: bool | None = None) -> GltfDocument:
     """Load a ``.glb`` or ``.gltf`` file with all its buffers.
 
@@ -180,8 +213,20 @@ def load_gltf(path, *, allow_external_uris: bool | None = None) -> GltfDocument:
     Returns
     -------
     GltfDocument
+        Inside :func:`read_once`, the document already loaded from the same file, if any.
     """
     path = Path(path)
+    cache = _loaded.get()
+    key = _file_key(path, allow_external_uris) if cache is not None else None
+    if key is not None and key in cache:
+        return cache[key]
+    doc = _load_gltf_file(path, allow_external_uris)
+    if key is not None:
+        cache[key] = doc
+    return doc
+
+
+def _load_gltf_file(path: Path, allow_external_uris: bool | None) -> GltfDocument:
     try:
         data = path.read_bytes()
     except OSError as e:
