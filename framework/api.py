@@ -28,6 +28,7 @@ from rigslim.model.poses import FrameSplit, Poses
 from rigslim.model.weights import ReducedWeights, validate_weights
 from rigslim.plugin.contract import Decimation, Decimator, StepContext
 from rigslim.plugin.host import PluginHost, PluginInfo, get_host
+from rigslim.runtime.clips import DEFAULT_EXAMPLE_COUNT, sample_clip_frames
 from rigslim.runtime.document import PipelineDoc, Step, load_pipeline
 from rigslim.runtime.run import RunResult, run_pipeline
 
@@ -118,8 +119,17 @@ class Pipeline:
                             console=console, raw=self._raw)
 
 
-def _asset(mesh: Mesh | tuple[np.ndarray, np.ndarray], weights: Any, poses: Poses | np.ndarray | None,
-           handles: Handles | None) -> Asset:
+def _as_poses(poses, n: int, field: str) -> Poses:
+    if not isinstance(poses, Poses):
+        poses = Poses(np.asarray(poses, dtype=np.float64), source=field)
+    if poses.n_handles != n:
+        raise InputError(f"{field} have {poses.n_handles} handles, the weights {n}", field=field,
+                         fix="give (p, n, 3, 4) transforms, one per handle")
+    return poses
+
+
+def _asset(mesh: Mesh | tuple[np.ndarray, np.ndarray], weights: Any, poses: Any, handles: Handles | None,
+           validation: Any = None, examples: int | None = None) -> Asset:
     if not isinstance(mesh, Mesh):
         if not (isinstance(mesh, tuple) and len(mesh) == 2):
             raise InputError("mesh must be a rigslim.model.mesh.Mesh or a (V, F) pair", field="mesh",
@@ -134,23 +144,61 @@ def _asset(mesh: Mesh | tuple[np.ndarray, np.ndarray], weights: Any, poses: Pose
         raise InputError(f"{handles.n} handles for weights of {n} columns", field="handles",
                          fix="give one handle per weight column")
     asset = Asset(mesh=mesh, handles=handles, weights=W)
-    if poses is not None:
-        if not isinstance(poses, Poses):
-            poses = Poses(np.asarray(poses, dtype=np.float64), source="poses")
-        if poses.n_handles != n:
-            raise InputError(f"poses have {poses.n_handles} handles, the weights {n}", field="poses",
-                             fix="give (p, n, 3, 4) transforms, one per handle")
-        asset.poses = poses
-        # every pose given is an example pose (fitting); measuring is the caller's choice
-        asset.split = FrameSplit([int(f) for f in np.asarray(poses.frames)], [], [])
+    if isinstance(poses, (list, tuple)):
+        if validation is not None:
+            raise InputError("validation poses are given and poses is a list of clips", field="validation",
+                             fix="give clips (held-out frames are taken from them) or validation poses, not both")
+        clips = [_as_poses(c, n, f"poses[{i}]") for i, c in enumerate(poses)]
+        if not clips:
+            raise InputError("poses is an empty list of clips", field="poses", fix="give at least one clip")
+        sampled = sample_clip_frames([len(c) for c in clips], DEFAULT_EXAMPLE_COUNT if examples is None else examples)
+        starts = np.cumsum([0] + [len(c) for c in clips])
+        ex = [int(starts[i] + f) for i, (e, _, _) in enumerate(sampled) for f in e]
+        val = [int(starts[i] + f) for i, (_, v, _) in enumerate(sampled) for f in v]
+        te = [int(starts[i] + f) for i, (_, _, t) in enumerate(sampled) for f in t]
+        asset.poses = Poses(np.concatenate([c.T for c in clips], axis=0), source="poses")
+        asset.split = FrameSplit(ex, te, [], validation=val, segments=[
+            {"clip": f"clip {i}", "start": int(starts[i]), "frames": len(c)} for i, c in enumerate(clips)])
+    elif poses is not None:
+        poses = _as_poses(poses, n, "poses")
+        frames = [int(f) for f in np.asarray(poses.frames)]
+        if validation is None:
+            # every pose given is an example pose (fitting); measuring is the caller's choice
+            asset.poses, asset.split = poses, FrameSplit(frames, [], [])
+        else:
+            held = _as_poses(validation, n, "validation")
+            asset.poses = Poses(np.concatenate([poses.T, held.T], axis=0), source="poses + validation")
+            asset.split = FrameSplit(list(range(len(poses))), [], [],
+                                     validation=list(range(len(poses), len(poses) + len(held))))
     return asset
 
 
-def reduce_weights(mesh: Mesh | tuple[np.ndarray, np.ndarray], weights: Any, poses: Poses | np.ndarray | None,
-                   *, k: int = 4, select: str = "k-largest", solve: str = "geometric",
+def _selector(select: str, select_params: Mapping[str, Any] | None) -> tuple[str, dict[str, Any]]:
+    """``"NAME"`` or ``"NAME:BY"`` (``by`` of best-fit) and more parameters -> (plugin name, parameters)."""
+    name, _, by = select.partition(":")
+    params = dict(select_params or {})
+    if by:
+        params["by"] = by
+    return name, params
+
+
+#: The default selection of :func:`reduce_weights` and ``rigslim reduce``: best-fit by error.
+DEFAULT_SELECT = "best-fit:error"
+
+
+def reduce_weights(mesh: Mesh | tuple[np.ndarray, np.ndarray], weights: Any, poses: Any, *, k: int = 4,
+                   select: str | None = None, solve: str = "geometric", validation: Any = None,
+                   examples: int | None = None, select_params: Mapping[str, Any] | None = None,
                    handles: Handles | None = None, report: dict[str, Any] | None = None,
                    host: PluginHost | None = None, **params: Any) -> ReducedWeights:
     """Reduce weights to at most k per vertex ([P10]), as a ``select`` then a ``solve`` step would.
+
+    By default the influence sets are best-fit by error (each vertex keeps the k influences whose
+    re-solved fit of the example poses has the least error) and the weights geometric
+    (``min sum_p ||sum_l w_l T_l^p [v; 1] - y_v^p||^2`` per vertex, ``w >= 0``, ``sum w = 1``);
+    with held-out poses (``validation``, or clips), a vertex whose weights do worse there than the
+    k largest input weights renormalised takes those (the guard); vertices with at most k input
+    influences (all of them when k >= n) keep their weights exactly.
 
     Parameters
     ----------
@@ -158,20 +206,31 @@ def reduce_weights(mesh: Mesh | tuple[np.ndarray, np.ndarray], weights: Any, pos
         The rest mesh, V (m, 3) and F (f, 3).
     weights : (m, n) array or sparse matrix
         The input weights, rows summing to one.
-    poses : Poses or (p, n, 3, 4) array, or None
-        Example poses (every one is used for fitting); ``None`` for the methods
-        that need none (``k-largest``, ``smooth``).
+    poses : Poses or (p, n, 3, 4) array, list of those, or None
+        Example poses (every one is used for fitting); a list: clips, from which ``examples``
+        example poses are sampled evenly and held-out poses of each clip kept for the guard
+        (as ``rigslim reduce`` does); ``None`` for the methods that need none (``k-largest``, ``smooth``).
     k : int
         Influences per vertex.
-    select, solve : str
-        Plugin names of the influence-selection and weight-solver stages
-        (``rigslim.registry()["weight-solver"]`` lists the solvers).
+    select : str, optional
+        Influence-selection plugin, ``"NAME"`` or ``"NAME:BY"`` (``"best-fit:error"``,
+        ``"best-fit:weight"``, ``"k-largest"``: the baseline). Default: ``"best-fit:error"``,
+        ``"k-largest"`` without poses.
+    solve : str
+        Weight-solver plugin (``rigslim.registry()["weight-solver"]`` lists them).
+    validation : Poses or (q, n, 3, 4) array, optional
+        Held-out poses for the guard (with ``poses`` one array).
+    examples : int, optional
+        With clips: example poses in all (default 24).
+    select_params : mapping, optional
+        More parameters of the selector (e.g. ``{"swaps": 1}``).
     handles : Handles, optional
         Default: n skeleton handles; pass ``Handles.from_cage(cage)`` for cage coordinates.
     report : dict, optional
-        Filled with the solver's statistics (sweeps, energy, gap...).
+        Filled with the solver's statistics (sweeps, energy, ``fallback_vertices``...), and
+        ``select`` / ``solve`` (the plugins) and ``select_report`` (the selector's).
     **params
-        More parameters of the solver (e.g. ``nonnegative=True``).
+        More parameters of the solver (e.g. ``nonnegative=True``, ``guard="off"``).
 
     Returns
     -------
@@ -179,14 +238,17 @@ def reduce_weights(mesh: Mesh | tuple[np.ndarray, np.ndarray], weights: Any, pos
         (m, k) indices and values, rows summing to one.
     """
     host = host or get_host()
-    asset = _asset(mesh, weights, poses, handles)
-    selector = host.get("influence-selection", select)
-    selector.apply(asset, selector.parse_params({"k": k}), StepContext())
+    asset = _asset(mesh, weights, poses, handles, validation, examples)
+    name, sparams = _selector(select or (DEFAULT_SELECT if poses is not None else "k-largest"), select_params)
+    selector = host.get("influence-selection", name)
+    sctx = StepContext()
+    selector.apply(asset, selector.parse_params({"k": k, **sparams}), sctx)
     solver = host.get("weight-solver", solve)
     ctx = StepContext()
     solver.apply(asset, solver.parse_params(params), ctx)
     if report is not None:
         report.update(ctx.report)
+        report.update(select=name, select_params=sparams, solve=solve, select_report=dict(sctx.report))
     assert asset.reduced is not None
     return asset.reduced
 

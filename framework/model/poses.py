@@ -130,8 +130,21 @@ class FrameSplit:
     test: list[int]
     dropped: list[int]
     #: Two-clip splits (:mod:`rigslim.runtime.clips`): ``{"examples": {"clip", "frames"}, "test": {...}}`` with
-    #: each clip's own frame numbers; the lists above number the stacked poses.
+    #: each clip's own frame numbers; the lists above number the stacked poses. Splits over several clips
+    #: (``clips:``) hold a list of ``{"clip", "frames"}`` per side, ``validation`` included.
     clips: dict | None = None
+    #: Held-out frames for the solvers' guard (neither example nor test frames; empty: no guard).
+    validation: list[int] = field(default_factory=list)
+    #: The stacked clips: ``[{"clip": name, "start": first stack frame, "frames": count}, ...]`` (None: one clip).
+    segments: list[dict] | None = None
+
+    def clip_groups(self, frames) -> list[list[int]]:
+        """``frames`` grouped by the clip of :attr:`segments` they fall in (one group without segments)."""
+        frames = list(frames)
+        if not self.segments:
+            return [frames] if frames else []
+        groups = [[f for f in frames if s["start"] <= f < s["start"] + s["frames"]] for s in self.segments]
+        return [g for g in groups if g]
 
     @staticmethod
     def from_specs(examples, test, count: int, *, source: str | None = None) -> FrameSplit:

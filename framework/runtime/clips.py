@@ -21,6 +21,22 @@ A ``clip`` is
 for the metrics document. Frames of different clips never overlap; frames of
 the same clip follow the one-clip rule (test frames that are also example
 frames are dropped).
+
+Several clips (``clips:``, a list or ``all``: every animation of the glTF input)::
+
+    poses:
+      examples: {clips: all, count: 24}   # 24 example frames in all, evenly over every clip
+      test: {clips: all}                  # held-out frames of every clip
+
+The example frames are shared out over the example clips in proportion to
+their lengths (at least one each); a clip of n frames with e examples gets
+the step ``s = max(3, ceil(n / e))``: examples at frames ``0, s, 2s, ...``,
+validation frames ``floor(s / 3)`` after each (the solvers' guard,
+:attr:`FrameSplit.validation`) and test frames ``floor(2 s / 3)`` after each,
+so the three never meet. A test clip that is not an example clip (a held-out
+clip) is tested on all its frames. ``--clip`` of the commands is
+``clips: [NAME]``. :attr:`FrameSplit.segments` records where each clip lies in
+the stack (cross-validation across clips uses it).
 """
 
 from __future__ import annotations
@@ -81,8 +97,115 @@ def load_clip(clip, asset, base: Path, source, where: str, gltf_params: dict | N
 
 
 def uses_clips(spec) -> bool:
-    """Whether a ``poses:`` spec (examples, test) names a clip on either side."""
-    return any(_clip_of(side)[0] is not None for side in (spec.examples, spec.test))
+    """Whether a ``poses:`` spec (examples, test) names a clip (or clips) on either side."""
+    return any(_clip_of(side)[0] is not None or _clips_of(side) is not None for side in (spec.examples, spec.test))
+
+
+def _clips_of(side):
+    """The ``clips`` of one side (None: not the several-clip form)."""
+    if isinstance(side, dict):
+        return side.get("clips")
+    return getattr(side, "clips", None)
+
+
+#: Example frames of a ``clips:`` split when ``count`` is not given.
+DEFAULT_EXAMPLE_COUNT = 24
+
+
+def sample_clip_frames(lengths, count: int) -> list[tuple[list[int], list[int], list[int]]]:
+    """Per clip of ``lengths`` frames, its (examples, validation, test) frames (module docstring).
+
+    ``count`` example frames in all, shared out in proportion to the lengths, at least one per clip.
+    """
+    lengths = [int(n) for n in lengths]
+    total = max(sum(lengths), 1)
+    out = []
+    for n in lengths:
+        if n < 1:
+            out.append(([], [], []))
+            continue
+        e = max(1, int(round(count * n / total)))
+        s = max(3, -(-n // e))
+        ex = list(range(0, n, s))
+        val = [f + s // 3 for f in ex if f + s // 3 < n]
+        te = [f + (2 * s) // 3 for f in ex if f + (2 * s) // 3 < n]
+        if n == 2:
+            val, te = [], [1]
+        out.append((ex, val, te))
+    return out
+
+
+def _clip_names(clips, asset, source, where) -> list[object]:
+    """The clips a ``clips:`` entry names: ``all`` -> every animation of the glTF input (indices), else the list."""
+    if clips != "all":
+        if not clips:
+            raise InputError("'clips' lists no clip", source=source, field=where,
+                             fix="name at least one clip, or write 'clips: all'")
+        return list(clips)
+    skin = asset.extras.get("gltf")
+    anims = skin.document.json.get("animations", []) if skin is not None else []
+    if anims:
+        return list(range(len(anims)))
+    if asset.poses is not None:
+        return [None]       # the input animation, the only clip there is
+    raise InputError("'clips: all' but the input has no animation", source=source, field=where,
+                     fix="add 'animation:' under inputs, or use a glTF input with animations")
+
+
+def multi_clip_split(spec, asset, base: Path, source, gltf_params: dict | None = None) -> tuple[Poses, FrameSplit]:
+    """Stacked poses and the split of a ``clips:`` spec (module docstring): examples, validation, test."""
+    ex_side, te_side = spec.examples, spec.test
+    if _clips_of(ex_side) is None or _clips_of(te_side) is None:
+        bad = "examples" if _clips_of(ex_side) is None else "test"
+        raise InputError("one side of 'poses' gives 'clips' and the other does not", source=source,
+                         field=f"poses.{bad}", fix="give 'clips:' on both sides (e.g. test: {clips: all})")
+    count = getattr(ex_side, "count", None) if not isinstance(ex_side, dict) else ex_side.get("count")
+    count = DEFAULT_EXAMPLE_COUNT if count is None else int(count)
+    loaded: dict[str, Poses] = {}
+    order: list[str] = []
+
+    def load(names, where):
+        labels = []
+        for clip in names:
+            if clip is None:
+                label, poses = "input animation", asset.poses
+            else:
+                label, poses = load_clip(clip, asset, base, source, where, gltf_params)
+            if label not in loaded:
+                loaded[label] = poses
+                order.append(label)
+            if label not in labels:
+                labels.append(label)
+        return labels
+
+    fit = load(_clip_names(_clips_of(ex_side), asset, source, "poses.examples.clips"), "poses.examples.clips")
+    held = load(_clip_names(_clips_of(te_side), asset, source, "poses.test.clips"), "poses.test.clips")
+    sampled = dict(zip(fit, sample_clip_frames([len(loaded[c]) for c in fit], count), strict=True))
+    starts, segments, at = {}, [], 0
+    for label in order:
+        starts[label] = at
+        segments.append({"clip": label, "start": at, "frames": len(loaded[label])})
+        at += len(loaded[label])
+    ex, val, te = [], [], []
+    clips: dict[str, list[dict]] = {"examples": [], "validation": [], "test": []}
+    for label in fit:
+        e, v, _ = sampled[label]
+        ex += [starts[label] + f for f in e]
+        val += [starts[label] + f for f in v]
+        clips["examples"].append({"clip": label, "frames": e})
+        if v:
+            clips["validation"].append({"clip": label, "frames": v})
+    for label in held:
+        t = sampled[label][2] if label in sampled else list(range(len(loaded[label])))
+        te += [starts[label] + f for f in t]
+        if t:
+            clips["test"].append({"clip": label, "frames": t})
+    if not te:
+        raise InputError("the test clips leave no held-out frame", source=source, field="poses.test",
+                         fix="test on clips of at least 2 frames, or on a clip that is not an example clip")
+    T = np.concatenate([loaded[c].T for c in order], axis=0)
+    split = FrameSplit(ex, te, [], clips=clips, validation=val, segments=segments)
+    return Poses(T, source=" + ".join(order)), split
 
 
 def clip_split(spec, asset, base: Path, source, gltf_params: dict | None = None) -> tuple[Poses, FrameSplit]:
@@ -95,6 +218,8 @@ def clip_split(spec, asset, base: Path, source, gltf_params: dict | None = None)
     split : FrameSplit
         Example and test frames as stack frame numbers, with :attr:`FrameSplit.clips`.
     """
+    if _clips_of(spec.examples) is not None or _clips_of(spec.test) is not None:
+        return multi_clip_split(spec, asset, base, source, gltf_params)
     sides = {}
     for name, side in (("examples", spec.examples), ("test", spec.test)):
         clip, frames = _clip_of(side)

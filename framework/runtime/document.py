@@ -5,10 +5,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, Literal, cast
 
 import yaml
-from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from rigslim.errors import PipelineError, brief, closest
 from rigslim.errors import PluginNotFoundError as PluginNotFound
@@ -18,11 +18,23 @@ from rigslim.plugin.host import PluginHost, get_host
 
 
 class ClipFrames(BaseModel):
-    """One side of a two-clip ``poses:`` (:mod:`rigslim.runtime.clips`)."""
+    """One side of a two-clip ``poses:``, or (``clips:``) of several clips (:mod:`rigslim.runtime.clips`)."""
 
     model_config = ConfigDict(extra="forbid")
-    clip: str | int
+    clip: str | int | None = None
     frames: str | int | list[str | int] | None = None
+    clips: Literal["all"] | list[str | int] | None = None
+    count: int | None = Field(None, ge=1, description="clips: example frames in all, evenly over the clips")
+
+    @model_validator(mode="after")
+    def _one_form(self):
+        if (self.clip is None) == (self.clips is None):
+            raise ValueError("give either 'clip' (one clip) or 'clips' (several, or 'all')")
+        if self.clips is not None and self.frames is not None:
+            raise ValueError("'frames' goes with 'clip'; with 'clips' the frames are sampled (examples: 'count')")
+        if self.clip is not None and self.count is not None:
+            raise ValueError("'count' goes with 'clips'; with 'clip' give 'frames'")
+        return self
 
 
 class PoseSpec(BaseModel):

@@ -39,8 +39,9 @@ from numba import njit, prange
 from pydantic import Field
 
 from rigslim.model.weights import InfluenceSets
-from rigslim.numerics.largest_entries import check_k
+from rigslim.numerics.largest_entries import k_largest
 from rigslim.plugin import InfluenceSelector, Params
+from rigslim.plugins.selection.k_largest import pass_through_note
 from rigslim.plugins.selection.sparse_fit import sparse_fit
 
 if TYPE_CHECKING:
@@ -146,7 +147,8 @@ class BestFitSelector(InfluenceSelector):
 
     def select(self, asset: Asset, params: Params, ctx: StepContext) -> InfluenceSets:
         asset.require("mesh", "handles", "weights", "poses", "split", step="select: best-fit")
-        check_k(params.k, asset.weights.shape[1])
+        if pass_through_note(params.k, asset.weights.shape[1], ctx):
+            return k_largest(asset.weights, params.k)
         sets, report = best_fit(asset, params.k, params.by, swaps=params.swaps)
         if ctx is not None and hasattr(ctx, "report"):
             ctx.report.update(report)

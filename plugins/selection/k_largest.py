@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 
 from pydantic import Field
 
-from rigslim.numerics.largest_entries import check_k, k_largest
+from rigslim.numerics.largest_entries import k_largest
 from rigslim.plugin import InfluenceSelector, Params
 
 if TYPE_CHECKING:
@@ -14,7 +14,7 @@ if TYPE_CHECKING:
     from rigslim.model.weights import InfluenceSets
     from rigslim.plugin import StepContext
 
-__all__ = ["KLargestSelector"]
+__all__ = ["KLargestSelector", "pass_through_note"]
 
 
 class KLargestSelector(InfluenceSelector):
@@ -26,5 +26,20 @@ class KLargestSelector(InfluenceSelector):
 
     def select(self, asset: Asset, params: Params, ctx: StepContext) -> InfluenceSets:
         asset.require("weights", step="select: k-largest")
-        check_k(params.k, asset.weights.shape[1])
+        pass_through_note(params.k, asset.weights.shape[1], ctx)
         return k_largest(asset.weights, params.k)
+
+
+def pass_through_note(k: int, n: int, ctx) -> bool:
+    """Whether k >= the handle count n (every vertex keeps its influences); if so, say it in the step's report
+    and log. Not an error: the weights pass through (the solvers keep them exactly)."""
+    if k < n:
+        return False
+    note = (f"k = {k} is not smaller than the {n} handles: every vertex keeps all its influences "
+            "(weights passed through)")
+    if ctx is not None and hasattr(ctx, "report"):
+        ctx.report["pass_through"] = note
+        log = getattr(ctx, "log", None)
+        if callable(log):
+            log(note)
+    return True

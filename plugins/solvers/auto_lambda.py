@@ -5,10 +5,12 @@ The Poisson energy with a position term ([P10] eq. 5 plus ``lambda s ||X - Y||_W
 against positions (lambda). ``auto`` picks lambda by validation on the example
 poses only, so the test poses stay unseen:
 
-1. K-fold cross-validation over the m example poses (:func:`kfold_splits`):
-   leave-one-out when m <= 8 (K = m), else K = 4 interleaved folds (fold i
-   holds out the examples i, i + K, i + 2K, ...). Every example pose is held
-   out exactly once;
+1. K-fold cross-validation over the m example poses: across clips when they
+   come from two or more clips (``poses: examples: {clips: ...}``;
+   :func:`clip_splits`: fold i holds out clip i's examples), else
+   (:func:`kfold_splits`) leave-one-out when m <= 8 (K = m), else K = 4
+   interleaved folds (fold i holds out the examples i, i + K, i + 2K, ...).
+   Every example pose is held out exactly once;
 2. for each lambda of a log grid (default 1e-3 ... 10) and each fold, the
    weights are fitted on the fold's other example poses and the held-out
    poses are deformed with them;
@@ -81,6 +83,11 @@ def kfold_splits(examples, folds: int | None = None) -> list[tuple[list[int], li
     return out
 
 
+def clip_splits(groups) -> list[tuple[list[int], list[int]]]:
+    """Leave-one-clip-out folds: fold i holds out the example frames of clip i (``groups[i]``)."""
+    return [([f for j, g in enumerate(groups) if j != i for f in g], list(held)) for i, held in enumerate(groups)]
+
+
 def choose_position_weight(asset, params, grid=GRID) -> tuple[float, dict]:
     """Lambda of least held-out score (module docstring) and the report of the search."""
     from rigslim.plugins.solvers.methods import solve_weights
@@ -89,7 +96,8 @@ def choose_position_weight(asset, params, grid=GRID) -> tuple[float, dict]:
     if len(examples) < 3:
         raise StepError(f"position_weight: auto holds out example poses, and there are only {len(examples)}",
                         field="position_weight", fix="give at least 3 example poses, or a number")
-    splits = kfold_splits(examples)
+    groups = asset.split.clip_groups(examples)
+    splits = clip_splits(groups) if len(groups) >= 2 else kfold_splits(examples)
     subs = [dataclasses.replace(asset, split=FrameSplit(fit, held, [])) for fit, held in splits]
     rows = []
     for lam in grid:

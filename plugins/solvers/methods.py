@@ -43,6 +43,7 @@ from rigslim.plugins.solvers.global_solver import global_solve
 from rigslim.plugins.solvers.local_solver import feasible_start, kkt_residual, local_solve
 from rigslim.plugins.solvers.multilevel_solver import multilevel_solve
 from rigslim.plugins.solvers.problem import RIDGE, build_problem, default_nonnegative, initial_weights
+from rigslim.plugins.solvers.safeguards import guard_k_largest, pass_through
 
 if TYPE_CHECKING:
     from rigslim.model.asset import Asset
@@ -73,6 +74,9 @@ class ReductionParams(Params):
     residual_tolerance: float = Field(1e-6, gt=0, description="CG (multilevel / AMG-CG) stops when the reduced "
                                       "gradient norm falls below this times its starting value")
     max_iterations: int = Field(500, ge=1, description="upper bound on CG iterations")
+    guard: Literal["k-largest", "off"] = Field("k-largest", description="with validation frames (held-out "
+                                               "frames of the clips, poses: examples: {clips: ...}): a vertex "
+                                               "whose weights do worse there than k-largest's takes k-largest's")
 
 
 class LaplacianParams(ReductionParams):
@@ -116,8 +120,25 @@ def solve_weights(asset, method: str, params, ctx=None) -> tuple[ReducedWeights,
 
     The ``solve`` step of the geometric, smooth and Poisson solvers: the influence sets are given
     (``asset.influences``); :func:`rigslim.reduce_weights` is the public select-and-solve on arrays.
-    Returns the reduced weights and the solver's report.
+    Then (:mod:`rigslim.plugins.solvers.safeguards`) the guard (``guard: k-largest``, with validation
+    frames) and the pass-through of vertices with at most k input influences (their weights exactly).
+    Returns the reduced weights and the solver's report (``fallback_vertices``, ``passed_through``).
     """
+    t0 = time.perf_counter()
+    reduced, report = _solve(asset, method, params, ctx)
+    guard = getattr(params, "guard", "off")
+    if guard == "k-largest":
+        reduced, grep = guard_k_largest(asset, reduced)
+        report.update(grep)
+    reduced, report["passed_through"] = pass_through(asset.weights, reduced)
+    report["seconds"] = time.perf_counter() - t0
+    if ctx is not None and hasattr(ctx, "report"):
+        ctx.report.update(report)
+    return reduced, report
+
+
+def _solve(asset, method: str, params, ctx) -> tuple[ReducedWeights, dict]:
+    """The optimum of ``method`` on the influence sets (:func:`solve_weights` before its safeguards)."""
     t0 = time.perf_counter()
     asset.require("mesh", "handles", "weights", "influences", step=f"solve: {method}")
     if method != "smooth":
@@ -140,8 +161,6 @@ def solve_weights(asset, method: str, params, ctx=None) -> tuple[ReducedWeights,
                   "constraints": 1, "example_poses": len(asset.split.examples), "path": "local",
                   "backend": "numba", "sweeps": 1, "colors": 1, "converged": True, **rep,
                   "seconds": time.perf_counter() - t0}
-        if ctx is not None and hasattr(ctx, "report"):
-            ctx.report.update(report)
         alpha = np.maximum(np.where(asset.influences.valid, alpha, 0.0), 0.0)
         return ReducedWeights.from_influences(asset.influences, alpha, asset.weights.shape[1]), report
     prob = build_problem(asset, method, nonnegative=params.nonnegative,
@@ -196,8 +215,6 @@ def solve_weights(asset, method: str, params, ctx=None) -> tuple[ReducedWeights,
                       kkt_residual=kkt_residual(prob, alpha) / k0 if k0 > 0 else 0.0)
     report.pop("energy_history", None)
     report["seconds"] = time.perf_counter() - t0
-    if ctx is not None and hasattr(ctx, "report"):
-        ctx.report.update(report)
     alpha = np.where(asset.influences.valid, alpha, 0.0)
     if prob.nonneg:
         alpha = np.maximum(alpha, 0.0)

@@ -54,5 +54,11 @@ class KLargestSolver(WeightSolver):
     summary = "keep the selected input weights and divide by their sum"
 
     def solve(self, asset: Asset, params: Params, ctx: StepContext) -> ReducedWeights:
+        """The renormalised weights; vertices with at most k input influences keep them exactly."""
+        from rigslim.plugins.solvers.safeguards import pass_through
+
         asset.require("weights", "influences", step="solve: k-largest")
-        return renormalised_weights(asset.weights, asset.influences)
+        reduced, kept = pass_through(asset.weights, renormalised_weights(asset.weights, asset.influences))
+        if ctx is not None and hasattr(ctx, "report"):
+            ctx.report["passed_through"] = kept
+        return reduced

@@ -277,6 +277,19 @@ def test_summary_metrics_equal_rigslim_run(library, tmp_path, cluster):
         assert summary[name]["joints"] == doc["handles"]["count"]
 
 
+def test_k_at_least_the_joint_count_passes_through(library, tmp_path, cluster):
+    """huesitos has 9 joints: k = 9 keeps every weight (an error of exactly 0), with a note, not an error."""
+    lib, _ = library
+    template = tmp_path / "k9.yaml"
+    template.write_text(TEMPLATE.replace("select: k-largest\n    k: 2", "select: best-fit\n    k: 9\n    by: error")
+                        .replace("solve: k-largest", "solve: geometric").replace('  - write: "{name}-k2.glb"\n', ""))
+    out = tmp_path / "out"
+    assert _batch(template, [lib / "bones0.glb"], out, cluster) == 0
+    (row,) = json.loads((out / "summary.json").read_text())["rows"]
+    assert row["status"] == "ok"
+    assert row["position_rms_pct_max"] == 0.0 and row["max_influences"] <= 4
+
+
 def test_bad_template_or_arguments_exit_2(library, tmp_path, capsys):
     lib, template = library
     out = tmp_path / "out"

@@ -83,7 +83,6 @@ BAD = [
     ("data/elephant-weights.dmat", "nan.dmat", "values"),
     ("data/elephant-weights.dmat", "unnormalised.dmat", "normalize: true"),
     ('"5:457:7"', '"5:500:7"', "poses.test"),
-    ("k: 4", "k: 24", "k"),
     ("- solve: k-largest", "- solve: k-largst", "did you mean 'k-largest'"),
     ("k: 4", "k: four", "steps[1].k"),
     ("- select: k-largest", "- selekt: k-largest", "did you mean 'select'"),

@@ -186,3 +186,34 @@ def test_local_and_global_reach_the_same_optimum_on_best_fit_sets(method, make):
     _, rg = global_solve(prob)
     _, rl = local_solve(prob, asset.mesh.adjacency, tolerance=1e-12, max_sweeps=3000, relaxation=1.9)
     assert abs((rl["energy"] - rg["energy"]) / abs(rg["energy"])) <= 1e-6
+
+
+def test_ties_broken_by_the_fit_on_the_default_path(rng):
+    """Three equal weights 1/3 at k = 2: joint 0 moves as 0.7 T_1 + 0.3 T_2, so the blend of the three
+    lies on the segment of joints 0 and 2 (and of 1 and 2) but not of joints 0 and 1, the pair index
+    order (k-largest) keeps. The default (best-fit by error + geometric) keeps a pair with joint 2 and
+    reproduces the motion on poses it never saw."""
+    import rigslim
+    from rigslim.numerics.blend import linear_blend
+
+    m, p = 12, 10
+    V = rng.normal(size=(m, 3))
+    F = np.array([[i, i + 1, i + 2] for i in range(m - 2)])
+    T = np.tile(np.eye(3, 4), (2 * p, 3, 1, 1))
+    for q in range(2 * p):
+        for h in (1, 2):
+            Qm, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+            T[q, h, :, :3] = Qm
+            T[q, h, :, 3] = rng.normal(size=3)
+        T[q, 0] = 0.7 * T[q, 1] + 0.3 * T[q, 2]
+    W = np.full((m, 3), 1.0 / 3.0)
+    report = {}
+    out = rigslim.reduce_weights((V, F), W, T[:p], k=2, report=report)
+    assert report["select"] == "best-fit" and report["select_params"] == {"by": "error"}
+    kl = rigslim.reduce_weights((V, F), W, T[:p], k=2, select="k-largest", solve="k-largest")
+    assert (kl.indices == [0, 1]).all()
+    assert all(2 in row for row in out.indices)
+    for q in range(p, 2 * p):
+        full = linear_blend(V, sp.csr_matrix(W), T[q])
+        assert np.abs(linear_blend(V, out, T[q]) - full).max() < 1e-6
+        assert np.abs(linear_blend(V, kl, T[q]) - full).max() > 1e-3

@@ -1,0 +1,139 @@
+"""The solvers' safeguards: the guard against k-largest on held-out frames of every clip, and the pass-through
+of vertices with at most k influences (plugins/solvers/safeguards.py)."""
+
+import json
+
+import numpy as np
+import scipy.sparse as sp
+
+import rigslim
+from rigslim.model.weights import ReducedWeights
+from rigslim.numerics.blend import linear_blend
+from rigslim.plugins.solvers.safeguards import k_largest_weights, pass_through
+
+
+def _rotation_z(angle):
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def two_clip_rig(frames=30):
+    """Joints 0 (static), 1 (bends), 2, 3; vertices of two kinds, weights (0.5, 0.3, 0.2).
+
+    Kind "over" (joints 0, 1, 2): joint 2 moves like joint 1 in clip A and on clip B's frames 0, 3, 6, ...
+    (the example frames sampled there), and stays at rest on B's other frames: the examples say that
+    joint 1 can stand in for joint 2, the held-out frames of B say otherwise (the fit over-fits).
+    Kind "right" (joints 0, 1, 3): joint 3 moves like joint 1 everywhere; the fit is exact everywhere.
+    """
+    rng = np.random.default_rng(3)
+    m = 40
+    V = rng.normal(size=(m, 3)) + np.array([2.0, 0.0, 0.0])
+    F = np.array([[i, i + 1, i + 2] for i in range(m - 2)])
+    W = np.zeros((m, 4))
+    over = np.arange(m) < m // 2
+    W[over, :3] = (0.5, 0.3, 0.2)
+    W[~over] = (0.5, 0.3, 0.0, 0.2)
+
+    def clip(angles, rest2):
+        T = np.tile(np.eye(3, 4), (len(angles), 4, 1, 1))
+        for p, a in enumerate(angles):
+            T[p, 1, :, :3] = T[p, 3, :, :3] = _rotation_z(a)
+            if not rest2[p]:
+                T[p, 2, :, :3] = _rotation_z(a)
+        return T
+
+    t = np.linspace(0.0, 1.0, frames)
+    A = clip(0.9 * np.sin(2 * np.pi * t), np.zeros(frames, bool))
+    B = clip(0.7 * np.cos(3 * np.pi * t), np.arange(frames) % 3 != 0)
+    return (V, F), W, A, B, over
+
+
+def _rms(mesh, W, reduced, T, rows=slice(None)):
+    full = np.stack([linear_blend(mesh[0], sp.csr_matrix(W), T[j])[rows] for j in range(len(T))])
+    red = np.stack([linear_blend(mesh[0], reduced, T[j])[rows] for j in range(len(T))])
+    return float(np.sqrt(np.mean(np.sum((full - red) ** 2, axis=-1))))
+
+
+def test_guard_never_worse_than_k_largest_on_any_clip_and_better_where_the_fit_is_right():
+    mesh, W, A, B, over = two_clip_rig()
+    kl = k_largest_weights(sp.csr_matrix(W), 2)
+    report = {}
+    default = rigslim.reduce_weights(mesh, W, [A, B], k=2, report=report)
+    unguarded = rigslim.reduce_weights(mesh, W, [A, B], k=2, guard="off")
+    assert report["select"] == "best-fit" and report["guard"] == "k-largest"
+    # the held-out (test) frames of each clip, as the sampling keeps them: 2, 5, 8, ... here
+    held = np.arange(30) % 3 == 2
+    assert report["validation_frames"] == 20
+    # without the guard the fit loses to k-largest on clip B (the over-fitted vertices)...
+    assert _rms(mesh, W, unguarded, B[held], over) > 1.5 * _rms(mesh, W, kl, B[held], over)
+    # ... with it those vertices fall back: never worse on clip B, nor on clip A
+    assert report["fallback_vertices"] == int(over.sum())
+    for clip in (A, B):
+        assert _rms(mesh, W, default, clip[held]) <= _rms(mesh, W, kl, clip[held]) + 1e-12
+    # where the fit is right it is kept, and beats k-largest on every clip
+    for clip in (A, B):
+        assert _rms(mesh, W, default, clip[held], ~over) < 1e-6 < _rms(mesh, W, kl, clip[held], ~over)
+    np.testing.assert_array_equal(default.to_sparse()[over].toarray(), kl.to_sparse()[over].toarray())
+
+
+def test_guard_is_off_without_validation_frames():
+    mesh, W, A, B, _ = two_clip_rig()
+    report = {}
+    rigslim.reduce_weights(mesh, W, A, k=2, report=report)
+    assert report["guard"] == "no validation frames" and report["fallback_vertices"] == 0
+
+
+def test_validation_poses_of_the_api_drive_the_guard():
+    mesh, W, A, B, over = two_clip_rig()
+    report = {}
+    examples = np.concatenate([A, B[::3]])
+    out = rigslim.reduce_weights(mesh, W, examples, k=2, validation=B[1::3], report=report)
+    assert report["validation_frames"] == 10 and report["fallback_vertices"] == int(over.sum())
+    assert _rms(mesh, W, out, B[2::3]) <= _rms(mesh, W, k_largest_weights(sp.csr_matrix(W), 2), B[2::3])
+
+
+def test_pass_through_keeps_small_rows_bit_for_bit():
+    A = sp.csr_matrix(np.array([[0.1 + 1e-17, 0.9, 0.0, 0.0], [0.25, 0.25, 0.25, 0.25], [0.3, 0.0, 0.0, 0.7]]))
+    reduced = ReducedWeights(np.array([[1, 0], [0, 1], [3, 0]]), np.array([[0.8, 0.2], [0.5, 0.5], [1.0, 0.0]]), 4)
+    out, count = pass_through(A, reduced)
+    assert count == 2
+    assert out.to_sparse()[[0, 2]].toarray().tobytes() == A[[0, 2]].toarray().tobytes()
+    np.testing.assert_array_equal(out.values[1], reduced.values[1])
+
+
+def test_k_at_least_the_joint_count_passes_through_in_the_api():
+    mesh, W, A, B, _ = two_clip_rig()
+    for k in (4, 6):
+        report = {}
+        out = rigslim.reduce_weights(mesh, W, [A, B], k=k, report=report)
+        assert out.to_sparse().toarray().tobytes() == W.tobytes()
+        assert "not smaller than the 4 handles" in report["select_report"]["pass_through"]
+        assert report["passed_through"] == len(W)
+
+
+def test_k_at_least_the_joint_count_passes_through_in_a_pipeline(write_pipeline):
+    from rigslim.runtime.run import run_pipeline
+
+    for select, solve in (("best-fit\n    by: error", "geometric"), ("k-largest", "k-largest")):
+        path = write_pipeline(f"""
+inputs:
+  mesh: data/elephant.obj
+  skeleton: data/elephant.tgf
+  weights: data/elephant-weights.dmat
+  animation: data/elephant-anim.dmat
+poses: {{examples: "0:457:45", test: "5:457:45"}}
+steps:
+  - select: {select}
+    k: 24
+  - solve: {solve}
+  - evaluate: [position-rms]
+""")
+        result = run_pipeline(path)
+        reduced = result.asset.reduced.to_sparse()
+        reduced.sort_indices()
+        weights = result.asset.weights.tocsr()
+        weights.sort_indices()
+        assert (reduced != weights).nnz == 0
+        assert result.document["evaluations"][0]["metrics"]["position_rms_pct"]["max"] == 0.0
+        select_step = next(s for s in result.document["steps"] if s["stage"] == "select")
+        assert "24 handles" in json.dumps(select_step)
