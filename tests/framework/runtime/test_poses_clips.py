@@ -1,6 +1,7 @@
 """Two-clip poses: fit on one clip, test on another; clear errors for a missing clip."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -103,3 +104,61 @@ def test_gltf_clip_by_name(tmp_path, data_dir):
     assert result.document["frames"]["clips"]["examples"]["clip"] == "Armature|Action"
     assert result.asset.split.test == list(range(1, 20, 2))
     assert json.dumps(result.document["frames"])
+
+
+def test_several_clips_examples_validation_and_test(write_pipeline, clips):
+    """clips: [rom, run]: 20 examples shared out by length, validation and test frames between them."""
+    path = write_pipeline(HEAD + "poses:\n  examples: {clips: [rom.dmat, run.dmat], count: 20}\n"
+                          "  test: {clips: [rom.dmat, run.dmat]}\n" + STEPS.replace("k-largest", "best-fit"))
+    result = run_pipeline(path)
+    split, doc = result.asset.split, result.document
+    assert len(result.asset.poses) == 457
+    assert split.segments == [{"clip": "rom.dmat", "start": 0, "frames": 200},
+                              {"clip": "run.dmat", "start": 200, "frames": 257}]
+    # rom: 9 examples (200 / 9 -> step 23), run: 11 (257 / 11 -> step 24)
+    assert split.examples == list(range(0, 200, 23)) + list(range(200, 457, 24))
+    assert split.validation == [f + 7 for f in range(0, 200, 23)] + [f + 8 for f in range(200, 457, 24)]
+    assert split.test == [f + 15 for f in range(0, 200 - 15, 23)] + [f + 16 for f in range(200, 457 - 16, 24)]
+    assert not set(split.examples) & set(split.validation) and not set(split.test) & set(split.validation)
+    frames = doc["frames"]["clips"]
+    assert [c["clip"] for c in frames["validation"]] == ["rom.dmat", "run.dmat"]
+    solve = next(s for s in doc["steps"] if s["stage"] == "solve")["solver"]
+    assert solve["guard"] == "k-largest" and solve["validation_frames"] == len(split.validation)
+    assert len(solve["validation_clips"]) == 2
+    for c in solve["validation_clips"]:
+        assert c["rms_pct"] <= c["rms_pct_k_largest"]
+
+
+def test_held_out_clip_and_clips_all_of_a_gltf(tmp_path):
+    suite = Path(__file__).resolve().parents[3] / "examples" / "data" / "gltf" / "suite"
+    path = tmp_path / "g.yaml"
+    path.write_text(f"inputs:\n  gltf: {suite / 'wuson.glb'}\n  fps: 30\n"
+                    "poses:\n  examples: {clips: [Wuson_Walk], count: 12}\n  test: {clips: all}\n"
+                    + STEPS.replace("k: 4", "k: 2"))
+    split = run_pipeline(path).asset.split
+    walk, run = split.segments
+    assert (walk["clip"], run["clip"]) == ("Wuson_Walk", "Wuson_Run")
+    assert all(walk["start"] <= f < walk["start"] + walk["frames"] for f in split.examples + split.validation)
+    # the held-out clip is tested on every frame, and gives no validation frame
+    tested = {c["clip"]: c["frames"] for c in split.clips["test"]}
+    assert tested["Wuson_Run"] == list(range(run["frames"])) and len(tested["Wuson_Walk"]) == len(split.examples) == 11
+    assert [c["clip"] for c in split.clips["validation"]] == ["Wuson_Walk"]
+
+
+@pytest.mark.parametrize("poses,message,field", [
+    ("  examples: {clip: rom.dmat, clips: all}\n  test: {clips: all}\n", "either 'clip'", "poses.examples"),
+    ("  examples: {clips: [rom.dmat]}\n  test: {clip: run.dmat}\n", "one side of 'poses' gives 'clips'",
+     "poses.test"),
+    ("  examples: {clips: [rom.dmat], frames: '0:10'}\n  test: {clips: all}\n", "'frames' goes with 'clip'",
+     "poses.examples"),
+    ("  examples: {clips: [nope.dmat]}\n  test: {clips: all}\n", "clip file 'nope.dmat' not found",
+     "poses.examples.clips"),
+])
+def test_several_clips_errors(write_pipeline, clips, capsys, poses, message, field):
+    path = write_pipeline(HEAD + "poses:\n" + poses + STEPS)
+    with pytest.raises((InputError, PipelineError)) as err:
+        run_pipeline(path)
+    assert message in str(err.value) and field in str(err.value)
+    code = main(["run", "-q", str(path)])
+    _, out = capsys.readouterr()
+    assert code == 2 and len(out.strip().splitlines()) == 1 and "Traceback" not in out
