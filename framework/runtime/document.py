@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any, Literal, cast
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from rigslim.errors import PipelineError, brief, closest
 from rigslim.errors import PluginNotFoundError as PluginNotFound
@@ -26,21 +26,25 @@ class ClipFrames(BaseModel):
     clips: Literal["all"] | list[str | int] | None = None
     count: int | None = Field(None, ge=1, description="clips: example frames in all, evenly over the clips")
 
-    @model_validator(mode="after")
-    def _one_form(self):
-        if (self.clip is None) == (self.clips is None):
-            raise ValueError("give either 'clip' (one clip) or 'clips' (several, or 'all')")
-        if self.clips is not None and self.frames is not None:
-            raise ValueError("'frames' goes with 'clip'; with 'clips' the frames are sampled (examples: 'count')")
-        if self.clip is not None and self.count is not None:
-            raise ValueError("'count' goes with 'clips'; with 'clip' give 'frames'")
-        return self
 
 
 class PoseSpec(BaseModel):
     model_config = ConfigDict(extra="forbid")
     examples: str | int | list[str | int] | ClipFrames
     test: str | int | list[str | int] | ClipFrames
+
+    @field_validator("examples", "test", mode="before")
+    @classmethod
+    def _one_clip_form(cls, v):
+        """A mapping side is either ``{clip, frames}`` or ``{clips, count}`` (one message, not the union's)."""
+        if isinstance(v, dict):
+            if ("clip" in v) == ("clips" in v):
+                raise ValueError("give either 'clip' (one clip) or 'clips' (several, or 'all')")
+            if "clips" in v and "frames" in v:
+                raise ValueError("'frames' goes with 'clip'; with 'clips' the frames are sampled (examples: 'count')")
+            if "clip" in v and "count" in v:
+                raise ValueError("'count' goes with 'clips'; with 'clip' give 'frames'")
+        return v
 
 
 class PipelineDoc(BaseModel):
