@@ -235,6 +235,6 @@ def test_writing_a_usd_over_its_input_is_refused(project, capfd):
     before = snapshot(project / "out")
     code, lines = run_cli(["run", project / "pipeline.yaml"], capfd)
     errors = [line for line in lines if line.startswith("rigslim: error: ")]   # after the progress of the steps
-    assert_one_line(code, errors, "model.usda", "input itself")
+    assert_one_line(code, errors, "model.usda", "is the input")
     assert "Traceback" not in "\n".join(lines)
     assert_unchanged(project / "out", before)

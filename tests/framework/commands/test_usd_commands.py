@@ -81,7 +81,7 @@ def test_inspect_usd(exported, capsys):
 
 @pytest.mark.parametrize("argv, match", [
     (["lod", "{usd}", "-o", "{tmp}/x.usda", "--split", "--ratios", "0.5"], "--split"),
-    (["reduce", "{usd}", "-o", "{usd}", "-k", "1"], "input itself"),
+    (["reduce", "{usd}", "-o", "{usd}", "-k", "1"], "is the input"),
     (["reduce", "{tmp}/missing.usdc", "-o", "{tmp}/x.usdc", "-k", "1"], "file not found"),
     (["inspect", "{tmp}/notes.txt"], "not a glTF or USD file"),
     (["reduce", "{usd}", "-o", "{tmp}/x.usdc", "-k", "65"], "-k"),
