@@ -100,10 +100,10 @@ def cmd_lod(args) -> int:
     _check_fps(args.fps)
     max_error = parse_max_error_option(args.max_error)
     joints, coverage = decimate_params(args, len(ratios)), write_params(args)
-    outputs = {"-o": out} if not args.split else \
+    named = {"-o": out} if not args.split else \
         {f"--split (level {r:g})": p for r, p in zip(ratios, split_names(out, ratios), strict=True)} | \
         {"--split (sidecar)": sidecar_path(out)}
-    with command_session(args, [src], outputs) as (source,), scratch_folder("rigslim-lod-") as tmp:
+    with command_session(args, [src], named) as (source,), scratch_folder("rigslim-lod-") as tmp:
         frames, clip, duration = clip_frames(src, args.clip, args.fps, source)
         if frames < 2:
             print(f"rigslim lod: {src.name} has no animation: simplifying for the rest pose only", file=sys.stderr)

@@ -126,9 +126,9 @@ def _refuse_inputs_as_outputs(path: Path, base: Path, steps: list[Step], metrics
     read: an input, a file a glTF input references, or the pipeline document itself."""
     inputs: list = [path] if read_file or path.is_file() else []
     inputs += list((asset.provenance.get("inputs") or {}).values())
-    skin = asset.extras.get("gltf")
-    if getattr(skin, "document", None) is not None:
-        inputs += referenced_files(skin.document)
+    document = getattr(asset.extras.get("gltf"), "document", None)
+    if document is not None:
+        inputs += referenced_files(document)
     outputs = {}
     for step in steps:
         if step.key in ("write", "report"):

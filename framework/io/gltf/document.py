@@ -218,10 +218,10 @@ def load_gltf(path, *, allow_external_uris: bool | None = None) -> GltfDocument:
     path = Path(path)
     cache = _loaded.get()
     key = _file_key(path, allow_external_uris) if cache is not None else None
-    if key is not None and key in cache:
+    if cache is not None and key is not None and key in cache:
         return cache[key]
     doc = _load_gltf_file(path, allow_external_uris)
-    if key is not None:
+    if cache is not None and key is not None:
         cache[key] = doc
     return doc
 
