@@ -146,7 +146,10 @@ def add_commands(sub) -> None:
     p.add_argument("input", metavar="IN.glb")
     p.add_argument("-o", "--output", required=True, metavar="OUT.glb")
     p.add_argument("-k", type=int, default=4, help="influences per vertex (1..8; default 4)")
-    p.add_argument("--select", default="k-largest", help="influence selection plugin (k-largest, best-fit, ...)")
+    p.add_argument("--select", default="best-fit:error", metavar="NAME[:BY]",
+                   help="influence selection: best-fit:error (default), best-fit:weight, k-largest (the baseline)")
+    p.add_argument("--by", choices=["error", "weight"], help="best-fit: keep the set of least example-pose error "
+                   "or the largest fitted weights (same as --select best-fit:BY)")
     p.add_argument("--solve", default="geometric", help="weight solver (geometric, poisson, smooth, k-largest)")
     p.add_argument("--quantize", choices=["ubyte", "ushort", "float"], default="ubyte")
     p.add_argument("--save-pipeline", metavar="FILE.yaml", help="also write the pipeline this command runs")

@@ -5,8 +5,11 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from rigslim.commands.compare import compare
 from rigslim.commands.gltf_common import (
+    MAX_EXAMPLE_POSES,
     _chain,
     _check_fps,
     _check_input,
@@ -25,19 +28,69 @@ from rigslim.commands.gltf_common import (
 )
 from rigslim.errors import InputError
 
+#: ``rigslim reduce``'s selection: best-fit by error (``--select NAME[:BY]``, ``--by``; k-largest is the baseline).
+DEFAULT_SELECT = "best-fit:error"
+
+
+def select_step(select: str, by: str | None, k: int) -> dict:
+    """The ``select`` step of ``--select NAME[:BY]`` and ``--by BY`` (``by`` of best-fit)."""
+    name, _, by_in_name = select.partition(":")
+    step = {"select": name, "k": k}
+    if by or by_in_name:
+        step["by"] = by or by_in_name
+    return step
+
 
 def reduce_pipeline(src: Path, out: Path, *, k: int, select: str, solve: str, clip, fps: float, frames: int,
-                    quantize: str, skin: int | None = None) -> dict:
-    """The pipeline ``rigslim reduce`` runs (without animation: k-largest, no evaluation; select None: rewrite only)."""
+                    quantize: str, skin: int | None = None, by: str | None = None) -> dict:
+    """The pipeline ``rigslim reduce`` runs (without animation: k-largest, no evaluation; select None: rewrite only).
+
+    Animated: example poses from every clip (``--clip``: that one), held-out frames of each for the
+    solver's guard and for the test (``poses: {examples: {clips: ...}}``, :mod:`rigslim.runtime.clips`).
+    """
     steps = []
     animated = frames >= 2
     if select is not None:
-        steps += [{"select": select, "k": k}, {"solve": solve if animated else "k-largest"}]
+        steps += [select_step(select, by, k), {"solve": solve if animated else "k-largest"}]
         if animated:
             steps.append({"evaluate": ["position-rms", "normal-deviation", "max-influences"]})
     steps.append(write_step(out, quantize=quantize, clamp_negative=True, keep_input_weights=False))
+    poses = _poses(frames)
+    if animated:
+        clips = "all" if clip is None or is_usd(src) else [clip]
+        poses = {"examples": {"clips": clips, "count": MAX_EXAMPLE_POSES}, "test": {"clips": clips}}
     return {"name": f"reduce-{src.stem}", "inputs": input_section(src, _gltf_input(src, clip, fps, frames, skin)),
-            "poses": _poses(frames), "steps": steps}
+            "poses": poses, "steps": steps}
+
+
+def _world(src: Path, written: Path, split, clip, clip_name, fps: float) -> dict:
+    """Position and normal errors of the written file on the test frames of every clip, in world units
+    (pooled over the clips' frames; % of the first clip's world-space diagonal). A USD side: the clip of
+    ``--clip`` (default the first) only, its clip names not being the glTF's."""
+    per_clip = (split.clips or {}).get("test") if split is not None else None
+    if not isinstance(per_clip, list) or is_usd(src) or is_usd(written):
+        part = next((p for p in per_clip or [] if p["clip"] in (clip_name, "input animation")), None)
+        frames = ",".join(map(str, part["frames"])) if part else None
+        return compare(src, written, clip=clip, frames=frames, fps=fps, hausdorff=False)
+    sq = nsq = count = 0.0
+    out: dict = {}
+    for part in per_clip:
+        label = part["clip"]
+        name = clip if label == "input animation" else (int(label[1:]) if label.startswith("#") else label)
+        res = compare(src, written, clip=name, frames=",".join(map(str, part["frames"])), fps=fps, hausdorff=False)
+        if "position_rms_m" not in res:
+            return res
+        n = len(part["frames"])
+        sq += n * res["position_rms_m"] ** 2
+        nsq += n * res.get("normal_rms_rad", 0.0) ** 2
+        count += n
+        out.setdefault("reference_diagonal_m", res["reference_diagonal_m"])
+        out["position_max_m"] = max(out.get("position_max_m", 0.0), res["position_max_m"])
+    out["position_rms_m"] = float(np.sqrt(sq / count))
+    out["position_rms_pct"] = 100.0 * out["position_rms_m"] / out["reference_diagonal_m"]
+    out["normal_rms_rad"] = float(np.sqrt(nsq / count))
+    out["clips"] = len(per_clip)
+    return out
 
 
 def cmd_reduce(args) -> int:
@@ -63,20 +116,23 @@ def cmd_reduce(args) -> int:
         with scratch_folder("rigslim-reduce-") as tmp:
             runs = _chain(src, out, lambda i, o, s: reduce_pipeline(
                 i, o, k=args.k, select=select, solve=solve, clip=args.clip, fps=args.fps, frames=frames,
-                quantize=args.quantize, skin=s), args, console, tmp, source)
+                quantize=args.quantize, skin=s, by=args.by if select == args.select else None),
+                args, console, tmp, source)
         pipeline, result, _ = runs[-1]
         seconds = sum(r[2] for r in runs)
         metrics = result.evaluations[-1]["metrics"] if result.evaluations else {}
         world = {}
         if frames >= 2:     # the test frames again, in world units, from the file about to be committed
             with staged_view(out) as written:
-                world = compare(src, written, clip=args.clip, frames=_poses(frames)["test"], fps=args.fps,
-                                hausdorff=False)
+                world = _world(src, written, result.asset.split, args.clip, clip, args.fps)
             world = {k: world[k] for k in ("position_rms_m", "position_max_m", "position_rms_pct",
-                                           "normal_rms_rad", "reference_diagonal_m") if k in world}
+                                           "normal_rms_rad", "reference_diagonal_m", "clips") if k in world}
+        solver = [s.get("solver", {}) for s in result.document["steps"] if s.get("stage") == "solve"]
+        fallback = sum(int(r.get("fallback_vertices", 0)) for r in solver)
         doc = _header("reduce") | {"input": str(src), "output": str(out), "clip": clip, "clip_seconds": duration,
                                     "frames": frames, "k": args.k, "select": select, "solve": solve,
-                                    "fallback_k_largest": frames < 2, "seconds": seconds, "metrics": metrics,
+                                    "fallback_k_largest": frames < 2, "guard_fallback_vertices": fallback,
+                                    "seconds": seconds, "metrics": metrics,
                                     "world": world, "pipeline": pipeline, "run": result.document}
         if len(runs) > 1:
             doc["per_skin"] = [{"skin": p["inputs"]["gltf"].get("skin"), "pipeline": p, "seconds": t,
@@ -85,7 +141,10 @@ def cmd_reduce(args) -> int:
         _emit_report(args, doc)
     line = f"wrote {out} (k = {args.k}, {select or 'no'}/{solve or 'no'} reduction, {seconds:.2f} s)"
     if "position_rms_m" in world:
-        line += (f"; test-pose position RMS {world['position_rms_pct']:.4g} % of the world-space diagonal "
+        over = f" over {world['clips']} clips" if world.get("clips", 1) > 1 else ""
+        line += (f"; test-pose position RMS{over} {world['position_rms_pct']:.4g} % of the world-space diagonal "
                  f"({world['position_rms_m']:.4g} m of {world['reference_diagonal_m']:.4g} m)")
+    if frames >= 2 and select is not None and solve not in ("k-largest", None):
+        line += f"; {fallback} vertices fell back to k-largest on held-out frames"
     print(line)
     return 0

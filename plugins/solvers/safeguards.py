@@ -112,10 +112,11 @@ def guard_k_largest(asset, reduced: ReducedWeights) -> tuple[ReducedWeights, dic
     base = k_largest_weights(asset.weights, k)
     m = asset.mesh.n_vertices
     e_fit, e_kl, worse = np.zeros(m), np.zeros(m), np.zeros(m, dtype=bool)
+    passes = np.diff(sp.csr_matrix(asset.weights).indptr) <= k   # kept exactly anyway (:func:`pass_through`)
     per_clip = []
     for group in split.clip_groups(frames):
         ef, ek = vertex_errors(asset, reduced, group), vertex_errors(asset, base, group)
-        worse |= ef > ek
+        worse |= (ef > ek) & ~passes
         e_fit += ef
         e_kl += ek
         per_clip.append((group, ef, ek))

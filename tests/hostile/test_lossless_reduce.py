@@ -77,8 +77,6 @@ def test_reduce_k_on_a_skin_of_at_most_k_joints_poses_exactly_as_the_input(tmp_p
     assert _property_case(tmp_path, seed, min(k, 8), n_parts, n_joints, weights) == 0.0
 
 
-@pytest.mark.xfail(strict=True, reason="the selection/solve steps must keep the exact input row of a vertex with "
-                   "<= k influences (issue 22): remove this mark when it lands")
 @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(**CASES, extra_joints=st.integers(1, 3))
 def test_reduce_k_on_at_most_k_influences_poses_exactly_as_the_input(tmp_path, seed, k, n_parts, weights,

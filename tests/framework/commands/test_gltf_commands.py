@@ -152,6 +152,32 @@ def test_reduce(path, tmp_path, valid):
     assert report["command"] == "reduce" and report["world"]["position_rms_m"] >= 0
 
 
+def test_reduce_defaults_to_best_fit_by_error_fitted_on_every_clip(tmp_path, capsys):
+    """No options: best-fit by error + geometric, examples from both of wuson's clips, the guard's count
+    in the report and the line; --select k-largest / --by / --clip reach the other choices."""
+    src = GLTF / "suite" / "wuson.glb"
+    out, report = tmp_path / "k2.glb", tmp_path / "r.json"
+    assert main(["reduce", str(src), "-o", str(out), "-k", "2", "--report", str(report)]) == 0
+    line = capsys.readouterr().out
+    doc = json.loads(report.read_text())
+    assert doc["pipeline"]["steps"][:2] == [{"select": "best-fit", "k": 2, "by": "error"}, {"solve": "geometric"}]
+    assert doc["pipeline"]["poses"] == {"examples": {"clips": "all", "count": 24}, "test": {"clips": "all"}}
+    clips = doc["run"]["frames"]["clips"]
+    assert {c["clip"] for c in clips["examples"]} == {c["clip"] for c in clips["test"]} == {"Wuson_Run", "Wuson_Walk"}
+    solver = next(s for s in doc["run"]["steps"] if s["stage"] == "solve")["solver"]
+    assert solver["guard"] == "k-largest" and solver["fallback_vertices"] == doc["guard_fallback_vertices"] > 0
+    assert f"{doc['guard_fallback_vertices']} vertices fell back to k-largest" in line and "over 2 clips" in line
+    best = doc["world"]["position_rms_m"]
+    assert main(["reduce", str(src), "-o", str(tmp_path / "kl.glb"), "-k", "2", "--select", "k-largest",
+                 "--solve", "k-largest", "--report", str(report)]) == 0
+    assert best < json.loads(report.read_text())["world"]["position_rms_m"]
+    assert main(["reduce", str(src), "-o", str(tmp_path / "w.glb"), "-k", "2", "--select", "best-fit", "--by",
+                 "weight", "--clip", "Wuson_Walk", "--report", str(report)]) == 0
+    doc = json.loads(report.read_text())
+    assert doc["pipeline"]["steps"][0] == {"select": "best-fit", "k": 2, "by": "weight"}
+    assert [c["clip"] for c in doc["run"]["frames"]["clips"]["test"]] == ["Wuson_Walk"]
+
+
 def test_reduce_without_animation_falls_back_to_k_largest(tmp_path, valid, capsys):
     """RiggedSimple-like input without clips: a file with its animations removed."""
     src = load_gltf(GLTF / "huesitos.glb")
