@@ -126,10 +126,11 @@ def lod_section(documents) -> str:
                 f"<td>{r['triangles']}</td><td>{r['vertices']}</td><td>{_cell(r['joints'])}</td>"
                 f"<td>{r['influences']}</td><td>{_cell(r['error_max_m'])}</td><td>{_cell(r['error_rms_m'])}</td>"
                 f"<td>{_cell(r['coverage'])}</td></tr>" for r in rows)
-            parts.append(f"<h3>{html.escape(str(path))}</h3><table><tr><th>node</th><th>level</th><th>mesh</th>"
+            parts.append(f"<h3>{html.escape(str(path))}</h3><div class=\"scroll\"><table><tr><th>node</th>"
+                         "<th>level</th><th>mesh</th>"
                          f"<th>primitives</th><th>materials</th><th>triangles</th><th>vertices</th><th>joints</th>"
                          f"<th>influences</th><th>error max (m)</th><th>error RMS (m)</th><th>coverage</th></tr>"
-                         f"{body}</table>")
+                         f"{body}</table></div>")
     if not parts:
         return ""
     return ("<h2>Levels of detail</h2><div class=\"meta\">MSFT_lod chains of the glTF files the runs wrote: "
@@ -197,6 +198,7 @@ def world_units_section(documents) -> str:
         return ""
     return ("<h2>World units</h2><div class=\"meta\">Runs read from glTF: the recorded errors (% of the bind-space "
             "diagonal) in world units (glTF: metres) and as % of the world-space diagonal of the input posed at "
-            "t = 0.</div><table><tr><th>run</th><th>evaluation</th><th>metric</th><th>mean (% bind diagonal)</th>"
+            "t = 0.</div><div class=\"scroll\"><table><tr><th>run</th><th>evaluation</th><th>metric</th>"
+            "<th>mean (% bind diagonal)</th>"
             "<th>mean (world units)</th><th>mean (% world diagonal)</th><th>world diagonal</th></tr>"
-            + "".join(rows) + "</table>")
+            + "".join(rows) + "</table></div>")

@@ -40,7 +40,7 @@ from pathlib import Path
 from rigslim.errors import RigslimError
 from rigslim.io.atomic import atomic_path, output_transaction
 from rigslim.report.data import load_render_data
-from rigslim.report.renders import HEAT_CMAP, render_rows
+from rigslim.report.renders import HEAT_CMAP, HEAT_FLOOR_DEGREES, render_rows
 from rigslim.report.summary import EvaluationRow, _unique_labels, summarize
 
 
@@ -67,12 +67,17 @@ table{border-collapse:collapse;font-size:.88em;margin:8px 0}th,td{border:1px sol
 text-align:right}th{background:#f3f4f6}td.l,th.l{text-align:left}tr:nth-child(even) td{background:#fafafa}
 figure{display:inline-block;margin:6px;text-align:center;vertical-align:top}figcaption{font-size:.8em;color:#444}
 img{max-width:100%;border:1px solid #eee}.plots img{display:block;margin:8px 0}
-.frame{margin:10px 0 18px}.pair{display:inline-block;vertical-align:top;margin-right:14px}
+.pair figure,figure.scale{display:inline-table}.pair figcaption,figure.scale figcaption{display:table-caption;
+caption-side:bottom}.frame{margin:10px 0 18px}.pair{display:inline-block;vertical-align:top;margin-right:14px}
 td{white-space:nowrap}.notes{color:#8a5a00;font-size:.85em}
-#rigslim-check{color:#999;font-size:.75em;margin-top:30px}
+.scroll{overflow-x:auto;max-width:100%;margin:8px 0}.scroll table{margin:0}
+.scroll th:first-child,.scroll td:first-child{position:sticky;left:0;z-index:1;background:#fff;
+box-shadow:inset -1px 0 0 #bbb}.scroll th:first-child{background:#f3f4f6}
+.scroll tr:nth-child(even) td:first-child{background:#fafafa}
 """
 
-# Marks the page once loaded: how many images decoded, and errors caught (for the browser test).
+# Marks the page once loaded: how many images decoded, and errors caught, as data attributes of a hidden
+# element (the browser test reads them; a reader never sees them).
 _CHECK_JS = """
 (function(){
   var errors = [];
@@ -84,8 +89,7 @@ _CHECK_JS = """
     el.setAttribute('data-images-ok', String(ok));
     el.setAttribute('data-images-total', String(imgs.length));
     el.setAttribute('data-errors', String(errors.length));
-    el.textContent = 'page check: ' + ok + ' of ' + imgs.length + ' images decoded, ' +
-                     errors.length + ' script errors';
+    el.setAttribute('data-state', 'loaded');
   });
 })();
 """
@@ -102,7 +106,7 @@ def _other_metrics(rows: list[EvaluationRow], shown: set[str]) -> list[str]:
     keys = sorted({k for r in rows for k in r.metrics} - _TABLE_KEYS - shown)
     if not keys:
         return []
-    out = ['<h3>Other metrics</h3><table><thead><tr><th class="l">run / evaluation</th>' +
+    out = ['<h3>Other metrics</h3><div class="scroll"><table><thead><tr><th class="l">run / evaluation</th>' +
            "".join(f"<th>{html.escape(k)}</th>" for k in keys) + "</tr></thead><tbody>"]
     for r in rows:
         cells = []
@@ -112,7 +116,7 @@ def _other_metrics(rows: list[EvaluationRow], shown: set[str]) -> list[str]:
                 _fmt(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else "&ndash;"
             cells.append(f"<td>{text}</td>")
         out.append(f'<tr><th class="l" scope="row">{html.escape(r.label)}</th>' + "".join(cells) + "</tr>")
-    out.append("</tbody></table>")
+    out.append("</tbody></table></div>")
     return out
 
 
@@ -123,7 +127,7 @@ def _table(rows: list[EvaluationRow]) -> str:
             "normal RMS rad mean", "normal RMS rad max", "normal median rad", "normal p95 rad", "normal p99 rad",
             "normals &gt; 90&deg; (max)", "normal area RMS rad"] + [names.get(k, k) for k in metro_keys] + \
         ["max influences (input &rarr; reduced)", "mean influences"]
-    out = ["<table><thead><tr>" + "".join(f'<th class="{"l" if i < 2 else ""}">{h}</th>'
+    out = ['<div class="scroll"><table><thead><tr>' + "".join(f'<th class="{"l" if i < 2 else ""}">{h}</th>'
                                            for i, h in enumerate(head)) + "</tr></thead><tbody>"]
     for r in rows:
         m = r.metrics
@@ -142,11 +146,12 @@ def _table(rows: list[EvaluationRow]) -> str:
         cells += [f"<td>{_fmt(r.metro.get(k))}</td>" for k in metro_keys]
         cells += [f"<td>{infl}</td>", f"<td>{_fmt(m.get('mean_influences'))}</td>"]
         out.append("<tr>" + "".join(cells) + "</tr>")
-    out.append("</tbody></table>")
+    out.append("</tbody></table></div>")
     out += _other_metrics(rows, set(metro_keys))
     if any(r.levels for r in rows):
-        out.append("<h3>Simplified levels</h3><table><thead><tr><th class=\"l\">run / evaluation</th>"
-                   "<th class=\"l\">level</th><th>faces</th><th>Metro RMS % mean</th><th>Metro RMS % max</th>"
+        out.append("<h3>Simplified levels</h3><div class=\"scroll\"><table><thead><tr>"
+                   "<th class=\"l\">run / evaluation</th><th class=\"l\">level</th><th>faces</th>"
+                   "<th>Metro RMS % mean</th><th>Metro RMS % max</th>"
                    "<th>Metro max % mean</th><th>Metro max % max</th></tr></thead><tbody>")
         for r in rows:
             for level, vals in r.levels.items():
@@ -155,7 +160,7 @@ def _table(rows: list[EvaluationRow]) -> str:
                            f"<td>{_fmt(vals.get('faces'))}</td><td>{_fmt(rms.get('mean'))}</td>"
                            f"<td>{_fmt(rms.get('max'))}</td><td>{_fmt(mx.get('mean'))}</td>"
                            f"<td>{_fmt(mx.get('max'))}</td></tr>")
-        out.append("</tbody></table>")
+        out.append("</tbody></table></div>")
     return "\n".join(out)
 
 
@@ -240,7 +245,8 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
                      f"{n_test} test frames (never used for fitting)</div>")
     parts += ["<h2>Summary</h2>", _table(rows),
               "<div class=\"meta\">Position RMS: RMS vertex distance between reduced and full deformation, "
-              "% of the rest bounding-box diagonal; normal RMS: RMS angle between their normals (radians). "
+              "% of the bounding-box diagonal of the full deformation in the first test frame (documents of "
+              "schema 1 and 2: of the rest mesh's); normal RMS: RMS angle between their normals (radians). "
               "Mean and max over test frames. Reduction time: generate, select, solve and decimate steps "
               "since the previous evaluation.</div>",
               "<h2>Plots</h2><div class=\"plots\">",
@@ -262,9 +268,16 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
         parts.append("<h2>Renders</h2><div class=\"meta\">First: the full input weights. Then per evaluation: "
                      "the reduced weights, and the reduced deformation coloured by the angle between its "
                      "normals and the full deformation's; or each simplified level with its own weights.</div>")
+        top = rset.heat_max
         if any(rf.reduced for rf in rset.frames):
-            parts.append(f"<img alt=\"normal deviation scale\" "
-                         f"src=\"{_data_uri(plots.colorbar(rset.heat_max, HEAT_CMAP))}\">")
+            clipped = any(dmax > top for rf in rset.frames for _, _, _, dmax, _ in rf.reduced)
+            bar = plots.colorbar(top, HEAT_CMAP, f"normal deviation (degrees), 0 to {top:.3g}", clipped=clipped)
+            parts.append(f"<figure class=\"scale\" data-scale-top=\"{top!r}\"><img alt=\"normal deviation scale, "
+                         f"0 to {top:.3g} degrees\" src=\"{_data_uri(bar)}\"><figcaption>colour scale of the normal "
+                         f"deviation heat maps: 0&deg; to {top:.3g}&deg; (the largest 99th percentile of their "
+                         f"per-vertex angles, at least {HEAT_FLOOR_DEGREES:g}&deg;)"
+                         + ("; larger angles are drawn in the top colour" if clipped else "")
+                         + "</figcaption></figure>")
         for rf in rset.frames:
             base = _slug(f"{rf.run.split(',')[0]}-frame{rf.frame}")
             png = _png_of(rf.full)
@@ -275,11 +288,13 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
                 p1, p2 = _png_of(img), _png_of(heat)
                 renders[f"{base}-{_slug(label)}-reduced.png"] = p1
                 renders[f"{base}-{_slug(label)}-normals.png"] = p2
+                scale = (f"clipped at {top:.3g}&deg; (the colour bar's top); max {dmax:.3g}&deg;" if dmax > top
+                         else f"max {dmax:.3g}&deg;, colour bar 0 to {top:.3g}&deg;")
                 figs.append(f"<div class=\"pair\"><figure><img alt=\"{html.escape(label)} frame {rf.frame}\" "
                             f"src=\"{_data_uri(p1)}\"><figcaption>{html.escape(label)}</figcaption></figure>"
-                            f"<figure><img alt=\"{html.escape(label)} normal deviation\" src=\"{_data_uri(p2)}\">"
-                            f"<figcaption>{html.escape(label)}: normal deviation (max {dmax:.2f}&deg;)"
-                            f"</figcaption></figure></div>")
+                            f"<figure class=\"heat\" data-max=\"{dmax!r}\" data-scale-top=\"{top!r}\">"
+                            f"<img alt=\"{html.escape(label)} normal deviation\" src=\"{_data_uri(p2)}\">"
+                            f"<figcaption>{html.escape(label)}: normal deviation, {scale}</figcaption></figure></div>")
             for label, faces, img in rf.levels:
                 p1 = _png_of(img)
                 renders[f"{base}-{_slug(label)}-level.png"] = p1
@@ -295,7 +310,7 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
     if notes:
         parts.append("<h2>Notes</h2><ul class=\"notes\">" + "".join(f"<li>{html.escape(n)}</li>" for n in notes)
                      + "</ul>")
-    parts.append(f"<div id=\"rigslim-check\">page check pending</div><script>{_CHECK_JS}</script></body></html>")
+    parts.append(f"<div id=\"rigslim-check\" hidden></div><script>{_CHECK_JS}</script></body></html>")
     return Report("\n".join(parts), renders, rows, notes)
 
 

@@ -142,14 +142,44 @@ def influence_histograms(rows) -> bytes:
     return _png(fig)
 
 
-def colorbar(vmax_degrees: float, cmap: str) -> bytes:
-    """A horizontal colour scale from 0 to ``vmax_degrees`` for the normal-deviation renders."""
+def colorbar(vmax: float, cmap: str, label: str = "normal deviation (degrees)", clipped: bool = False) -> bytes:
+    """A horizontal colour scale from 0 to ``vmax`` (in the unit ``label`` names) for heat-map renders.
+
+    ``clipped`` draws the top as a pointed end: values above ``vmax`` exist and are drawn in its colour.
+    """
     from matplotlib.colorbar import ColorbarBase
     from matplotlib.colors import Normalize
 
-    fig = _figure(4.2, 0.75)
+    fig = _figure(4.8, 0.8)
     ax = fig.add_subplot(1, 1, 1)
-    ColorbarBase(ax, cmap=cmap, norm=Normalize(0, vmax_degrees), orientation="horizontal")
-    ax.set_xlabel("normal deviation (degrees)", fontsize=8)
+    ColorbarBase(ax, cmap=cmap, norm=Normalize(0, vmax), orientation="horizontal",
+                 extend="max" if clipped else "neither")
+    ax.set_xlabel(label, fontsize=8)
     ax.tick_params(labelsize=8)
     return _png(fig)
+
+
+#: Data spanning more than this ratio (largest / smallest positive value) get logarithmic histogram bins.
+LOG_BINS_SPAN = 100.0
+
+
+def histogram_bins(values, count: int) -> tuple[np.ndarray, bool]:
+    """Bin edges for a histogram of ``values``, and whether they are logarithmic.
+
+    Linear bins put almost every value into the first bin when the values
+    span decades (one asset at 1e-10 %, another at 5 %), so values whose
+    positive part spans more than :data:`LOG_BINS_SPAN` (two decades),
+    ``max(x) / min(x > 0) > 100``, get ``count`` bins of equal width in
+    ``log10 x`` from ``min(x > 0)`` to ``max(x)``; zeros and negative values
+    then fall outside (the caller says how many). Otherwise ``count``
+    linear bins from ``min(x)`` to ``max(x)``.
+    """
+    x = np.asarray(values, dtype=np.float64)
+    x = x[np.isfinite(x)]
+    positive = x[x > 0]
+    if len(positive) >= 2 and positive.max() / positive.min() > LOG_BINS_SPAN:
+        return np.geomspace(positive.min(), positive.max(), count + 1), True
+    lo, hi = (float(x.min()), float(x.max())) if len(x) else (0.0, 1.0)
+    if hi <= lo:
+        lo, hi = lo - 0.5, hi + 0.5
+    return np.linspace(lo, hi, count + 1), False

@@ -14,6 +14,9 @@ from rigslim.report.summary import EvaluationRow
 
 #: Colour map of the normal-deviation renders (pale yellow: none, dark red: the scale's maximum).
 HEAT_CMAP = "YlOrRd"
+#: Smallest top of the normal-deviation colour scale (degrees): a report whose deviations all stay below it
+#: is drawn in the low colours (a degree is hardly visible in the shading) instead of stretched to dark red.
+HEAT_FLOOR_DEGREES = 1.0
 #: Colours of the full and reduced deformation renders.
 FULL_COLOR = (0.72, 0.76, 0.86)
 REDUCED_COLOR = (0.88, 0.76, 0.60)
@@ -80,7 +83,11 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
     heat_max : float, optional
         Top of the colour scale in degrees; default the largest 99th
         percentile of the per-vertex deviation over all renders, so that one
-        outlying vertex does not wash out the scale.
+        outlying vertex does not wash out the scale, and at least
+        :data:`HEAT_FLOOR_DEGREES`, so that tiny deviations are drawn in the
+        low colours: ``top = max(max_r p99(theta_r), 1 degree)``. Vertices
+        above the top are drawn in its colour (clipped); each heat map's
+        entry keeps its own maximum for the caption.
 
     Notes
     -----
@@ -156,7 +163,7 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
         out.frames.append(rf)
     # heat maps last: their colour scale is shared by every render of the report
     tops = [float(np.percentile(dev, 99)) for _, _, _, dev, _, _ in heat_jobs]
-    out.heat_max = float(heat_max) if heat_max else max(tops + [1e-3])
+    out.heat_max = float(heat_max) if heat_max else max(tops + [HEAT_FLOOR_DEGREES])
     for entry, Xr, Nr, dev, cam, F in heat_jobs:
         entry[2], _ = render_mesh(Xr, F, heat_colors(dev, out.heat_max), cam, normals=Nr, backend=backend)
     return out

@@ -11,6 +11,7 @@ import re
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytest.importorskip("pyarrow")
@@ -20,7 +21,7 @@ from rigslim.batch.options import BatchOptions, BatchResult
 from rigslim.batch.summary import write_summary  # noqa: E402
 from rigslim.batch.task import run_asset  # noqa: E402
 from rigslim.commands.cli import main  # noqa: E402
-from rigslim.report.batch import build_batch_report, read_summary  # noqa: E402
+from rigslim.report.batch import axis_label, build_batch_report, measured_level, read_summary  # noqa: E402
 
 GLTF = Path(__file__).resolve().parents[3] / "examples" / "data" / "gltf"
 
@@ -70,12 +71,13 @@ def test_batch_view(batch_dir, tmp_path):
     # failures with the one-line error, the worst list in order, every asset in the sortable table
     broken = next(r for r in rows if r["name"] == "broken")
     assert "Failures (1)" in text and broken["error"].split(": error: ")[1][:40] in text.replace("&#x27;", "'")
-    worst = re.findall(r"<div class='card'><b>([^<]+)</b>", text)
+    worst = re.findall(r"<div class='card'[^>]*><b>([^<]+)</b>", text)
     assert worst == [r["name"] for r in ok]
     assert "class='sortable'" in text and text.count("<tr class='ok'>") == 3 and "<tr class='failed'>" in text
     assert "histograms of the error metrics" in text
-    # two renders (full, reduced coloured by error) per ok asset, as data URIs and PNG files
-    assert text.count("data:image/png;base64,") == 1 + 2 * len(ok)
+    # the histograms, one colour bar, two renders (full, reduced coloured by error) per ok asset, as data URIs
+    # and PNG files
+    assert text.count("data:image/png;base64,") == 2 + 2 * len(ok)
     assert sorted(p.name for p in pngs.iterdir()) == sorted(f"{r['name']}-{k}.png" for r in ok
                                                             for k in ("full", "reduced"))
     assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in pngs.iterdir())
@@ -103,3 +105,37 @@ def test_bad_summary_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.startswith("rigslim: error: ") and "not a batch summary" in err and "\n" not in err
     assert not (tmp_path / "x.html").exists()
+
+
+def test_histogram_bins_are_logarithmic_for_data_spanning_decades():
+    from rigslim.report.plots import histogram_bins
+
+    edges, log = histogram_bins([1.3e-10, 2e-3, 0.4, 5.0], 5)
+    assert log and edges[0] == 1.3e-10 and edges[-1] == 5.0
+    assert np.allclose(np.diff(np.log10(edges)), np.log10(5.0 / 1.3e-10) / 5)  # equal widths in log10 x
+    edges, log = histogram_bins([0.0, 1e-3, 0.5], 4)  # zero left out; 1e-3 .. 0.5 spans 2.7 decades
+    assert log and edges[0] == 1e-3
+    edges, log = histogram_bins([0.2, 0.5, 3.0, 19.0], 3)  # under two decades: linear
+    assert not log and np.allclose(edges, 0.2 + np.arange(4) * (19.0 - 0.2) / 3)
+
+
+def test_axis_label_names_quantity_statistic_level_and_unit():
+    assert axis_label("position_rms_pct_max") == "position RMS, max over test frames (% of diagonal)"
+    assert axis_label("normal_rms_rad_mean") == "normal RMS, mean over test frames (rad)"
+    assert axis_label("step3.hausdorff_max_pct@quartic-10pct_max") == \
+        "Metro max distance, max over test frames, level quartic-10pct, evaluation at step 3 (% of diagonal)"
+    assert axis_label("hausdorff_rms_m_mean") == "Metro RMS distance, mean over test frames (world units)"
+
+
+def test_measured_level_follows_the_column():
+    values = {"mean": 1.0, "max": 2.0, "per_frame": [1.0, 2.0]}
+    doc = {"schema_version": 3, "evaluations": [
+        {"name": "reduce", "step": 3, "metrics": {"position_rms_pct": {"mean": 0.1, "max": 0.2}}},
+        {"name": "levels", "step": 5, "metrics": {"hausdorff_max_pct": values},
+         "levels": [{"name": "q-30pct", "faces": 36, "hausdorff_max_pct": values},
+                    {"name": "q-10pct", "faces": 12, "hausdorff_max_pct": {"mean": 3.0, "max": 4.0}}]}]}
+    # a plain Hausdorff column of a simplification holds its first level's values: that level is what it measured
+    assert measured_level(doc, "hausdorff_max_pct_max")[1]["name"] == "q-30pct"
+    assert measured_level(doc, "hausdorff_max_pct@q-10pct_max")[1]["faces"] == 12
+    assert measured_level(doc, "step3.position_rms_pct_max") == (doc["evaluations"][0], None)
+    assert measured_level(doc, "hausdorff_max_pct@gone_max")[1] == {"name": "gone"}  # no record: said so later
