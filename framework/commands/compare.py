@@ -47,7 +47,8 @@ def posed_surfaces(path: Path, *, clip, times, level: int = 0):
         return _posed_usd(path, clip=clip, times=times, level=level)
     doc = level_document(load_gltf(path), level)
     Ps, Fs, skins, start = [], [], [], 0
-    for s in skins_used(doc.json) or [None]:          # every skin's meshes, as one surface
+    used: list[int | None] = list(skins_used(doc.json)) or [None]
+    for s in used:          # every skin's meshes, as one surface
         skin = skin_from_document(doc, animation=clip, fps=DEFAULT_FPS, skin=s, times=list(times))
         Ps.append(np.stack([linear_blend(skin.mesh.V, skin.weights, skin.poses.T[j]) for j in range(len(times))]))
         Fs.append(np.asarray(skin.mesh.F) + start)
@@ -114,12 +115,9 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
         "reference": str(ref), "candidate": str(cand), "level": level, "clip": clip_name, "fps": fps,
         "frames": chosen, "reference_diagonal_m": diag, "faces": int(len(Fc)), "reference_faces": int(len(Fr))}
     if hausdorff:
-        rms, mx = [], []
-        for j in range(len(times)):
-            d = metro_distance(Pc[j], Fc, Pr[j], Fr, samples)
-            rms.append(d["rms"])
-            mx.append(d["max"])
-        rms, mx = np.asarray(rms), np.asarray(mx)
+        per_frame = [metro_distance(Pc[j], Fc, Pr[j], Fr, samples) for j in range(len(times))]
+        rms = np.asarray([d["rms"] for d in per_frame])
+        mx = np.asarray([d["max"] for d in per_frame])
         out |= {"hausdorff_rms_pct": float(100 * rms.mean() / diag), "hausdorff_max_pct": float(100 * mx.max() / diag),
                 "hausdorff_rms_m": float(rms.mean()), "hausdorff_max_m": float(mx.max()),
                 "hausdorff_max_pct_mean": float(100 * mx.mean() / diag),

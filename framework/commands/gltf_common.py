@@ -152,7 +152,7 @@ def skins_used(js: dict) -> list[int]:
             order.append(i)
             stack.extend(reversed(nodes[i].get("children", [])))
     else:
-        order = range(len(nodes))
+        order = list(range(len(nodes)))
     out = []
     for i in order:
         n = nodes[i]

@@ -91,7 +91,7 @@ def output_error(exc: OSError, path, what: str = "cannot write output") -> Outpu
     """The one-line :class:`OutputError` for an ``OSError`` met while writing ``path``."""
     reason = exc.strerror or type(exc).__name__
     return OutputError(f"{what} ({reason})", source=path, field="output",
-                       fix=_FIXES.get(exc.errno, "check the path and the free space"))
+                       fix=_FIXES.get(exc.errno or 0, "check the path and the free space"))
 
 
 # --------------------------------------------------------------------------- stale temporary files
@@ -144,7 +144,7 @@ def remove_stale(target) -> list[Path]:
     folder = target.parent
     prefix = f".{_short(target.name)}"
     legacy = re.compile(re.escape(f".{target.name}.") + r"[a-z0-9_]{8}(" + re.escape(target.suffix) + r"|\.tmp)?$")
-    removed = []
+    removed: list[Path] = []
     now = time.time()
     try:
         entries = [e for e in os.scandir(folder) if e.name.startswith(prefix)]
