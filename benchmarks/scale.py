@@ -169,7 +169,7 @@ def main() -> int:
                   f"{r['peak_gb'] if r['peak_gb'] is None else round(r['peak_gb'], 2)} | {r['target']} | "
                   f"{'yes' if r['met'] else 'no'} |")
     if not args.quick:
-        write_results("scale", doc, "\n".join(md) + "\n")
+        write_results(ROOT / "docs" / "results" / "scale", doc, "\n".join(md) + "\n")
     else:
         print("\n".join(md))
     return 0
