@@ -272,6 +272,7 @@ def test_batch_tables_scroll_inside_their_box_at_1280px(reduce_page):
     assert table["scroll"] > table["client"] and table["overflow"] == "auto" and table["frozen"] == "sticky"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("metric", [None, "hausdorff_max_pct@quartic-30pct_max"])
 def test_batch_ranked_by_lod_error_renders_the_level(lod_folder, metric, tmp_path):
     import json
