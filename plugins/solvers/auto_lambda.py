@@ -15,8 +15,10 @@ poses only, so the test poses stay unseen:
    weights are fitted on the fold's other example poses and the held-out
    poses are deformed with them;
 3. P(lambda) and N(lambda) are the position RMS (% of the diagonal) and the
-   normal RMS angle (area-weighted normals recomputed on both deformations)
-   pooled over all held-out poses of all folds,
+   normal RMS angle (area-weighted normals recomputed on both deformations,
+   over the vertices whose normal is defined at rest and in the full
+   deformation, as in the ``normal-deviation`` metric) pooled over all
+   held-out poses of all folds,
    ``P = sqrt(sum_folds sum_held e_f^2 / m)``;
    the score of lambda is ``P(lambda) / min P + N(lambda) / min N``, each term
    relative to its best value over the grid;
@@ -40,22 +42,32 @@ import numpy as np
 from rigslim.errors import StepError
 from rigslim.model.poses import FrameSplit
 from rigslim.numerics.blend import linear_blend, per_vertex_normals
-from rigslim.numerics.normal_error import normal_rms_angle
+from rigslim.numerics.normal_error import (
+    DEGENERATE_RATIO,
+    normal_conditioning,
+    normal_rms_angle,
+    vertex_face_incidence,
+)
 
 #: Default lambda grid (dimensionless; see :func:`rigslim.plugins.solvers.problem.build_problem`).
 GRID = (1e-3, 1e-2, 1e-1, 1.0, 10.0)
 
 
 def held_out_errors(asset, reduced, frames) -> tuple[float, float]:
-    """RMS over ``frames`` of the position error (% of the diagonal) and of the normal angle (rad)."""
+    """RMS over ``frames`` of the position error (% of the diagonal) and of the normal angle (rad); the
+    normal angle over vertices whose normal is defined (conditioning >= ``DEGENERATE_RATIO``, at rest and in
+    the full deformation; :mod:`rigslim.numerics.normal_error`)."""
     V, F = asset.mesh.V, asset.mesh.F
     T = asset.poses.select(frames).T
+    incidence = vertex_face_incidence(F, len(V))
+    rest_ok = normal_conditioning(V, F, incidence) >= DEGENERATE_RATIO
     pos, nrm = [], []
     for j in range(len(T)):
         full = linear_blend(V, asset.weights, T[j])
         red = linear_blend(V, reduced, T[j])
         pos.append(100.0 * np.sqrt(np.mean(np.sum((full - red) ** 2, axis=1))) / asset.mesh.bbox_diagonal)
-        nrm.append(normal_rms_angle(per_vertex_normals(red, F), per_vertex_normals(full, F)))
+        valid = rest_ok & (normal_conditioning(full, F, incidence) >= DEGENERATE_RATIO)
+        nrm.append(normal_rms_angle(per_vertex_normals(red, F), per_vertex_normals(full, F), valid))
     return float(np.sqrt(np.mean(np.square(pos)))), float(np.sqrt(np.mean(np.square(nrm))))
 
 
