@@ -252,6 +252,235 @@ def part_386k(repeat):
     return {"vertices": asset.mesh.n_vertices, "k": k, "test_frames": len(frames), "rows": out}
 
 
+# --- the default of rigslim reduce on every character of the suite (part "suite") ---------------------------
+
+SUITE_KS = (2, 3, 4)
+#: Test frames per clip at most (evenly subsampled), so that the part stays within minutes on 2 cores.
+MAX_TEST_FRAMES = 16
+
+
+def clip_asset(path, fit_clips, test_clips, count=24):
+    """A glTF character read as ``rigslim reduce`` reads it, with examples from ``fit_clips`` and test frames
+    on ``test_clips`` (held-out frames of a fit clip, every frame of another), poses: {examples: {clips}}."""
+    from rich.console import Console
+
+    from rigslim.plugin.host import get_host
+    from rigslim.runtime.document import load_pipeline
+    from rigslim.runtime.inputs import read_inputs
+    from rigslim.runtime.progress import Reporter
+
+    raw = {"inputs": {"gltf": {"path": str(path), "fps": 30.0}},
+           "poses": {"examples": {"clips": fit_clips, "count": count}, "test": {"clips": test_clips}},
+           "steps": [{"select": "k-largest", "k": 1}]}
+    host = get_host()
+    source = Path(path).parent / "<benchmark>"
+    doc, _ = load_pipeline(source, [], host, raw=raw)
+    return read_inputs(doc, Path(path).parent, host, Reporter(Console(quiet=True)).context(Path(path).parent),
+                       source)
+
+
+def default_reduce(asset, k):
+    """``rigslim reduce``'s default steps (best-fit by error, geometric with its guard); (weights, report, s)."""
+    from rigslim.plugin import StepContext
+    from rigslim.plugin.host import get_host
+
+    host = get_host()
+    t0 = time.perf_counter()
+    sel = host.get("influence-selection", "best-fit")
+    sel.apply(asset, sel.parse_params({"k": k, "by": "error"}), StepContext())
+    sol = host.get("weight-solver", "geometric")
+    ctx = StepContext()
+    sol.apply(asset, sol.parse_params({}), ctx)
+    return asset.reduced, ctx.report, time.perf_counter() - t0
+
+
+def frame_errors(asset, reduced, frames):
+    """Per frame: position RMS (% of the rest diagonal) and the 95th percentile of the normal angle (rad,
+    area-weighted vertex normals recomputed on both deformations; vertices whose normal vanishes left out)."""
+    from rigslim.numerics.blend import linear_blend, per_vertex_normals
+
+    V, F = asset.mesh.V, asset.mesh.F
+    T = asset.poses.select(list(frames)).T
+    pos, p95 = [], []
+    for j in range(len(T)):
+        full = linear_blend(V, asset.weights, T[j])
+        red = linear_blend(V, reduced, T[j])
+        pos.append(100.0 * np.sqrt(np.mean(np.sum((full - red) ** 2, axis=1))) / asset.mesh.bbox_diagonal)
+        a, b = per_vertex_normals(red, F), per_vertex_normals(full, F)
+        na, nb = np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1)
+        ok = (na > 1e-12) & (nb > 1e-12)
+        cos = np.einsum("vc,vc->v", a[ok], b[ok]) / (na[ok] * nb[ok])
+        p95.append(float(np.percentile(np.arccos(np.clip(cos, -1.0, 1.0)), 95)) if ok.any() else 0.0)
+    return np.asarray(pos), np.asarray(p95)
+
+
+def per_clip_rows(asset, methods):
+    """For each test clip: frames, and per method the position RMS (pooled over its frames) and mean normal p95."""
+    rows = []
+    for part in asset.split.clips["test"]:
+        seg = next(s for s in asset.split.segments if s["clip"] == part["clip"])
+        frames = [seg["start"] + f for f in part["frames"]]
+        if len(frames) > MAX_TEST_FRAMES:
+            frames = [frames[i] for i in np.linspace(0, len(frames) - 1, MAX_TEST_FRAMES).round().astype(int)]
+        r = {"clip": part["clip"], "frames": len(frames)}
+        for name, W in methods.items():
+            pos, p95 = frame_errors(asset, W, frames)
+            r[name] = {"position_pct": float(np.sqrt(np.mean(pos ** 2))), "normal_p95_rad": float(np.mean(p95))}
+        rows.append(r)
+    return rows
+
+
+def character_block(name, asset, k, fit_clips, held_clips):
+    """One character at one k: the default, k-largest and Dem Bones, per test clip."""
+    from rigslim.plugins.solvers.safeguards import k_largest_weights
+
+    passes = int(np.diff(asset.weights.indptr).max()) <= k
+    default, rep, secs = default_reduce(asset, k)
+    methods = {"default": default, "k_largest": k_largest_weights(asset.weights, k)}
+    W, dem_s = dem_bones_weights(asset, k)
+    methods["dem_bones"] = W
+    rows = per_clip_rows(asset, methods)
+    blk = {"character": name, "k": k, "vertices": asset.mesh.n_vertices, "joints": asset.handles.n,
+           "max_influences": int(np.diff(asset.weights.indptr).max()), "pass_through": passes,
+           "fit_clips": fit_clips, "held_out_clips": held_clips, "examples": len(asset.split.examples),
+           "validation_frames": rep.get("validation_frames", 0), "fallback_vertices": rep.get("fallback_vertices", 0),
+           "default_s": secs, "dem_bones_s": dem_s, "clips": rows}
+    line = "  ".join(f"{r['clip'][:12]:>12} {r['default']['position_pct']:.4f}/{r['k_largest']['position_pct']:.4f}/"
+                     f"{r['dem_bones']['position_pct']:.4f}" for r in rows)
+    print(f"  {name:<18} k={k} fell back {blk['fallback_vertices']:>4}  {secs:.2f}s vs {dem_s:.2f}s  {line}",
+          flush=True)
+    return blk
+
+
+def elephant_default(k):
+    """The elephant (one clip) as the default sees it: examples 0:457:45, validation 22:457:45 (the guard),
+    test 5:457:7 minus 180 and minus validation frames."""
+    import dataclasses
+
+    from rigslim.model.poses import FrameSplit
+
+    asset = elephant(0)
+    val = list(range(22, 457, 45))
+    test = [f for f in asset.split.test if f not in set(val)]
+    asset = dataclasses.replace(asset, split=FrameSplit(asset.split.examples, test, [], validation=val,
+                                                        clips={"test": [{"clip": "elephant", "frames": test}]},
+                                                        segments=[{"clip": "elephant", "start": 0, "frames": 457}]))
+    return asset
+
+
+def part_suite(repeat):
+    from benchmarks.datasets import suite
+
+    out = []
+    for k in SUITE_KS:
+        print(f"k = {k}", flush=True)
+        asset = elephant_default(k)
+        blk = character_block("elephant", asset, k, ["elephant"], [])
+        if k == 4:     # the elephant target: errors on every test frame, times best of `repeat`
+            from rigslim.plugins.solvers.safeguards import k_largest_weights
+
+            red, best = None, np.inf
+            for _ in range(repeat):
+                red, _, secs = default_reduce(asset, k)
+                best = min(best, secs)
+            p, n, _ = errors(asset, red)
+            dem = min(dem_bones_weights(asset, k)[1] for _ in range(repeat))
+            W, _ = dem_bones_weights(asset, k)
+            pd, nd, _ = errors(asset, W)
+            pk, nk, _ = errors(asset, k_largest_weights(asset.weights, k))
+            blk["target"] = {"position_pct": p, "normal_rad": n, "seconds": best, "dem_bones_position_pct": pd,
+                             "dem_bones_normal_rad": nd, "dem_bones_s": dem, "k_largest_position_pct": pk,
+                             "k_largest_normal_rad": nk, "test_frames": len(asset.split.test)}
+            print(f"  elephant k=4 target: {p:.4f} % / {n:.4f} rad in {best:.3f}s; Dem Bones {pd:.4f} / {nd:.4f} "
+                  f"in {dem:.3f}s; k-largest {pk:.4f} / {nk:.4f}", flush=True)
+        out.append(blk)
+        for c in suite():
+            held = c.holdout_clips
+            asset = clip_asset(c.path, c.fit_clips, c.fit_clips + held)
+            out.append(character_block(c.name, asset, k, c.fit_clips, held))
+    return {"ks": list(SUITE_KS), "max_test_frames": MAX_TEST_FRAMES, "blocks": out, "summary": suite_summary(out)}
+
+
+def suite_summary(blocks):
+    """Per k: the default's position RMS over k-largest's and Dem Bones', per clip (clips where k-largest is
+    exact, i.e. pass-through, left out of the ratios), and the normal p95 comparisons."""
+    out = []
+    for k in sorted({b["k"] for b in blocks}):
+        kl, db, worse, n_better, n_clips, p95 = [], [], [], 0, 0, []
+        for b in (b for b in blocks if b["k"] == k):
+            for r in b["clips"]:
+                d, q, e = (r[m]["position_pct"] for m in ("default", "k_largest", "dem_bones"))
+                n_clips += 1
+                if q <= 1e-12:
+                    continue
+                kl.append(d / q)
+                db.append(d / e if e > 0 else np.nan)
+                if d > q:
+                    worse.append({"character": b["character"], "clip": r["clip"], "default": d, "k_largest": q})
+                p95.append((r["default"]["normal_p95_rad"], r["k_largest"]["normal_p95_rad"],
+                            r["dem_bones"]["normal_p95_rad"]))
+                n_better += d < q
+        p95 = np.asarray(p95)
+        out.append({"k": k, "clips": n_clips, "ratio_clips": len(kl),
+                    "vs_k_largest_mean": float(np.mean(kl)), "vs_k_largest_max": float(np.max(kl)),
+                    "vs_dem_bones_mean": float(np.nanmean(db)), "vs_dem_bones_max": float(np.nanmax(db)),
+                    "clips_above_k_largest": worse,
+                    "normal_p95_below_both": int(((p95[:, 0] < p95[:, 1]) & (p95[:, 0] < p95[:, 2])).sum()),
+                    "normal_p95_default_mean": float(p95[:, 0].mean()),
+                    "normal_p95_k_largest_mean": float(p95[:, 1].mean()),
+                    "normal_p95_dem_bones_mean": float(p95[:, 2].mean())})
+    return out
+
+
+def suite_markdown(doc):
+    s = doc["suite"]
+    out = ["## The default of `rigslim reduce` on the elephant and the real-character suite", "",
+           "`rigslim reduce`'s default (best-fit by error + geometric, with the guard against k-largest on "
+           "validation frames) against k-largest (the k largest weights renormalised) and Dem Bones' weight "
+           "solve (`computeWeights`, true bone transforms fixed, nnz = k), all fitted to the same example poses. "
+           "Multi-clip characters: examples sampled (24 in all) from the suite's fit clips only; tested on "
+           "held-out frames of every fit clip and every frame of the held-out clips (never fitted, never "
+           f"validated), at most {s['max_test_frames']} frames per clip, evenly; position RMS in % of the rest "
+           "bounding-box diagonal, pooled over the clip's frames; normal p95: the 95th percentile of the "
+           "per-vertex normal angle (rad), mean over frames. The elephant (one clip): examples 0:457:45, "
+           "validation 22:457:45, test 5:457:7 minus those.", "",
+           "| k | clips | default / k-largest, mean (max) | clips above k-largest | default / Dem Bones, mean (max) "
+           "| normal p95 default / k-largest / Dem Bones (mean) | clips with normal p95 below both |",
+           "|---|---|---|---|---|---|---|"]
+    for r in s["summary"]:
+        above = ", ".join(f"{w['character']} {w['clip']} ({w['default']:.4f} vs {w['k_largest']:.4f})"
+                          for w in r["clips_above_k_largest"]) or "none"
+        out.append(f"| {r['k']} | {r['ratio_clips']} of {r['clips']} | {r['vs_k_largest_mean']:.3f} "
+                   f"({r['vs_k_largest_max']:.3f}) | {above} | {r['vs_dem_bones_mean']:.3f} "
+                   f"({r['vs_dem_bones_max']:.3f}) | {r['normal_p95_default_mean']:.4f} / "
+                   f"{r['normal_p95_k_largest_mean']:.4f} / {r['normal_p95_dem_bones_mean']:.4f} | "
+                   f"{r['normal_p95_below_both']} of {r['ratio_clips']} |")
+    out += ["", "Clips where k-largest is already exact (every vertex has at most k influences: the weights pass "
+            "through) are counted in `clips` but not in the ratios.", ""]
+    t = next((b["target"] for b in s["blocks"] if "target" in b), None)
+    if t:
+        out += [f"Elephant, k = 4, all {t['test_frames']} test frames: the default {t['position_pct']:.4f} % / "
+                f"{t['normal_rad']:.4f} rad in {t['seconds']:.3f} s (select + solve + guard); Dem Bones "
+                f"{t['dem_bones_position_pct']:.4f} % / {t['dem_bones_normal_rad']:.4f} rad in "
+                f"{t['dem_bones_s']:.3f} s; k-largest {t['k_largest_position_pct']:.4f} % / "
+                f"{t['k_largest_normal_rad']:.4f} rad.", ""]
+    out += ["| character | k | vertices | joints | clip | frames | default | k-largest | Dem Bones | "
+            "normal p95 default / k-largest / Dem Bones | fell back | default (s) | Dem Bones (s) |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for b in s["blocks"]:
+        for i, r in enumerate(b["clips"]):
+            held = " (held out)" if r["clip"] in b["held_out_clips"] else ""
+            head = (f"| {b['character']}{' (pass-through)' if b['pass_through'] else ''} | {b['k']} | "
+                    f"{b['vertices']} | {b['joints']} |") if i == 0 else "| | | | |"
+            tail = (f" {b['fallback_vertices']} | {b['default_s']:.3f} | {b['dem_bones_s']:.3f} |" if i == 0
+                    else " | | |")
+            out.append(f"{head} {r['clip']}{held} | {r['frames']} | {r['default']['position_pct']:.4f} | "
+                       f"{r['k_largest']['position_pct']:.4f} | {r['dem_bones']['position_pct']:.4f} | "
+                       f"{r['default']['normal_p95_rad']:.4f} / {r['k_largest']['normal_p95_rad']:.4f} / "
+                       f"{r['dem_bones']['normal_p95_rad']:.4f} |{tail}")
+    return out + [""]
+
+
 def fmt(x, d=4):
     return "" if x is None else f"{x:.{d}f}"
 
@@ -307,6 +536,8 @@ def markdown(doc):
                         f"{g['normal_rms_rad']:.4f} rad"
                         f" (score {g['score']:.3f})" for g in r["held_out"]))
             out.append("")
+    if "suite" in doc:
+        out += suite_markdown(doc)
     if "386k" in doc:
         b = doc["386k"]
         out += [f"## Elephant subdivided, {b['vertices']:,} vertices, k = {b['k']} "
@@ -317,7 +548,7 @@ def markdown(doc):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--parts", nargs="*", default=["elephant", "ks", "cheb", "armadillo"],
-                    choices=["elephant", "ks", "cheb", "armadillo", "386k"])
+                    choices=["elephant", "ks", "cheb", "armadillo", "386k", "suite"])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--stem", default=str(OUT / "reduction_quality_best_fit"))
     args = ap.parse_args()
@@ -346,6 +577,8 @@ def main():
         doc["armadillo"] = part_pipeline("armadillo-k8.yaml", ARMADILLO_ROWS, args.repeat)
     if "386k" in args.parts:
         doc["386k"] = part_386k(1)
+    if "suite" in args.parts:
+        doc["suite"] = part_suite(args.repeat)
     text = markdown(doc)
     write_results(args.stem, doc, text)
     print(text)

@@ -29,11 +29,11 @@ Several clips (``clips:``, a list or ``all``: every animation of the glTF input)
       test: {clips: all}                  # held-out frames of every clip
 
 The example frames are shared out over the example clips in proportion to
-their lengths (at least one each); a clip of n frames with e examples gets
+their lengths (at least :data:`MIN_CLIP_EXAMPLES` each); a clip of n frames with e examples gets
 the step ``s = max(3, ceil(n / e))``: examples at frames ``0, s, 2s, ...``,
-validation frames ``floor(s / 3)`` after each (the solvers' guard,
-:attr:`FrameSplit.validation`) and test frames ``floor(2 s / 3)`` after each,
-so the three never meet. A test clip that is not an example clip (a held-out
+validation frames the first half of each gap (``1 .. floor(s / 2)`` after an
+example; the solvers' guard, :attr:`FrameSplit.validation`) and test frames
+the second half, so the three never meet. A test clip that is not an example clip (a held-out
 clip) is tested on all its frames. ``--clip`` of the commands is
 ``clips: [NAME]``. :attr:`FrameSplit.segments` records where each clip lies in
 the stack (cross-validation across clips uses it).
@@ -108,6 +108,8 @@ def _clips_of(side):
     return getattr(side, "clips", None)
 
 
+#: Example frames per clip at least (a short clip's motion is seen, and its validation frames spread over it).
+MIN_CLIP_EXAMPLES = 3
 #: Example frames of a ``clips:`` split when ``count`` is not given.
 DEFAULT_EXAMPLE_COUNT = 24
 
@@ -124,11 +126,11 @@ def sample_clip_frames(lengths, count: int) -> list[tuple[list[int], list[int], 
         if n < 1:
             out.append(([], [], []))
             continue
-        e = max(1, int(round(count * n / total)))
+        e = max(MIN_CLIP_EXAMPLES, int(round(count * n / total)))
         s = max(3, -(-n // e))
         ex = list(range(0, n, s))
-        val = [f + s // 3 for f in ex if f + s // 3 < n]
-        te = [f + (2 * s) // 3 for f in ex if f + (2 * s) // 3 < n]
+        val = [f + d for f in ex for d in range(1, s // 2 + 1) if f + d < n]
+        te = [f + d for f in ex for d in range(s // 2 + 1, s) if f + d < n]
         if n == 2:
             val, te = [], [1]
         out.append((ex, val, te))

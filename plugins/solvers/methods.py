@@ -74,9 +74,10 @@ class ReductionParams(Params):
     residual_tolerance: float = Field(1e-6, gt=0, description="CG (multilevel / AMG-CG) stops when the reduced "
                                       "gradient norm falls below this times its starting value")
     max_iterations: int = Field(500, ge=1, description="upper bound on CG iterations")
-    guard: Literal["k-largest", "off"] = Field("k-largest", description="with validation frames (held-out "
-                                               "frames of the clips, poses: examples: {clips: ...}): a vertex "
-                                               "whose weights do worse there than k-largest's takes k-largest's")
+    guard: Literal["k-largest", "k-largest-per-vertex", "off"] = Field(
+        "k-largest", description="with validation frames (held-out frames of the clips, poses: examples: "
+        "{clips: ...}): vertices fall back to k-largest's weights until no clip's validation error is above "
+        "k-largest's (per-vertex: every vertex worse on any clip falls back)")
 
 
 class LaplacianParams(ReductionParams):
@@ -127,8 +128,8 @@ def solve_weights(asset, method: str, params, ctx=None) -> tuple[ReducedWeights,
     t0 = time.perf_counter()
     reduced, report = _solve(asset, method, params, ctx)
     guard = getattr(params, "guard", "off")
-    if guard == "k-largest":
-        reduced, grep = guard_k_largest(asset, reduced)
+    if guard in ("k-largest", "k-largest-per-vertex"):
+        reduced, grep = guard_k_largest(asset, reduced, per_vertex=guard == "k-largest-per-vertex")
         report.update(grep)
     reduced, report["passed_through"] = pass_through(asset.weights, reduced)
     report["seconds"] = time.perf_counter() - t0

@@ -117,8 +117,11 @@ def test_several_clips_examples_validation_and_test(write_pipeline, clips):
                               {"clip": "run.dmat", "start": 200, "frames": 257}]
     # rom: 9 examples (200 / 9 -> step 23), run: 11 (257 / 11 -> step 24)
     assert split.examples == list(range(0, 200, 23)) + list(range(200, 457, 24))
-    assert split.validation == [f + 7 for f in range(0, 200, 23)] + [f + 8 for f in range(200, 457, 24)]
-    assert split.test == [f + 15 for f in range(0, 200 - 15, 23)] + [f + 16 for f in range(200, 457 - 16, 24)]
+    # validation: the first half of each gap, test: the second
+    assert split.validation == ([f + d for f in range(0, 200, 23) for d in range(1, 12) if f + d < 200]
+                                + [f + d for f in range(200, 457, 24) for d in range(1, 13) if f + d < 457])
+    assert split.test == ([f + d for f in range(0, 200, 23) for d in range(12, 23) if f + d < 200]
+                          + [f + d for f in range(200, 457, 24) for d in range(13, 24) if f + d < 457])
     assert not set(split.examples) & set(split.validation) and not set(split.test) & set(split.validation)
     frames = doc["frames"]["clips"]
     assert [c["clip"] for c in frames["validation"]] == ["rom.dmat", "run.dmat"]
@@ -141,7 +144,8 @@ def test_held_out_clip_and_clips_all_of_a_gltf(tmp_path):
     assert all(walk["start"] <= f < walk["start"] + walk["frames"] for f in split.examples + split.validation)
     # the held-out clip is tested on every frame, and gives no validation frame
     tested = {c["clip"]: c["frames"] for c in split.clips["test"]}
-    assert tested["Wuson_Run"] == list(range(run["frames"])) and len(tested["Wuson_Walk"]) == len(split.examples) == 11
+    assert tested["Wuson_Run"] == list(range(run["frames"]))
+    assert len(split.examples) == 11 and len(tested["Wuson_Walk"]) == 43
     assert [c["clip"] for c in split.clips["validation"]] == ["Wuson_Walk"]
 
 

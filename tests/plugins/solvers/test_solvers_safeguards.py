@@ -57,22 +57,28 @@ def _rms(mesh, W, reduced, T, rows=slice(None)):
 def test_guard_never_worse_than_k_largest_on_any_clip_and_better_where_the_fit_is_right():
     mesh, W, A, B, over = two_clip_rig()
     kl = k_largest_weights(sp.csr_matrix(W), 2)
-    report = {}
-    default = rigslim.reduce_weights(mesh, W, [A, B], k=2, report=report)
     unguarded = rigslim.reduce_weights(mesh, W, [A, B], k=2, guard="off")
-    assert report["select"] == "best-fit" and report["guard"] == "k-largest"
     # the held-out (test) frames of each clip, as the sampling keeps them: 2, 5, 8, ... here
     held = np.arange(30) % 3 == 2
-    assert report["validation_frames"] == 20
-    # without the guard the fit loses to k-largest on clip B (the over-fitted vertices)...
+    # without the guard the fit loses to k-largest on clip B (the over-fitted vertices), in total too
     assert _rms(mesh, W, unguarded, B[held], over) > 1.5 * _rms(mesh, W, kl, B[held], over)
-    # ... with it those vertices fall back: never worse on clip B, nor on clip A
+    assert _rms(mesh, W, unguarded, B[held]) > _rms(mesh, W, kl, B[held])
+    for guard in ("k-largest", "k-largest-per-vertex"):
+        report = {}
+        default = rigslim.reduce_weights(mesh, W, [A, B], k=2, report=report,
+                                         **({} if guard == "k-largest" else {"guard": guard}))
+        assert report["select"] == "best-fit" and report["guard"] == guard
+        assert report["validation_frames"] == 20 and 0 < report["fallback_vertices"] <= int(over.sum())
+        # with it: never worse than k-largest on either clip, and better on both
+        for clip in (A, B):
+            assert _rms(mesh, W, default, clip[held]) < _rms(mesh, W, kl, clip[held])
+        for c in report["validation_clips"]:
+            assert c["rms_pct"] <= c["rms_pct_k_largest"]
+        # where the fit is right it is kept, exact on every clip where k-largest is not
+        for clip in (A, B):
+            assert _rms(mesh, W, default, clip[held], ~over) < 1e-6 < _rms(mesh, W, kl, clip[held], ~over)
+    # per vertex: every over-fitted vertex falls back to k-largest's weights
     assert report["fallback_vertices"] == int(over.sum())
-    for clip in (A, B):
-        assert _rms(mesh, W, default, clip[held]) <= _rms(mesh, W, kl, clip[held]) + 1e-12
-    # where the fit is right it is kept, and beats k-largest on every clip
-    for clip in (A, B):
-        assert _rms(mesh, W, default, clip[held], ~over) < 1e-6 < _rms(mesh, W, kl, clip[held], ~over)
     np.testing.assert_array_equal(default.to_sparse()[over].toarray(), kl.to_sparse()[over].toarray())
 
 
@@ -88,7 +94,7 @@ def test_validation_poses_of_the_api_drive_the_guard():
     report = {}
     examples = np.concatenate([A, B[::3]])
     out = rigslim.reduce_weights(mesh, W, examples, k=2, validation=B[1::3], report=report)
-    assert report["validation_frames"] == 10 and report["fallback_vertices"] == int(over.sum())
+    assert report["validation_frames"] == 10 and report["fallback_vertices"] > 0
     assert _rms(mesh, W, out, B[2::3]) <= _rms(mesh, W, k_largest_weights(sp.csr_matrix(W), 2), B[2::3])
 
 
