@@ -95,3 +95,17 @@ def test_kubernetes_indexed_job_runs_rigslim_per_index(tmp_path):
                          text=True, timeout=300)
     assert run.returncode == 2 and run.stderr.strip().startswith("rigslim: error: ")
     assert not (out / "a" / "metrics.json").exists()
+
+
+def test_the_documented_template_runs_the_default_method(tmp_path):
+    """docs/batch.md's template: best-fit by error + geometric, examples from every clip, guarded."""
+    from rigslim.runtime.run import run_pipeline
+
+    (text,) = [b for b in _blocks("yaml") if b.startswith('name: "{name}-k4"')]
+    path = tmp_path / "huesitos.yaml"
+    path.write_text(text.replace("{input}", str(GLTF / "huesitos.glb")).replace("{name}", "huesitos"))
+    doc = run_pipeline(path).document
+    solve = next(s for s in doc["steps"] if s["stage"] == "solve")
+    assert [s.get("plugin") for s in doc["steps"][1:3]] == ["best-fit", "geometric"]
+    assert solve["solver"]["guard"] == "k-largest" and solve["solver"]["validation_frames"] > 0
+    assert (tmp_path / "huesitos-k4.glb").exists()

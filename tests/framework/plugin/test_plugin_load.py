@@ -205,7 +205,7 @@ def test_a_missing_plugin_names_the_skipped_package(venv, tmp_path):
     """Asking for a plugin whose package was skipped: the one error line says why it is not there."""
     doc = tmp_path / "p.yaml"
     text = (ROOT / "examples" / "elephant-k4.yaml").read_text()
-    doc.write_text(text.replace("data/", f"{ROOT / 'examples' / 'data'}/").replace("solve: k-largest", "solve: half"))
+    doc.write_text(text.replace("data/", f"{ROOT / 'examples' / 'data'}/").replace("solve: geometric", "solve: half"))
     out = _rigslim(venv, "run", "-q", str(doc), env={"RIGSLIM_DISABLE_PLUGINS": "dupreader"})
     assert out.returncode == 2
     assert "no weight-solver plugin named 'half'" in out.stderr and "skipped at load" in out.stderr
