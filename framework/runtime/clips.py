@@ -117,11 +117,12 @@ DEFAULT_EXAMPLE_COUNT = 24
 def sample_clip_frames(lengths, count: int) -> list[tuple[list[int], list[int], list[int]]]:
     """Per clip of ``lengths`` frames, its (examples, validation, test) frames (module docstring).
 
-    ``count`` example frames in all, shared out in proportion to the lengths, at least one per clip.
+    ``count`` example frames in all, shared out in proportion to the lengths, at least
+    :data:`MIN_CLIP_EXAMPLES` per clip (where it has the frames).
     """
     lengths = [int(n) for n in lengths]
     total = max(sum(lengths), 1)
-    out = []
+    out: list[tuple[list[int], list[int], list[int]]] = []
     for n in lengths:
         if n < 1:
             out.append(([], [], []))
