@@ -44,6 +44,40 @@ def _galerkin_blocks(indptr, indices, q, Bn, out):  # pragma: no cover - numba
                     out[p, i, j] = c * s
 
 
+@njit(cache=True)
+def _upper_scalar_csr(indptr, indices, blocks):  # pragma: no cover - numba
+    """Scalar CSR (int32 indptr / indices, sorted) of the upper triangle, diagonal included, of a
+    block-CSR matrix with sorted block columns."""
+    m = len(indptr) - 1
+    r = blocks.shape[1]
+    count = 0
+    for v in range(m):
+        for p in range(indptr[v], indptr[v + 1]):
+            w = indices[p]
+            if w > v:
+                count += r * r
+            elif w == v:
+                count += r * (r + 1) // 2
+    out_ptr = np.empty(m * r + 1, dtype=np.int32)
+    out_idx = np.empty(count, dtype=np.int32)
+    out_val = np.empty(count)
+    out_ptr[0] = 0
+    t = 0
+    for v in range(m):
+        for i in range(r):
+            for p in range(indptr[v], indptr[v + 1]):
+                w = indices[p]
+                if w < v:
+                    continue
+                j0 = i if w == v else 0
+                for j in range(j0, r):
+                    out_idx[t] = w * r + j
+                    out_val[t] = blocks[p, i, j]
+                    t += 1
+            out_ptr[v * r + i + 1] = t
+    return out_ptr, out_idx, out_val
+
+
 def nullspace_basis(C: np.ndarray, rtol: float = 1e-10) -> tuple[np.ndarray, np.ndarray]:
     """Orthonormal null-space rows ``N`` (m, r, k) of every ``C_v`` (m, q, k), zero-padded to the
     largest null dimension r; ``dummy`` (m, r) marks the padding rows."""
@@ -99,6 +133,16 @@ class NullSpaceSystem:
         """``A`` as a scipy BSR matrix."""
         n = self.unknowns
         return sp.bsr_matrix((self.blocks, self.indices, self.indptr), shape=(n, n))
+
+    def upper_triangle(self) -> sp.csr_matrix:
+        """The upper triangle of ``A`` (diagonal included) as a scalar CSR matrix with sorted int32
+        indices, written straight from the blocks (what a symmetric factorisation such as PARDISO's
+        reads; equal to ``scipy.sparse.triu(A)``, without forming the full scalar matrix)."""
+        n = self.unknowns
+        ptr, idx, val = _upper_scalar_csr(self.indptr, self.indices, self.blocks)
+        U = sp.csr_matrix((val, idx, ptr), shape=(n, n))
+        U.has_sorted_indices = True
+        return U
 
 
 def nullspace_system(prob, base: np.ndarray | None = None) -> NullSpaceSystem:
