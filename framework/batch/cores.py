@@ -20,6 +20,7 @@ def thread_env(n: int) -> dict[str, str]:
     with it glibc maps and unmaps every large numpy temporary afresh, and a Poisson reduction of a
     6k-vertex character took 1.5x the CPU time (measured); rigslim's workers keep glibc's default.
     """
-    n = str(max(1, int(n)))
-    return {"OMP_NUM_THREADS": n, "OPENBLAS_NUM_THREADS": n, "MKL_NUM_THREADS": n, "BLIS_NUM_THREADS": n,
-            "VECLIB_MAXIMUM_THREADS": n, "NUMEXPR_NUM_THREADS": n, "NUMBA_NUM_THREADS": n}
+    threads = str(max(1, int(n)))
+    return {"OMP_NUM_THREADS": threads, "OPENBLAS_NUM_THREADS": threads, "MKL_NUM_THREADS": threads,
+            "BLIS_NUM_THREADS": threads, "VECLIB_MAXIMUM_THREADS": threads, "NUMEXPR_NUM_THREADS": threads,
+            "NUMBA_NUM_THREADS": threads}

@@ -264,7 +264,7 @@ class _Progress:
                                             "[red]{task.fields[failed]} failed[/]"),
                                  TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
                                  console=console, disable=console.quiet)
-        self.task = self.progress.add_task("batch", total=total, **self.counts)
+        self.task = self.progress.add_task("batch", total=total, ok=0, skipped=0, failed=0)
 
     def __enter__(self):
         self.progress.__enter__()
@@ -275,4 +275,5 @@ class _Progress:
 
     def advance(self, status: str):
         self.counts[status] = self.counts.get(status, 0) + 1
-        self.progress.update(self.task, advance=1, **self.counts)
+        self.progress.update(self.task, advance=1, ok=self.counts["ok"], skipped=self.counts["skipped"],
+                             failed=self.counts["failed"])

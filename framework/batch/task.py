@@ -73,7 +73,8 @@ def limit_threads(n: int) -> None:
     try:
         import numba
 
-        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+        # numba.config sets its attributes at import (from the environment); its stubs do not declare them
+        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
     except Exception:  # pragma: no cover - numba is a core dependency; a failure here must not fail the asset
         pass
 
@@ -368,7 +369,7 @@ def _run_asset(job, template, template_path, out_dir, force, timeout, threads, a
         row["seconds"] = time.perf_counter() - t0
         return row
     record = read_record(folder)
-    if not force and is_done(record, key, folder):
+    if not force and record is not None and is_done(record, key, folder):
         previous = dict(record.get("row") or {})
         previous.update({"status": "skipped", "error": "", "worker": row["worker"], "attempts": attempt,
                          "seconds": time.perf_counter() - t0, "asset": job["path"], "name": asset_job.name})

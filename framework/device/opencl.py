@@ -27,8 +27,12 @@ import os
 import re
 from dataclasses import dataclass
 from functools import cache
+from typing import TYPE_CHECKING
 
 from rigslim.errors import RigslimError
+
+if TYPE_CHECKING:
+    import pyopencl
 
 ENV_DEVICE = "RIGSLIM_OPENCL_DEVICE"
 ENV_EXCLUDE = "RIGSLIM_OPENCL_EXCLUDE"
@@ -45,9 +49,9 @@ class OpenCLUnavailable(RigslimError):
 class CLRuntime:
     """A context, a profiling-enabled queue and the device they run on."""
 
-    context: object
-    queue: object
-    device: object
+    context: pyopencl.Context
+    queue: pyopencl.CommandQueue
+    device: pyopencl.Device
 
     @property
     def name(self) -> str:

@@ -22,8 +22,8 @@ def stacked_to_transforms(D: np.ndarray, *, source=None) -> np.ndarray:
         raise InputError(f"{rows} rows is not a multiple of 12 (one stacked 4x3 transform per bone)",
                          source=source, field="rows", fix="give libigl's stacked LBS animation (12 rows per bone)")
     n = rows // 12
-    T = D.T.reshape(p, 3, 4 * n)           # column j as (4n, 3) column-major == (3, 4n) row-major
-    T = T.reshape(p, 3, n, 4).transpose(0, 2, 1, 3)  # (p, n, 3, 4): T[j, b] = block_b^T
+    columns = D.T.reshape(p, 3, 4 * n)     # column j as (4n, 3) column-major == (3, 4n) row-major
+    T = columns.reshape(p, 3, n, 4).transpose(0, 2, 1, 3)  # (p, n, 3, 4): T[j, b] = block_b^T
     return np.ascontiguousarray(T)
 
 

@@ -68,7 +68,8 @@ def _check_forest(B: np.ndarray, path) -> None:
         parent[b] = a
     done: set[int] = set()
     for start in parent:
-        chain, j = [], start
+        chain: list[int] = []
+        j = start
         while j in parent and j not in done:
             if j in chain:
                 cycle = chain[chain.index(j):]

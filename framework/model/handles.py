@@ -62,6 +62,7 @@ class Handles:
         precision.
         """
         if self.is_cage:
+            assert self.cage is not None  # a "cage" kind carries its cage (from_cage)
             return cage_transforms(self.cage.V[None])[0]
         T = np.zeros((self.n, 3, 4))
         T[:, :, :3] = np.eye(3)

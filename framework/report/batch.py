@@ -94,7 +94,7 @@ def read_summary(path) -> tuple[list[dict], list[str]]:
                          fix="give DIR/summary.csv of 'rigslim batch' (metrics JSON files make a run report)")
     rows = []
     for r in raw:
-        row = {}
+        row: dict[str, str | float | None] = {}
         for k, v in r.items():
             if v is None or v == "":
                 row[k] = None
@@ -131,9 +131,9 @@ def axis_label(column: str) -> str:
     quantity, unit = QUANTITIES.get(key) or (key, next((u for s, u in (("_pct", "%"), ("_rad", "rad"),
                                                                      ("_deg", "degrees"), ("_m", "world units"))
                                                        if key.endswith(s)), ""))
-    words = [quantity] + [w for w in (stat, f"level {level}" if level else "",
+    parts = [quantity] + [w for w in (stat, f"level {level}" if level else "",
                                       f"evaluation at step {step[4:]}" if step else "") if w]
-    return ", ".join(words) + (f" ({unit})" if unit else "")
+    return ", ".join(parts) + (f" ({unit})" if unit else "")
 
 
 def _histograms(rows: list[dict], metrics: list[str]) -> tuple[bytes | None, list[tuple[str, str, bool, int]]]:
@@ -199,7 +199,8 @@ def _reduced_from_outputs(folder: Path, asset):
             except Exception:  # noqa: BLE001 - an output we cannot read back is skipped, with the reason
                 tried.append(p.name)
                 continue
-            if out.mesh.n_vertices == m and out.weights is not None and out.weights.shape[1] == n and \
+            if out.mesh is not None and out.mesh.n_vertices == m and out.weights is not None and \
+                    out.weights.shape[1] == n and \
                     np.allclose(out.mesh.V, asset.mesh.V, atol=1e-4 * asset.mesh.bbox_diagonal):
                 return sp.csr_matrix(out.weights), p.name
             tried.append(p.name)
@@ -361,6 +362,7 @@ def prepare_asset(folder: Path, metric: str | None = None) -> tuple[AssetFrame |
         return None, f"inputs not re-readable ({' '.join(str(e).split())[:200]})"
     if asset.weights is None or asset.poses is None or asset.handles is None:
         return None, "the asset has no input weights or animation to render"
+    assert asset.mesh is not None  # read_inputs() read it with the weights
     test = (metrics.get("frames") or {}).get("test") or list(range(len(asset.poses)))
     ev, record = measured_level(metrics, metric)
     frame = _worst_frame(test, ev, record, _strip_column(metric)[1] if metric else "position_rms_pct")

@@ -49,34 +49,56 @@ def load_render_data(document: dict, json_path=None) -> RenderData:
         For runs that generated their weights (``generate`` steps): those
         are not among the inputs; a ``report:`` step renders such runs.
     """
-    from types import SimpleNamespace
-
-    from rigslim.io import read_reduced_npz
-    from rigslim.model.poses import FrameSplit
-    from rigslim.plugin.contract import StepContext
-    from rigslim.plugin.host import get_host
-    from rigslim.runtime.document import load_pipeline
-    from rigslim.runtime.inputs import read_inputs
-
     json_path = Path(json_path) if json_path else None
-    notes = []
+    notes: list[str] = []
     if any(s.get("stage") == "generate" for s in document.get("steps") or []):
         raise InputError("the run generated its weights (a 'generate' step), so they cannot be re-read",
                          source=json_path, field="steps",
                          fix="render it with a 'report: out/report.html' step at the end of the pipeline")
+    asset, pipeline, pipeline_steps = _run_inputs(document, json_path, notes)
+    reduced, normals = {}, {}
+    steps = document.get("steps") or []
+    for ev in document["evaluations"]:
+        at = ev.get("step")
+        if not isinstance(at, int):
+            continue
+        estimator = _evaluation_normals(at, steps, pipeline_steps)
+        if estimator is not None:
+            normals[at] = estimator
+        solve_at = max((i for i in range(1, min(at, len(steps))) if steps[i].get("stage") == "solve"), default=None)
+        if solve_at is None:
+            continue
+        R = _written_reduced(document, ev, steps, solve_at, pipeline, asset, notes)
+        if R is not None:
+            reduced[at] = R
+        if at not in reduced:
+            notes.append(f"{document.get('name', 'run')} / {ev.get('name')}: no reduced weights found "
+                         "(add a 'write: out/NAME.npz' or .glb step after the solve to render them)")
+    return RenderData(asset, reduced, notes, normals)
+
+
+def _run_inputs(document: dict, json_path: Path | None, notes: list[str]):
+    """The asset of the run's inputs (with the document's frame split), the pipeline file (or None) and its
+    parsed steps; read with the pipeline's reader options, else from the document's ``inputs``."""
+    from rigslim.model.poses import FrameSplit
+    from rigslim.plugin.contract import StepContext
+    from rigslim.plugin.host import get_host
+    from rigslim.runtime.document import PipelineDoc, Step, load_pipeline
+    from rigslim.runtime.inputs import read_inputs
+
     pipeline = _pipeline_path(document, json_path)
     host = get_host()
-    pipeline_steps = []
+    pipeline_steps: list[Step] = []
     if pipeline is not None:
         doc, pipeline_steps = load_pipeline(pipeline, host=host)
-        spec = SimpleNamespace(inputs=doc.inputs, poses=None)
+        spec = doc.model_copy(update={"poses": None})  # the inputs alone: frames come from the document
         base = pipeline.parent.resolve()
     else:
         inputs = document.get("inputs") or {}
         if not inputs:
             raise InputError("the document records no inputs", source=json_path, field="inputs",
                              fix="use a metrics JSON written by 'rigslim run'")
-        spec = SimpleNamespace(inputs=dict(inputs), poses=None)
+        spec = PipelineDoc.model_construct(inputs=dict(inputs), poses=None, steps=[])  # read_inputs' part only
         base = json_path.parent if json_path else Path.cwd()
         notes.append("pipeline file not found: inputs read with default reader options")
     asset = read_inputs(spec, base, host, StepContext(base_dir=base), json_path or "metrics document")
@@ -84,45 +106,47 @@ def load_render_data(document: dict, json_path=None) -> RenderData:
     if asset.poses is not None and frames.get("test"):
         asset.split = FrameSplit(list(frames.get("examples") or []), list(frames["test"]),
                                  list(frames.get("dropped_from_test") or []))
-    reduced, normals = {}, {}
-    steps = document.get("steps") or []
-    for ev in document["evaluations"]:
-        at = ev.get("step")
-        if not isinstance(at, int):
-            continue
-        # the normal estimator the evaluation measured with: the last 'normals' step before it (its name
-        # as run, from the document; its parameters from the pipeline file when that step still names it)
-        est = [i for i in range(1, min(at, len(steps))) if steps[i].get("stage") == "normals"]
-        if est:
-            i = est[-1]
-            name = steps[i].get("plugin")
-            same = [s for s in pipeline_steps if s.index == i and s.key == "normals" and s.plugin == name]
-            normals[at] = (name, dict(same[0].params) if same else {})
-        solve_at = max((i for i in range(1, min(at, len(steps))) if steps[i].get("stage") == "solve"), default=None)
-        if solve_at is None:
-            continue
-        for s in steps[solve_at + 1:]:
-            if s.get("stage") in ("select", "solve"):
-                break
-            if s.get("stage") == "write" and str(s.get("path", "")).lower().endswith((".npz", ".glb", ".gltf")):
-                path = Path(s["path"])
-                if not path.is_absolute() and pipeline is not None:
-                    path = pipeline.parent / path
-                if path.is_file():
-                    gltf = path.suffix.lower() != ".npz"     # the written glTF's own weights (rigslim.report.gltf)
-                    if gltf:
-                        from rigslim.report.gltf import reduced_from_gltf
-                    R = reduced_from_gltf(path, asset) if gltf else read_reduced_npz(path)
-                    problem = _mismatch(asset, R, ev, steps[solve_at], tolerance=0.05 if gltf else 1e-3)
-                    if problem is None:
-                        reduced[at] = R
-                        break
-                    notes.append(f"{document.get('name', 'run')} / {ev.get('name')}: {path} {problem}; "
-                                 "not rendered (write each run's weights to its own file)")
-        if at not in reduced:
-            notes.append(f"{document.get('name', 'run')} / {ev.get('name')}: no reduced weights found "
-                         "(add a 'write: out/NAME.npz' or .glb step after the solve to render them)")
-    return RenderData(asset, reduced, notes, normals)
+    return asset, pipeline, pipeline_steps
+
+
+def _evaluation_normals(at: int, steps: list[dict], pipeline_steps: list) -> tuple[str | None, dict] | None:
+    """The normal estimator the evaluation at step ``at`` measured with: the last 'normals' step before it
+    (its name as run, from the document; its parameters from the pipeline file when that step still names
+    it), or None."""
+    est = [i for i in range(1, min(at, len(steps))) if steps[i].get("stage") == "normals"]
+    if not est:
+        return None
+    i = est[-1]
+    name = steps[i].get("plugin")
+    same = [s for s in pipeline_steps if s.index == i and s.key == "normals" and s.plugin == name]
+    return name, dict(same[0].params) if same else {}
+
+
+def _written_reduced(document: dict, ev: dict, steps: list[dict], solve_at: int, pipeline: Path | None, asset,
+                     notes: list[str]):
+    """The reduced weights an evaluation measured, from the first ``.npz``/``.glb``/``.gltf`` written after
+    its solve (before the next select or solve) that matches it; None when there is none (a file that
+    does not match is noted)."""
+    from rigslim.io import read_reduced_npz
+
+    for s in steps[solve_at + 1:]:
+        if s.get("stage") in ("select", "solve"):
+            break
+        if s.get("stage") == "write" and str(s.get("path", "")).lower().endswith((".npz", ".glb", ".gltf")):
+            path = Path(s["path"])
+            if not path.is_absolute() and pipeline is not None:
+                path = pipeline.parent / path
+            if path.is_file():
+                gltf = path.suffix.lower() != ".npz"     # the written glTF's own weights (rigslim.report.gltf)
+                if gltf:
+                    from rigslim.report.gltf import reduced_from_gltf
+                R = reduced_from_gltf(path, asset) if gltf else read_reduced_npz(path)
+                problem = _mismatch(asset, R, ev, steps[solve_at], tolerance=0.05 if gltf else 1e-3)
+                if problem is None:
+                    return R
+                notes.append(f"{document.get('name', 'run')} / {ev.get('name')}: {path} {problem}; "
+                             "not rendered (write each run's weights to its own file)")
+    return None
 
 
 def _mismatch(asset, R, evaluation: dict, solve_step: dict, tolerance: float = 1e-3) -> str | None:

@@ -36,6 +36,7 @@ import html
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from rigslim.errors import RigslimError
 from rigslim.io.atomic import atomic_path, output_transaction
@@ -196,8 +197,7 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
     render : bool
         False leaves the renders out (table and plots only).
     """
-    from rigslim import __version__
-    from rigslim.report import plots
+    from rigslim.report.gltf import lod_section, world_units_section
     from rigslim.report.input import check_render_size
 
     check_render_size(width, height)
@@ -207,28 +207,53 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
         rows += summarize(doc, source)
     _unique_labels(rows)
     notes: list[str] = []
-    data = dict(data or {})
     renders: dict[str, bytes] = {}
     rset = None
     if render:
-        for doc, source in documents:
-            if id(doc) in data:
-                continue
-            try:
-                data[id(doc)] = load_render_data(doc, source if source and Path(source).is_file() else None)
-            except RigslimError as e:  # moved or edited inputs: report without its renders
-                notes.append(f"{doc.get('name', source)}: cannot re-read the inputs ({e.one_line()})")
-                continue
-        for doc, _ in documents:
-            rd = data.get(id(doc))
-            if rd is not None:
-                notes += rd.notes
-        rset = render_rows(rows, data, frames=frames, width=width, height=height, backend=backend,
-                           projection=projection, azimuth=azimuth, elevation=elevation, up_axis=up_axis,
-                           progress=progress)
-        notes += rset.notes
+        rset = _render_documents(documents, rows, dict(data or {}), notes, frames=frames, width=width,
+                                 height=height, backend=backend, projection=projection, azimuth=azimuth,
+                                 elevation=elevation, up_axis=up_axis, progress=progress)
     # HTML
     title = title or ("rigslim report: " + ", ".join(dict.fromkeys(r.run for r in rows)))
+    parts = _page_head(title, documents, rows, rset)
+    parts += _plots_section(rows, notes)
+    if rset is not None and rset.frames:
+        parts += _renders_section(rset, renders)
+    parts.append(world_units_section(documents))
+
+    parts.append(lod_section(documents))
+    if notes:
+        parts.append("<h2>Notes</h2><ul class=\"notes\">" + "".join(f"<li>{html.escape(n)}</li>" for n in notes)
+                     + "</ul>")
+    parts.append(f"<div id=\"rigslim-check\" hidden></div><script>{_CHECK_JS}</script></body></html>")
+    return Report("\n".join(parts), renders, rows, notes)
+
+
+def _render_documents(documents: list[tuple[dict, str]], rows: list[EvaluationRow], data: dict, notes: list[str],
+                      **options: Any):
+    """The renders of :func:`build_report`: each document's inputs re-read (unless ``data`` holds them; a
+    document whose inputs cannot be re-read is noted and left out), then :func:`render_rows` with ``options``."""
+    for doc, source in documents:
+        if id(doc) in data:
+            continue
+        try:
+            data[id(doc)] = load_render_data(doc, source if source and Path(source).is_file() else None)
+        except RigslimError as e:  # moved or edited inputs: report without its renders
+            notes.append(f"{doc.get('name', source)}: cannot re-read the inputs ({e.one_line()})")
+            continue
+    for doc, _ in documents:
+        rd = data.get(id(doc))
+        if rd is not None:
+            notes += rd.notes
+    rset = render_rows(rows, data, **options)
+    notes += rset.notes
+    return rset
+
+
+def _page_head(title: str, documents: list[tuple[dict, str]], rows: list[EvaluationRow], rset) -> list[str]:
+    """The page up to the summary: title, version and time, sources, the mesh and its test frames."""
+    from rigslim import __version__
+
     when = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     parts = [f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>",
              "<meta name=\"viewport\" content=\"width=device-width,initial-scale=1\">",
@@ -243,15 +268,23 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
         n_test = len(rows[0].frames) if rows else 0
         parts.append(f"<div class=\"meta\">mesh: {mesh.get('vertices')} vertices, {mesh.get('faces')} faces; "
                      f"{n_test} test frames (never used for fitting)</div>")
-    parts += ["<h2>Summary</h2>", _table(rows),
-              "<div class=\"meta\">Position RMS: RMS vertex distance between reduced and full deformation, "
-              "% of the bounding-box diagonal of the full deformation in the first test frame (documents of "
-              "schema 1 and 2: of the rest mesh's); normal RMS: RMS angle between their normals (radians). "
-              "Mean and max over test frames. Reduction time: generate, select, solve and decimate steps "
-              "since the previous evaluation.</div>",
-              "<h2>Plots</h2><div class=\"plots\">",
-              f"<img alt=\"error per test frame\" src=\"{_data_uri(plots.error_curves(rows))}\">"]
-    ks = {}
+    return parts
+
+
+def _plots_section(rows: list[EvaluationRow], notes: list[str]) -> list[str]:
+    """The summary table and the plots: error per test frame, error against k (runs of one method with
+    several k), weight-count histograms; what cannot be drawn is noted."""
+    from rigslim.report import plots
+
+    parts = ["<h2>Summary</h2>", _table(rows),
+             "<div class=\"meta\">Position RMS: RMS vertex distance between reduced and full deformation, "
+             "% of the bounding-box diagonal of the full deformation in the first test frame (documents of "
+             "schema 1 and 2: of the rest mesh's); normal RMS: RMS angle between their normals (radians). "
+             "Mean and max over test frames. Reduction time: generate, select, solve and decimate steps "
+             "since the previous evaluation.</div>",
+             "<h2>Plots</h2><div class=\"plots\">",
+             f"<img alt=\"error per test frame\" src=\"{_data_uri(plots.error_curves(rows))}\">"]
+    ks: dict[str, set[int]] = {}
     for r in rows:
         if r.k is not None:
             ks.setdefault(r.method, set()).add(r.k)
@@ -264,54 +297,57 @@ def build_report(documents: list[tuple[dict, str]], *, data: dict | None = None,
     elif ks:
         notes.append("weight-count histograms: the documents have no 'influence_histogram'")
     parts.append("</div>")
-    if rset is not None and rset.frames:
-        parts.append("<h2>Renders</h2><div class=\"meta\">First: the full input weights. Then per evaluation: "
-                     "the reduced weights, and the reduced deformation coloured by the angle between its "
-                     "normals and the full deformation's; or each simplified level with its own weights.</div>")
-        top = rset.heat_max
-        if any(rf.reduced for rf in rset.frames):
-            clipped = any(dmax > top for rf in rset.frames for _, _, _, dmax, _ in rf.reduced)
-            bar = plots.colorbar(top, HEAT_CMAP, f"normal deviation (degrees), 0 to {top:.3g}", clipped=clipped)
-            parts.append(f"<figure class=\"scale\" data-scale-top=\"{top!r}\"><img alt=\"normal deviation scale, "
-                         f"0 to {top:.3g} degrees\" src=\"{_data_uri(bar)}\"><figcaption>colour scale of the normal "
-                         f"deviation heat maps: 0&deg; to {top:.3g}&deg; (the largest 99th percentile of their "
-                         f"per-vertex angles, at least {HEAT_FLOOR_DEGREES:g}&deg;)"
-                         + ("; larger angles are drawn in the top colour" if clipped else "")
-                         + "</figcaption></figure>")
-        for rf in rset.frames:
-            base = _slug(f"{rf.run.split(',')[0]}-frame{rf.frame}")
-            png = _png_of(rf.full)
-            renders[f"{base}-full.png"] = png
-            figs = [f"<div class=\"pair\"><figure><img alt=\"full frame {rf.frame}\" src=\"{_data_uri(png)}\">"
-                    f"<figcaption>full weights</figcaption></figure></div>"]
-            for label, img, heat, dmax, _ in rf.reduced:
-                p1, p2 = _png_of(img), _png_of(heat)
-                renders[f"{base}-{_slug(label)}-reduced.png"] = p1
-                renders[f"{base}-{_slug(label)}-normals.png"] = p2
-                scale = (f"clipped at {top:.3g}&deg; (the colour bar's top); max {dmax:.3g}&deg;" if dmax > top
-                         else f"max {dmax:.3g}&deg;, colour bar 0 to {top:.3g}&deg;")
-                figs.append(f"<div class=\"pair\"><figure><img alt=\"{html.escape(label)} frame {rf.frame}\" "
-                            f"src=\"{_data_uri(p1)}\"><figcaption>{html.escape(label)}</figcaption></figure>"
-                            f"<figure class=\"heat\" data-max=\"{dmax!r}\" data-scale-top=\"{top!r}\">"
-                            f"<img alt=\"{html.escape(label)} normal deviation\" src=\"{_data_uri(p2)}\">"
-                            f"<figcaption>{html.escape(label)}: normal deviation, {scale}</figcaption></figure></div>")
-            for label, faces, img in rf.levels:
-                p1 = _png_of(img)
-                renders[f"{base}-{_slug(label)}-level.png"] = p1
-                figs.append(f"<div class=\"pair\"><figure><img alt=\"{html.escape(label)} frame {rf.frame}\" "
-                            f"src=\"{_data_uri(p1)}\"><figcaption>{html.escape(label)} ({faces} faces, "
-                            f"own weights)</figcaption></figure></div>")
-            parts.append(f"<div class=\"frame\"><h3>{html.escape(rf.run)}, frame {rf.frame}</h3>{''.join(figs)}</div>")
-    from rigslim.report.gltf import lod_section, world_units_section
+    return parts
 
-    parts.append(world_units_section(documents))
 
-    parts.append(lod_section(documents))
-    if notes:
-        parts.append("<h2>Notes</h2><ul class=\"notes\">" + "".join(f"<li>{html.escape(n)}</li>" for n in notes)
-                     + "</ul>")
-    parts.append(f"<div id=\"rigslim-check\" hidden></div><script>{_CHECK_JS}</script></body></html>")
-    return Report("\n".join(parts), renders, rows, notes)
+def _renders_section(rset, renders: dict[str, bytes]) -> list[str]:
+    """The renders: the heat maps' colour scale, then per frame the full weights, each evaluation's reduced
+    weights with its normal deviation heat map, or each level; every image also goes to ``renders``."""
+    from rigslim.report import plots
+
+    parts = ["<h2>Renders</h2><div class=\"meta\">First: the full input weights. Then per evaluation: "
+             "the reduced weights, and the reduced deformation coloured by the angle between its "
+             "normals and the full deformation's; or each simplified level with its own weights.</div>"]
+    top = rset.heat_max
+    if any(rf.reduced for rf in rset.frames):
+        clipped = any(dmax > top for rf in rset.frames for _, _, _, dmax, _ in rf.reduced)
+        bar = plots.colorbar(top, HEAT_CMAP, f"normal deviation (degrees), 0 to {top:.3g}", clipped=clipped)
+        parts.append(f"<figure class=\"scale\" data-scale-top=\"{top!r}\"><img alt=\"normal deviation scale, "
+                     f"0 to {top:.3g} degrees\" src=\"{_data_uri(bar)}\"><figcaption>colour scale of the normal "
+                     f"deviation heat maps: 0&deg; to {top:.3g}&deg; (the largest 99th percentile of their "
+                     f"per-vertex angles, at least {HEAT_FLOOR_DEGREES:g}&deg;)"
+                     + ("; larger angles are drawn in the top colour" if clipped else "")
+                     + "</figcaption></figure>")
+    for rf in rset.frames:
+        parts.append(_frame_figures(rf, top, renders))
+    return parts
+
+
+def _frame_figures(rf, top: float, renders: dict[str, bytes]) -> str:
+    """One frame's figures (full, then reduced with heat map, then levels), their PNGs added to ``renders``."""
+    base = _slug(f"{rf.run.split(',')[0]}-frame{rf.frame}")
+    png = _png_of(rf.full)
+    renders[f"{base}-full.png"] = png
+    figs = [f"<div class=\"pair\"><figure><img alt=\"full frame {rf.frame}\" src=\"{_data_uri(png)}\">"
+            f"<figcaption>full weights</figcaption></figure></div>"]
+    for label, img, heat, dmax, _ in rf.reduced:
+        p1, p2 = _png_of(img), _png_of(heat)
+        renders[f"{base}-{_slug(label)}-reduced.png"] = p1
+        renders[f"{base}-{_slug(label)}-normals.png"] = p2
+        scale = (f"clipped at {top:.3g}&deg; (the colour bar's top); max {dmax:.3g}&deg;" if dmax > top
+                 else f"max {dmax:.3g}&deg;, colour bar 0 to {top:.3g}&deg;")
+        figs.append(f"<div class=\"pair\"><figure><img alt=\"{html.escape(label)} frame {rf.frame}\" "
+                    f"src=\"{_data_uri(p1)}\"><figcaption>{html.escape(label)}</figcaption></figure>"
+                    f"<figure class=\"heat\" data-max=\"{dmax!r}\" data-scale-top=\"{top!r}\">"
+                    f"<img alt=\"{html.escape(label)} normal deviation\" src=\"{_data_uri(p2)}\">"
+                    f"<figcaption>{html.escape(label)}: normal deviation, {scale}</figcaption></figure></div>")
+    for label, faces, img in rf.levels:
+        p1 = _png_of(img)
+        renders[f"{base}-{_slug(label)}-level.png"] = p1
+        figs.append(f"<div class=\"pair\"><figure><img alt=\"{html.escape(label)} frame {rf.frame}\" "
+                    f"src=\"{_data_uri(p1)}\"><figcaption>{html.escape(label)} ({faces} faces, "
+                    f"own weights)</figcaption></figure></div>")
+    return f"<div class=\"frame\"><h3>{html.escape(rf.run)}, frame {rf.frame}</h3>{''.join(figs)}</div>"
 
 
 def _png_of(image) -> bytes:

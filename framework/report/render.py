@@ -112,55 +112,18 @@ class Camera:
         when the image is portrait).
         """
         P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        if len(P) == 0 or not np.isfinite(P).all():
-            raise InputError("cannot fit a camera to no (or non-finite) points", field="points",
-                             fix="give the deformed vertex positions")
-        if int(width) < 1 or int(height) < 1:
-            raise InputError(f"image size {width}x{height} is empty", field="width/height",
-                             fix="give a positive width and height")
-        if projection not in ("orthographic", "perspective"):
-            raise InputError(f"unknown projection '{projection}'", field="projection",
-                             fix="use 'orthographic' or 'perspective'")
-        if up_axis not in (0, 1, 2):
-            raise InputError(f"up_axis {up_axis} is not 0, 1 or 2", field="up_axis", fix="use 0 (x), 1 (y) or 2 (z)")
+        _check_fit(P, width, height, projection, up_axis)
         lo, hi = P.min(axis=0), P.max(axis=0)
         centre = 0.5 * (lo + hi)
         radius = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-12)
-        up = np.zeros(3)
-        up[up_axis] = 1.0
-        front = np.zeros(3)
-        front[(up_axis + 1) % 3] = 1.0
-        side = np.cross(up, front)
-        az, el = math.radians(azimuth), math.radians(elevation)
-        w = _normalize(math.cos(el) * (math.cos(az) * front + math.sin(az) * side) + math.sin(el) * up)
-        right = _normalize(np.cross(up, w)) if abs(np.dot(up, w)) < 1 - 1e-9 else _normalize(np.cross(front, w))
-        cam_up = np.cross(w, right)
-        aspect = width / height
-        if projection == "orthographic":
-            dist = 3.0 * radius
-            near, far = radius * 0.5, dist + 2.0 * radius
-            s = margin * radius
-            sx, sy = (s * aspect, s) if aspect >= 1 else (s, s / aspect)
-            proj = np.array([[1 / sx, 0, 0, 0], [0, 1 / sy, 0, 0],
-                             [0, 0, -2 / (far - near), -(far + near) / (far - near)], [0, 0, 0, 1]])
-        else:
-            half = math.radians(fov_degrees) / 2
-            dist = margin * radius / math.sin(half)
-            near, far = max(dist - 1.5 * radius, 1e-3 * radius), dist + 1.5 * radius
-            f = 1.0 / math.tan(half) * min(1.0, aspect)
-            proj = np.array([[f / aspect, 0, 0, 0], [0, f, 0, 0],
-                             [0, 0, (far + near) / (near - far), 2 * far * near / (near - far)], [0, 0, -1, 0]])
+        w, right, cam_up = _eye_axes(up_axis, azimuth, elevation)
+        proj, dist = _projection(projection, radius, width / height, margin, fov_degrees)
         eye = centre + dist * w
         view = np.eye(4)
         view[0, :3], view[1, :3], view[2, :3] = right, cam_up, w
         view[:3, 3] = -view[:3, :3] @ eye
         if tight:
-            C = np.c_[P, np.ones(len(P))] @ (proj @ view).T
-            ndc = C[:, :2] / C[:, 3:4]
-            mid = 0.5 * (ndc.min(axis=0) + ndc.max(axis=0))
-            extent = float(np.max(np.abs(ndc - mid)))
-            if extent > 0:
-                proj[:2] = (proj[:2] - np.outer(mid, proj[3])) / (margin * extent)
+            _tighten(proj, view, P, margin)
         return Camera(view, proj, int(width), int(height), w, cam_up)
 
     @property
@@ -190,6 +153,67 @@ class Camera:
         """Unit direction towards a light above and left of the eye."""
         right = self.view[0, :3]
         return _normalize(self.eye_direction + 0.45 * self.up - 0.3 * right)
+
+
+def _check_fit(P: np.ndarray, width: int, height: int, projection: str, up_axis: int) -> None:
+    """The arguments of :meth:`Camera.fit`, one InputError naming the first that is wrong."""
+    if len(P) == 0 or not np.isfinite(P).all():
+        raise InputError("cannot fit a camera to no (or non-finite) points", field="points",
+                         fix="give the deformed vertex positions")
+    if int(width) < 1 or int(height) < 1:
+        raise InputError(f"image size {width}x{height} is empty", field="width/height",
+                         fix="give a positive width and height")
+    if projection not in ("orthographic", "perspective"):
+        raise InputError(f"unknown projection '{projection}'", field="projection",
+                         fix="use 'orthographic' or 'perspective'")
+    if up_axis not in (0, 1, 2):
+        raise InputError(f"up_axis {up_axis} is not 0, 1 or 2", field="up_axis", fix="use 0 (x), 1 (y) or 2 (z)")
+
+
+def _eye_axes(up_axis: int, azimuth: float, elevation: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(w, right, up)`` of :meth:`Camera.fit`: the unit eye direction, at ``azimuth`` around the up axis
+    from the axis after it and ``elevation`` above the horizon (degrees), and the image's right and up."""
+    up = np.zeros(3)
+    up[up_axis] = 1.0
+    front = np.zeros(3)
+    front[(up_axis + 1) % 3] = 1.0
+    side = np.cross(up, front)
+    az, el = math.radians(azimuth), math.radians(elevation)
+    w = _normalize(math.cos(el) * (math.cos(az) * front + math.sin(az) * side) + math.sin(el) * up)
+    right = _normalize(np.cross(up, w)) if abs(np.dot(up, w)) < 1 - 1e-9 else _normalize(np.cross(front, w))
+    return w, right, np.cross(w, right)
+
+
+def _projection(projection: str, radius: float, aspect: float, margin: float,
+                fov_degrees: float) -> tuple[np.ndarray, float]:
+    """The 4 x 4 projection of :meth:`Camera.fit` for a bounding sphere of ``radius`` and the eye's distance
+    from its centre (the formulas of its Notes)."""
+    if projection == "orthographic":
+        dist = 3.0 * radius
+        near, far = radius * 0.5, dist + 2.0 * radius
+        s = margin * radius
+        sx, sy = (s * aspect, s) if aspect >= 1 else (s, s / aspect)
+        proj = np.array([[1 / sx, 0, 0, 0], [0, 1 / sy, 0, 0],
+                         [0, 0, -2 / (far - near), -(far + near) / (far - near)], [0, 0, 0, 1]])
+    else:
+        half = math.radians(fov_degrees) / 2
+        dist = margin * radius / math.sin(half)
+        near, far = max(dist - 1.5 * radius, 1e-3 * radius), dist + 1.5 * radius
+        f = 1.0 / math.tan(half) * min(1.0, aspect)
+        proj = np.array([[f / aspect, 0, 0, 0], [0, f, 0, 0],
+                         [0, 0, (far + near) / (near - far), 2 * far * near / (near - far)], [0, 0, -1, 0]])
+    return proj, dist
+
+
+def _tighten(proj: np.ndarray, view: np.ndarray, P: np.ndarray, margin: float) -> None:
+    """``tight`` of :meth:`Camera.fit`, in place: the x and y rows of ``proj`` become
+    ``(P_xy - c P_w) / (margin e)``, centring the points' NDC bounding box and filling the image with it."""
+    C = np.c_[P, np.ones(len(P))] @ (proj @ view).T
+    ndc = C[:, :2] / C[:, 3:4]
+    mid = 0.5 * (ndc.min(axis=0) + ndc.max(axis=0))
+    extent = float(np.max(np.abs(ndc - mid)))
+    if extent > 0:
+        proj[:2] = (proj[:2] - np.outer(mid, proj[3])) / (margin * extent)
 
 
 def lambert(colors, normals, light, ambient: float = AMBIENT) -> np.ndarray:

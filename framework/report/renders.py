@@ -103,12 +103,28 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
     the two, the per-vertex term of ``normal_rms_rad``.
     All images of one frame share one camera fitted to the full deformation.
     """
-    from rigslim.numerics.blend import linear_blend, per_vertex_normals
-    from rigslim.report.render import Camera, render_mesh
+    from rigslim.report.render import render_mesh
 
     out = RenderSet()
+    jobs = _frame_jobs(rows, data, frames, out.notes)
+    heat_jobs: list = []  # (reduced entry, positions, normals, per-vertex deviation, camera, faces)
+    view = {"width": width, "height": height, "projection": projection, "azimuth": azimuth, "elevation": elevation,
+            "up_axis": up_axis}
+    for group, name, asset, f in progress(jobs, total=len(jobs), description="rendering frames"):
+        rf, out.backend = _render_frame(group, name, asset, f, data, view, backend, heat_jobs)
+        out.frames.append(rf)
+    # heat maps last: their colour scale is shared by every render of the report
+    tops = [float(np.percentile(dev, 99)) for _, _, _, dev, _, _ in heat_jobs]
+    out.heat_max = float(heat_max) if heat_max else max(tops + [HEAT_FLOOR_DEGREES])
+    for entry, Xr, Nr, dev, cam, F in heat_jobs:
+        entry[2], _ = render_mesh(Xr, F, heat_colors(dev, out.heat_max), cam, normals=Nr, backend=backend)
+    return out
+
+
+def _frame_jobs(rows: list[EvaluationRow], data: dict, frames, notes: list[str]) -> list[tuple]:
+    """``(group, name, asset, frame)`` of every render: runs of the same inputs and test frames share one
+    full render per frame (the given ``frames``, else the group's worst test frame)."""
     jobs = []
-    # runs of the same inputs and test frames share one full render per frame
     groups: dict = {}
     for r in rows:
         if id(r.document) not in data:
@@ -121,7 +137,7 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
         runs = list(dict.fromkeys(r.run for r in group))
         name = ", ".join(runs)
         if asset.mesh is None or asset.weights is None or asset.poses is None:
-            out.notes.append(f"{name}: no mesh, weights or poses to render")
+            notes.append(f"{name}: no mesh, weights or poses to render")
             continue
         wanted = list(frames) if frames else [group[0].worst_frame()]
         for f in dict.fromkeys(wanted):
@@ -132,41 +148,43 @@ def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: in
                                  source=group[0].source or group[0].run, field="frames",
                                  fix="choose test frames of the run")
             if group[0].frames and int(f) not in group[0].frames:
-                out.notes.append(f"{name}: frame {f} is not a test frame")
+                notes.append(f"{name}: frame {f} is not a test frame")
             jobs.append((group, name, asset, int(f)))
-    heat_jobs = []  # (reduced entry, positions, normals, per-vertex deviation, camera, faces)
-    for group, name, asset, f in progress(jobs, total=len(jobs), description="rendering frames"):
-        F = asset.mesh.F
-        T = asset.poses.T[f]
-        X = linear_blend(asset.mesh.V, asset.weights, T)
-        N = per_vertex_normals(X, F)
-        cam = Camera.fit(X, width, height, projection=projection, azimuth=azimuth, elevation=elevation,
-                         up_axis=up_axis, tight=True)
-        full, used = render_mesh(X, F, FULL_COLOR, cam, normals=N, backend=backend)
-        out.backend = used
-        rf = RenderedFrame(name, f, full, [])
-        for r in group:
-            R = data[id(r.document)].reduced.get(r.step)
-            if R is None:
-                continue
-            Xr = linear_blend(asset.mesh.V, R, T)
-            Nr = _estimated_normals(asset, R, T, Xr, data[id(r.document)].normals.get(r.step))
-            img, _ = render_mesh(Xr, F, REDUCED_COLOR, cam, normals=Nr, backend=backend)
-            dev = normal_deviation_degrees(N, Nr)
-            entry = [r.label, img, None, float(dev.max()), float(np.sqrt(np.mean(np.radians(dev) ** 2)))]
-            rf.reduced.append(entry)
-            heat_jobs.append((entry, Xr, Nr, dev, cam, F))
-        for level in data[id(group[0].document)].asset.levels:
-            Xl = linear_blend(level.mesh.V, level.weights, T)
-            img, _ = render_mesh(Xl, level.mesh.F, LEVEL_COLOR, cam, backend=backend)
-            rf.levels.append((str(level.label), int(level.mesh.n_faces), img))
-        out.frames.append(rf)
-    # heat maps last: their colour scale is shared by every render of the report
-    tops = [float(np.percentile(dev, 99)) for _, _, _, dev, _, _ in heat_jobs]
-    out.heat_max = float(heat_max) if heat_max else max(tops + [HEAT_FLOOR_DEGREES])
-    for entry, Xr, Nr, dev, cam, F in heat_jobs:
-        entry[2], _ = render_mesh(Xr, F, heat_colors(dev, out.heat_max), cam, normals=Nr, backend=backend)
-    return out
+    return jobs
+
+
+def _render_frame(group: list[EvaluationRow], name: str, asset, f: int, data: dict, view: dict, backend: str,
+                  heat_jobs: list) -> tuple[RenderedFrame, str]:
+    """Frame ``f`` of a group of runs: the full deformation, each run's reduced one (its heat map is queued
+    on ``heat_jobs``), each simplified level; all with one camera fitted to the full deformation. Returns
+    the frame and the renderer used."""
+    from rigslim.numerics.blend import linear_blend, per_vertex_normals
+    from rigslim.report.render import Camera, render_mesh
+
+    F = asset.mesh.F
+    T = asset.poses.T[f]
+    X = linear_blend(asset.mesh.V, asset.weights, T)
+    N = per_vertex_normals(X, F)
+    cam = Camera.fit(X, view["width"], view["height"], projection=view["projection"], azimuth=view["azimuth"],
+                     elevation=view["elevation"], up_axis=view["up_axis"], tight=True)
+    full, used = render_mesh(X, F, FULL_COLOR, cam, normals=N, backend=backend)
+    rf = RenderedFrame(name, f, full, [])
+    for r in group:
+        R = data[id(r.document)].reduced.get(r.step)
+        if R is None:
+            continue
+        Xr = linear_blend(asset.mesh.V, R, T)
+        Nr = _estimated_normals(asset, R, T, Xr, data[id(r.document)].normals.get(r.step))
+        img, _ = render_mesh(Xr, F, REDUCED_COLOR, cam, normals=Nr, backend=backend)
+        dev = normal_deviation_degrees(N, Nr)
+        entry = [r.label, img, None, float(dev.max()), float(np.sqrt(np.mean(np.radians(dev) ** 2)))]
+        rf.reduced.append(entry)
+        heat_jobs.append((entry, Xr, Nr, dev, cam, F))
+    for level in data[id(group[0].document)].asset.levels:
+        Xl = linear_blend(level.mesh.V, level.weights, T)
+        img, _ = render_mesh(Xl, level.mesh.F, LEVEL_COLOR, cam, backend=backend)
+        rf.levels.append((str(level.label), int(level.mesh.n_faces), img))
+    return rf, used
 
 
 def _estimated_normals(asset, R, T, Xr, estimator) -> np.ndarray:
@@ -176,9 +194,11 @@ def _estimated_normals(asset, R, T, Xr, estimator) -> np.ndarray:
     name, params = estimator or ("recomputed", {})
     if name == "recomputed" and not params:
         return per_vertex_normals(Xr, asset.mesh.F)
+    from rigslim.plugin import NormalEstimator
     from rigslim.plugin.host import get_host
 
     plugin = get_host().get("normal-estimator", name)
+    assert isinstance(plugin, NormalEstimator)  # the host loads only NormalEstimator instances as estimators
     N = np.asarray(plugin.estimate(asset.mesh, R, asset.handles, T, Xr, plugin.parse_params(params)),
                    dtype=np.float64)
     length = np.linalg.norm(N, axis=1, keepdims=True)

@@ -141,7 +141,7 @@ def limited_weights(A, max_bones: int | None) -> np.ndarray:
 #: bundled characters (docs/gltf.md), the fixed-value term costs geometry where the new vertices' attributes
 #: are resampled anyway (the tube: Hausdorff RMS x40 at lambda 0.01) and helps UVs little (the assimp character at
 #: 25 %: UV RMS -19 % at lambda 1 for +2 % geometric error).
-ATTRIBUTE_WEIGHTS = {"TEXCOORD": 0.0, "COLOR": 0.0, "NORMAL": 0.0, "TANGENT": 0.0}
+ATTRIBUTE_WEIGHTS: dict[str, float] = {"TEXCOORD": 0.0, "COLOR": 0.0, "NORMAL": 0.0, "TANGENT": 0.0}
 
 
 def attribute_term(asset, weights: dict[str, float], Q, T, X):
@@ -215,6 +215,7 @@ class ArticulatedDecimator(Decimator):
     def decimate(self, asset: Asset, params: DecimationParams, ctx: StepContext) -> Decimation:
         """Quadrics of the example poses, the collapse loop, the levels; each phase timed in the report."""
         asset.require("mesh", "weights", "poses", "split", step=f"decimate: {self.name}")
+        assert asset.mesh is not None  # require() raised otherwise
         clock = PhaseClock()
         faces = target_faces(params.targets, asset.mesh.n_faces)
         min_faces = params.min_faces if params.min_faces is not None else (min(faces) if faces else 70)
@@ -246,6 +247,7 @@ class ArticulatedDecimator(Decimator):
         from rigslim.plugins.decimation.quadrics import border_quadrics, per_pose_quadrics
 
         mesh = asset.mesh
+        assert mesh is not None  # decimate() required it
         T = asset.example_poses().T
         Q, X = per_pose_quadrics(mesh.V, mesh.F, asset.weights, T, params.area_weighted)
         if params.keep_boundary and params.border_weight > 0:
@@ -279,8 +281,11 @@ class ArticulatedDecimator(Decimator):
             ctx.report["locked_seam_vertices"] = int(locked.sum())
             ctx.report["seam_vertices_collapsing_along"] = int(seams[0].sum()) if seams is not None else 0
         ctx.report["targets"] = [target_record(c, bound) for c in choices]
-        if getattr(hier, "loop_stats", None):
-            ctx.report["loop"] = hier.loop_stats
+        from rigslim.plugins.decimation.collapse import loop_stats
+
+        stats = loop_stats(hier)
+        if stats:
+            ctx.report["loop"] = stats
         for c in choices:
             if c.stopped == "max_error" and c.same_as is None:
                 ctx.log(f"level {c.label} stopped at {c.faces} faces (target {c.target_faces}): the next collapse "

@@ -21,6 +21,8 @@ from __future__ import annotations
 import heapq
 import logging
 import time
+import weakref
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -36,6 +38,7 @@ from rigslim.plugins.decimation.setup import (
     FREE,
     KEEP_B,
     NONE,
+    EdgeSetup,
     collapsible_edges,
     degenerate_area,
     placement,
@@ -91,6 +94,11 @@ class EdgeCostModel:
     def merge(self, state: SimplifyState, a: int, b: int, c: int) -> None:
         """Update per-vertex data after collapsing a and b into c."""
 
+    def compiled_spec(self) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+        """``(kind, Qv, ip, fp)`` of :func:`rigslim.plugins.decimation.edge_costs.edge_costs`: the compiled
+        loop's cost model, and the quadrics whose weights ``normalised`` divides by."""
+        raise NotImplementedError
+
 
 def _normals(P: np.ndarray) -> np.ndarray:
     """Unnormalised normals (L, P+1, 3) of triangles given as corner positions (L, 3, P+1, 3)."""
@@ -100,36 +108,45 @@ def _normals(P: np.ndarray) -> np.ndarray:
                      u[..., 0] * w[..., 1] - u[..., 1] * w[..., 0]], axis=-1)
 
 
-def batched(n: int, size: int):
+def batched(n: int, size: int) -> Iterator[slice]:
     for s in range(0, n, size):
         yield slice(s, min(n, s + size))
 
 
 class _EdgeTable:
+    """Edge slots of the numpy loop: ends ``a < b``, the merged vertex ``v``, its weights ``w`` and the
+    collapse ``cost``, a ``stamp`` that outdates heap entries, the ``state``; ``key`` maps (a, b) to its slot."""
+
     def __init__(self, n_handles: int, cap: int):
         self.n = n_handles
-        self._alloc(cap)
+        self.a = np.zeros(cap, np.int64)
+        self.b = np.zeros(cap, np.int64)
+        self.cost = np.zeros(cap)
+        self.v = np.zeros((cap, 3))
+        self.w = np.zeros((cap, self.n))
+        self.stamp = np.zeros(cap, np.int64)
+        self.state = np.full(cap, DEAD, np.int8)
         self.key: dict[tuple[int, int], int] = {}
         self.free: list[int] = []
         self.size = 0
 
-    def _alloc(self, cap):
-        old = getattr(self, "a", None)
-        new = {"a": np.zeros(cap, np.int64), "b": np.zeros(cap, np.int64), "cost": np.zeros(cap),
-               "v": np.zeros((cap, 3)), "w": np.zeros((cap, self.n)), "stamp": np.zeros(cap, np.int64),
-               "state": np.full(cap, DEAD, np.int8)}
-        if old is not None:
-            for k, arr in new.items():
-                arr[: len(old)] = getattr(self, k)
-        for k, arr in new.items():
-            setattr(self, k, arr)
+    def _grow(self, cap: int) -> None:
+        """Every column reallocated with ``cap`` slots, the rows there are kept."""
+
+        def grown(old: np.ndarray, fill: int = 0) -> np.ndarray:
+            new = np.full((cap,) + old.shape[1:], fill, old.dtype)
+            new[: len(old)] = old
+            return new
+
+        self.a, self.b, self.cost, self.v = grown(self.a), grown(self.b), grown(self.cost), grown(self.v)
+        self.w, self.stamp, self.state = grown(self.w), grown(self.stamp), grown(self.state, DEAD)
 
     def add(self, a: int, b: int) -> int:
         if self.free:
             e = self.free.pop()
         else:
             if self.size == len(self.a):
-                self._alloc(2 * len(self.a))
+                self._grow(2 * len(self.a))
             e = self.size
             self.size += 1
         if a > b:
@@ -143,6 +160,16 @@ class _EdgeTable:
         self.state[e] = DEAD
         del self.key[(int(self.a[e]), int(self.b[e]))]
         self.free.append(e)
+
+
+#: Statistics of the compiled loop, by hierarchy (the decimate step reports them: :func:`loop_stats`).
+_LOOP_STATS: weakref.WeakKeyDictionary[ProgressiveHierarchy, dict[str, float]] = weakref.WeakKeyDictionary()
+
+
+def loop_stats(hier: ProgressiveHierarchy) -> dict[str, float] | None:
+    """Collapses, pops, attempts, evaluations and timings of the compiled loop that made ``hier`` (None from
+    the numpy loop)."""
+    return _LOOP_STATS.get(hier)
 
 
 def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_boundary: bool = True,
@@ -210,42 +237,70 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     if backend != "numpy":
         raise ValueError(f"unknown backend {backend!r}")
     st = SimplifyState(V, F, W, T, X)
-    m = st.m
-    Fm = st.F
-    f_alive = np.ones(len(Fm), dtype=bool)
-    vf: list[set | None] = [set() for _ in range(2 * m)]
-    for i, (x, y, z) in enumerate(Fm.tolist()):
-        vf[x].add(i)
-        vf[y].add(i)
-        vf[z].add(i)
-    setup = collapsible_edges(Fm, m, keep_boundary=keep_boundary, locked=locked, seams=seams,
+    setup = collapsible_edges(st.F, st.m, keep_boundary=keep_boundary, locked=locked, seams=seams,
                               border_collapses=border_collapses)
-    boundary, along, charts = setup.boundary, setup.along, setup.charts
-    zero = zero_cost(V, Fm, len(T), normalised)
-    Qw = model.compiled_spec()[1] if normalised else None
+    loop = _CollapseLoop(st, model, setup, zero=zero_cost(V, st.F, len(T), normalised), normalised=normalised,
+                         batch=batch, min_normal_cos=min_normal_cos, tiny=degenerate_area(V))
+    loop.run(min_faces, progress, method)
+    return _hierarchy(st.V, st.W, F, loop.collapses, loop.errors, loop.nfaces, method, params)
 
-    def weight(v) -> np.ndarray:
+
+class _CollapseLoop:
+    """The numpy reference loop of :func:`simplify`: the faces of every vertex, the edge table and a lazy heap.
+
+    Each collapse of an edge (a, b) into a new vertex c passes the topology guards (:meth:`_topology`), the
+    fold-over guard (:meth:`_folds`), merges the vertices (:meth:`_merge`) and queues the edges around c
+    (:meth:`_requeue`) with lower bounds, re-evaluated together when one reaches the top (:meth:`step`).
+    """
+
+    def __init__(self, st: SimplifyState, model: EdgeCostModel, setup: EdgeSetup, *, zero: float,
+                 normalised: bool, batch: int, min_normal_cos: float, tiny: float):
+        self.st, self.model, self.normalised, self.batch = st, model, normalised, batch
+        self.zero, self.min_normal_cos, self.tiny = zero, min_normal_cos, tiny
+        self.m, self.Fm = st.m, st.F
+        self.vf: list[set[int]] = [set() for _ in range(2 * st.m)]   # faces of each vertex (emptied once merged)
+        for i, (x, y, z) in enumerate(self.Fm.tolist()):
+            self.vf[x].add(i)
+            self.vf[y].add(i)
+            self.vf[z].add(i)
+        self.boundary, self.along, self.charts = setup.boundary, setup.along, setup.charts
+        self.Qw = model.compiled_spec()[1] if normalised else None
+        self.table = _EdgeTable(st.W.shape[1], max(16, 2 * len(setup.edges)))
+        ids = np.array([self.table.add(int(a), int(b)) for a, b in setup.edges], dtype=np.int64)
+        self.evaluate(ids)
+        self.heap = list(zip(self.table.cost[ids].tolist(), self.table.stamp[ids].tolist(), ids.tolist(),
+                             strict=False))
+        heapq.heapify(self.heap)
+        self.dirty: set[int] = set()
+        self.blocked_at: dict[int, set[int]] = {}
+        T = st.T
+        self.Tflat = np.ascontiguousarray(np.transpose(T, (1, 0, 2, 3)).reshape(T.shape[1], -1))   # (n, P*12)
+        self.n_faces = len(self.Fm)
+        self.collapses: list[tuple[int, int]] = []
+        self.errors: list[float] = []
+        self.nfaces: list[int] = []
+
+    def weight(self, v) -> np.ndarray:
         """:func:`rigslim.plugins.decimation.edge_costs.quadric_weight` of vertices v."""
-        return np.einsum("vpii->v", Qw[np.atleast_1d(v)][..., :3, :3])
+        assert self.Qw is not None  # set when normalised, the only case that weighs
+        return np.einsum("vpii->v", self.Qw[np.atleast_1d(v)][..., :3, :3])
 
-    def collapsible(x: int, y: int) -> bool:
+    def collapsible(self, x: int, y: int) -> bool:
         """:func:`rigslim.plugins.decimation.setup.placement` allows it and a fixed-fixed edge is on the curve."""
+        boundary, along = self.boundary, self.along
         if placement(bool(boundary[x]), bool(boundary[y]), int(along[x]), int(along[y])) == NONE:
             return False
         if not (boundary[x] and boundary[y]):
             return True
-        fs = vf[x] & vf[y]
+        fs = self.vf[x] & self.vf[y]
         if max(along[x], along[y]) == BORDER:
             return len(fs) == 1
-        return len(fs) == 2 and bool(charts[min(fs)] != charts[max(fs)])
+        return len(fs) == 2 and bool(self.charts[min(fs)] != self.charts[max(fs)])
 
-    edges = setup.edges
-
-    table = _EdgeTable(W.shape[1], max(16, 2 * len(edges)))
-    ids = np.array([table.add(int(a), int(b)) for a, b in edges], dtype=np.int64)
-
-    def evaluate(eids: np.ndarray) -> None:
-        for sl in batched(len(eids), batch):
+    def evaluate(self, eids: np.ndarray) -> None:
+        """The true costs (and merged vertices) of edges ``eids``, in batches."""
+        table, st, model, boundary, along, zero = self.table, self.st, self.model, self.boundary, self.along, self.zero
+        for sl in batched(len(eids), self.batch):
             e = eids[sl]
             ea, eb = table.a[e], table.b[e]
             place = placements(boundary[ea], boundary[eb], along[ea], along[eb])
@@ -261,62 +316,56 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
                 keep = np.where(take_b, pb, pa)
                 table.v[ef], table.w[ef] = st.V[keep], st.W[keep]
                 table.cost[ef] = np.where(take_b, Eb, Ea)
-            if normalised:                     # the mean squared distance over the merged planes
-                w = weight(ea) + weight(eb)
+            if self.normalised:                # the mean squared distance over the merged planes
+                w = self.weight(ea) + self.weight(eb)
                 table.cost[e] = np.where(w > 0, table.cost[e] / np.where(w > 0, w, 1.0), table.cost[e])
             table.cost[e] = np.where(table.cost[e] < zero, 0.0, table.cost[e])
             table.state[e] = CLEAN
             table.stamp[e] += 1
 
-    evaluate(ids)
-    heap = list(zip(table.cost[ids].tolist(), table.stamp[ids].tolist(), ids.tolist(), strict=False))
-    heapq.heapify(heap)
-    dirty: set[int] = set()
-    blocked_at: dict[int, set] = {}
-
-    Tflat = np.ascontiguousarray(np.transpose(T, (1, 0, 2, 3)).reshape(T.shape[1], -1))   # (n, P*12)
-    tiny = degenerate_area(V)
-    n_faces = len(Fm)
-    collapses, errors, nfaces = [], [], []
-
-    def neighbours(x: int) -> set:
-        out = set(Fm[list(vf[x])].ravel().tolist())
+    def neighbours(self, x: int) -> set[int]:
+        out = set(self.Fm[list(self.vf[x])].ravel().tolist())
         out.discard(x)
         return out
 
-    def try_collapse(e: int) -> bool:
-        nonlocal n_faces
-        a, b = int(table.a[e]), int(table.b[e])
-        fa, fb = vf[a], vf[b]
-        fab = fa & fb
-        border = len(fab) == 1 and boundary[a] and boundary[b]     # a collapse along a border
+    def _topology(self, a: int, b: int, fab: set[int]) -> set[int] | None:
+        """The vertices around the edge (a, b) when collapsing it keeps a manifold (two shared faces, or one
+        along a border; the link condition; enough left), else None."""
+        border = len(fab) == 1 and self.boundary[a] and self.boundary[b]     # a collapse along a border
         if len(fab) != 2 and not border:
-            return False
-        Na, Nb = neighbours(a), neighbours(b)
+            return None
+        Na, Nb = self.neighbours(a), self.neighbours(b)
         if len((Na & Nb) - {a, b}) != len(fab):        # link condition
-            return False
+            return None
         union = (Na | Nb) - {a, b}
-        if len(union) < 3 or n_faces - len(fab) < 4:
-            return False
-        rem = list((fa | fb) - fab)
-        v, w = table.v[e], table.w[e]
-        pc = np.empty((len(T) + 1, 3))
+        if len(union) < 3 or self.n_faces - len(fab) < 4:
+            return None
+        return union
+
+    def _pose_positions(self, v: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """(P + 1, 3) the merged vertex at rest (slot 0) and in every example pose."""
+        pc = np.empty((len(self.st.T) + 1, 3))
         pc[0] = v
-        X = (w @ Tflat).reshape(-1, 3, 4)
+        X = (w @ self.Tflat).reshape(-1, 3, 4)
         pc[1:] = X[:, :, :3] @ v + X[:, :, 3]
-        C = Fm[rem]
-        Pold = st.pos[C]                                          # (L, 3, P+1, 3)
+        return pc
+
+    def _folds(self, rem: list[int], a: int, b: int, pc: np.ndarray) -> bool:
+        """Whether a surviving face ``rem`` of a or b degenerates or turns past ``min_normal_cos`` in a pose."""
+        C = self.Fm[rem]
+        Pold = self.st.pos[C]                                     # (L, 3, P+1, 3)
         Pnew = Pold.copy()
         Pnew[(C == a) | (C == b)] = pc
         no, nn = _normals(Pold), _normals(Pnew)
         lo, ln = np.sqrt((no * no).sum(axis=-1)), np.sqrt((nn * nn).sum(axis=-1))
         dot = (no * nn).sum(axis=-1)
-        if ((lo > tiny) & ((ln <= tiny) | (dot < min_normal_cos * lo * ln))).any():
-            return False
-        # apply
-        c = m + len(collapses)
-        st.V[c], st.W[c], st.pos[c] = v, w, pc
-        model.merge(st, a, b, c)
+        tiny = self.tiny
+        return bool(((lo > tiny) & ((ln <= tiny) | (dot < self.min_normal_cos * lo * ln))).any())
+
+    def _merge(self, a: int, b: int, c: int, fab: set[int], rem: list[int]) -> None:
+        """Vertex c replaces a and b: its curve class, the faces around, the face count."""
+        boundary, along = self.boundary, self.along
+        self.model.merge(self.st, a, b, c)
         # along its curve c stays on it; onto a corner or a fixed end it takes that end's class
         if boundary[a] and boundary[b]:
             along[c] = along[a] if along[a] == along[b] else 0
@@ -324,80 +373,106 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
             along[c] = along[a] if boundary[a] else along[b]
         boundary[c] = boundary[a] or boundary[b]
         for f in fab:
-            f_alive[f] = False
-            for x in Fm[f].tolist():
+            for x in self.Fm[f].tolist():
                 if x != a and x != b:
-                    vf[x].discard(f)
+                    self.vf[x].discard(f)
         for f in rem:
-            row = Fm[f]
+            row = self.Fm[f]
             row[(row == a) | (row == b)] = c
-        vf[c] = set(rem)
-        vf[a] = vf[b] = None
-        n_faces -= len(fab)
-        cost_ab = float(table.cost[e])
-        table.kill(e)
-        wa, wb = (float(weight(a)[0]), float(weight(b)[0])) if normalised else (1.0, 1.0)
+        self.vf[c] = set(rem)
+        self.vf[a] = set()
+        self.vf[b] = set()
+        self.n_faces -= len(fab)
+
+    def _requeue(self, union: set[int], a: int, b: int, c: int, cost_ab: float) -> None:
+        """Edges (x, a) and (x, b) die; (x, c) is queued dirty with the lower bound of their costs, and the
+        edges blocked at x are tried again."""
+        table, normalised = self.table, self.normalised
+        wa, wb = (float(self.weight(a)[0]), float(self.weight(b)[0])) if normalised else (1.0, 1.0)
         for x in sorted(union):            # a fixed order: edge slots (tie-breaks) do not depend on set order
-            wx = float(weight(x)[0]) if normalised else 0.0
+            wx = float(self.weight(x)[0]) if normalised else 0.0
             old = [cost_ab * (wa + wb) if normalised else cost_ab]
             for y, wy in ((a, wa), (b, wb)):
                 k = (y, x) if y < x else (x, y)
                 eo = table.key.get(k)
                 if eo is not None:
                     old.append(float(table.cost[eo]) * (wy + wx) if normalised else float(table.cost[eo]))
-                    dirty.discard(eo)
+                    self.dirty.discard(eo)
                     table.kill(eo)
-            if not collapsible(x, c):
+            if not self.collapsible(x, c):
                 continue
             en = table.add(x, c)
             lb = max(old)
             table.cost[en] = lb / (wa + wb + wx) if normalised and wa + wb + wx > 0 else lb
             table.state[en] = DIRTY
-            dirty.add(en)
-            heapq.heappush(heap, (float(table.cost[en]), int(table.stamp[en]), en))
-            for eb_ in blocked_at.pop(x, ()):
+            self.dirty.add(en)
+            heapq.heappush(self.heap, (float(table.cost[en]), int(table.stamp[en]), en))
+            for eb_ in self.blocked_at.pop(x, ()):
                 # the slot may since hold another edge: unblock only edges at x
                 if table.state[eb_] == BLOCKED and x in (table.a[eb_], table.b[eb_]):
                     table.state[eb_] = CLEAN
-                    heapq.heappush(heap, (float(table.cost[eb_]), int(table.stamp[eb_]), eb_))
-        collapses.append((a, b))
-        errors.append(cost_ab)
-        nfaces.append(n_faces)
+                    heapq.heappush(self.heap, (float(table.cost[eb_]), int(table.stamp[eb_]), eb_))
+
+    def try_collapse(self, e: int) -> bool:
+        """Collapse edge e if the guards allow it, recording it."""
+        table = self.table
+        a, b = int(table.a[e]), int(table.b[e])
+        fa, fb = self.vf[a], self.vf[b]
+        fab = fa & fb
+        union = self._topology(a, b, fab)
+        if union is None:
+            return False
+        rem = list((fa | fb) - fab)
+        v, w = table.v[e], table.w[e]
+        pc = self._pose_positions(v, w)
+        if self._folds(rem, a, b, pc):
+            return False
+        c = self.m + len(self.collapses)
+        st = self.st
+        st.V[c], st.W[c], st.pos[c] = v, w, pc
+        self._merge(a, b, c, fab, rem)
+        cost_ab = float(table.cost[e])
+        table.kill(e)
+        self._requeue(union, a, b, c, cost_ab)
+        self.collapses.append((a, b))
+        self.errors.append(cost_ab)
+        self.nfaces.append(self.n_faces)
         return True
 
-    def step() -> bool:
+    def step(self, min_faces: int) -> bool:
         """One greedy collapse; False when none is left or the target is reached."""
-        if n_faces <= min_faces:
+        if self.n_faces <= min_faces:
             return False
+        table, heap = self.table, self.heap
         while heap:
             cost, stamp, e = heapq.heappop(heap)
             if stamp != table.stamp[e] or table.state[e] in (DEAD, BLOCKED):
                 continue
             if table.state[e] == DIRTY:
-                todo = np.fromiter(dirty, dtype=np.int64)
-                dirty.clear()
-                evaluate(todo)
+                todo = np.fromiter(self.dirty, dtype=np.int64)
+                self.dirty.clear()
+                self.evaluate(todo)
                 for d in todo.tolist():
                     heapq.heappush(heap, (float(table.cost[d]), int(table.stamp[d]), d))
                 continue
-            if try_collapse(e):
+            if self.try_collapse(e):
                 return True
             table.state[e] = BLOCKED
-            blocked_at.setdefault(int(table.a[e]), set()).add(e)
-            blocked_at.setdefault(int(table.b[e]), set()).add(e)
+            self.blocked_at.setdefault(int(table.a[e]), set()).add(e)
+            self.blocked_at.setdefault(int(table.b[e]), set()).add(e)
         return False
 
-    # a collapse removes two faces (one along a border): the bar counts two-face collapses, the rest follow
-    total = max(0, (n_faces - min_faces + 1) // 2)
-    going = True
-    for _ in progress(range(total), total=total, description=f"{method} collapses"):
-        going = step()
-        if not going:
-            break
-    while going and step():
-        pass
-
-    return _hierarchy(st.V, st.W, F, collapses, errors, nfaces, method, params)
+    def run(self, min_faces: int, progress, method: str) -> None:
+        """Collapse until ``min_faces`` or nothing can collapse."""
+        # a collapse removes two faces (one along a border): the bar counts two-face collapses, the rest follow
+        total = max(0, (self.n_faces - min_faces + 1) // 2)
+        going = True
+        for _ in progress(range(total), total=total, description=f"{method} collapses"):
+            going = self.step(min_faces)
+            if not going:
+                break
+        while going and self.step(min_faces):
+            pass
 
 
 def _hierarchy(Vall, Wall, F, collapses, errors, nfaces, method, params) -> ProgressiveHierarchy:
@@ -423,15 +498,48 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     """:func:`simplify` with the compiled loop (:func:`rigslim.plugins.decimation.compiled.collapse_chunk`)."""
     from rigslim.plugins.decimation import compiled as cc
     from rigslim.plugins.decimation import edge_queue as eq
-    from rigslim.plugins.decimation.edge_costs import edge_costs
 
     kind, Qv, ip, fp = model.compiled_spec()
     fp = np.append(fp, [zero_cost(V, np.asarray(F, np.int64), len(T), normalised), float(normalised)])
     st = SimplifyState(V, F, W, T, X)
-    m = st.m
-    N = 2 * m
-    Fm = st.F
+    m, Fm = st.m, st.F
     f = len(Fm)
+    setup = collapsible_edges(Fm, m, keep_boundary=keep_boundary, locked=locked, seams=seams,
+                              border_collapses=border_collapses)
+    n_edges = len(setup.edges)
+    edges = _compiled_edges(setup.edges, 2 * m, W.shape[1], n_edges + 16)
+    kernels, first_costs = _first_costs(edges, setup, kind, st, Qv, ip, fp)
+    cnt = np.zeros(eq.N_COUNTERS, np.int64)
+    cnt[eq.C_FACES], cnt[eq.C_HEAP], cnt[eq.C_SIZE], cnt[eq.C_POOL] = f, n_edges, n_edges, 3 * f
+    mesh = cc.LoopMesh(Fm, *_vertex_faces(Fm, m), setup.boundary, setup.along, setup.charts, np.zeros(2 * m, np.int64))
+    verts = cc.LoopVertices(st.V, st.W, Qv, st.pos)
+    queue = _sorted_queue(edges, n_edges)
+    record = cc.LoopRecord(cnt, np.zeros((m, 2), np.int64), np.zeros(m), np.zeros(m, np.int64))
+    cost_model = cc.CostModel(kind, ip, fp, st.T)
+    loop_args = (float(min_normal_cos), degenerate_area(V), cost_model, mesh, verts, edges, queue, record,
+                 cc.new_scratch(len(T)))
+    t0 = time.perf_counter()           # the kernels' first call (compiling or loading them) is not loop work
+    cc.collapse_chunk(0, min_faces, *loop_args)
+    kernels += time.perf_counter() - t0
+    t0 = time.perf_counter()
+    _collapse_chunks(max(0, (f - min_faces + 1) // 2), min_faces, loop_args, progress, method)
+    loop = time.perf_counter() - t0
+    k = int(cnt[eq.C_COLLAPSES])
+    stats = {"collapses": k, "pops": int(cnt[eq.C_POPS]), "attempts": int(cnt[eq.C_TRIES]),
+             "evaluations": n_edges + int(cnt[eq.C_EVALS]), "kernel_load_seconds": kernels,
+             "first_costs_seconds": first_costs,
+             "loop_seconds": loop, "loop_us_per_collapse": 1e6 * loop / max(k, 1)}
+    log.debug("%s: %d collapses, %s", method, k, stats)
+    hier = _hierarchy(st.V, st.W, F, record.col[:k], record.errs[:k], record.nfaces[:k], method, params)
+    _LOOP_STATS[hier] = stats
+    return hier
+
+
+def _vertex_faces(Fm: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The faces of every vertex as runs of one pool (room for the merged vertices' runs): ``vf_start``,
+    ``vf_cnt`` (2m,) and ``pool``."""
+    f = len(Fm)
+    N = 2 * m
     corners = Fm.ravel()
     order = np.argsort(corners, kind="stable")
     pool = np.zeros(6 * f + 64, dtype=np.int64)
@@ -440,18 +548,32 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     vf_cnt[:m] = np.bincount(corners, minlength=m)
     vf_start = np.zeros(N, dtype=np.int64)
     vf_start[1:m] = np.cumsum(vf_cnt[:m])[:-1]
-    setup = collapsible_edges(Fm, m, keep_boundary=keep_boundary, locked=locked, seams=seams,
-                              border_collapses=border_collapses)
-    edges = setup.edges
-    n_edges = len(edges)
-    cap = n_edges + 16
-    n = W.shape[1]
+    return vf_start, vf_cnt, pool
+
+
+def _compiled_edges(edges: np.ndarray, N: int, n: int, cap: int):
+    """The compiled loop's edge table (:class:`rigslim.plugins.decimation.compiled.LoopEdges`) with room for
+    ``cap`` edges, ``edges`` in its first slots and its (a, b) hash table."""
+    from rigslim.plugins.decimation import compiled as cc
+    from rigslim.plugins.decimation import edge_queue as eq
+
     ea, eb = np.zeros(cap, np.int64), np.zeros(cap, np.int64)
     ecost, ev, ew = np.zeros(cap), np.zeros((cap, 3)), np.zeros((cap, n))
     estamp, estate = np.zeros(cap, np.int64), np.full(cap, DEAD, np.int8)
     hsize = 1 << int(np.ceil(np.log2(4 * cap)))
     hk, hv = np.full(hsize, -1, np.int64), np.zeros(hsize, np.int64)
     eq.init_table(edges, N, ea, eb, estamp, hk, hv)
+    free, in_dirty, dirty = np.zeros(cap, np.int64), np.zeros(cap, bool), np.zeros(2 * cap, np.int64)
+    return cc.LoopEdges(ea, eb, ecost, ev, ew, estamp, estate, free, in_dirty, dirty, hk, hv)
+
+
+def _first_costs(table, setup: EdgeSetup, kind, st: SimplifyState, Qv, ip, fp) -> tuple[float, float]:
+    """Cost, merged vertex and weights of every edge, each marked clean; returns the seconds it took to load
+    (or compile) the cost kernels and to evaluate the costs."""
+    from rigslim.plugins.decimation.edge_costs import edge_costs
+
+    edges = setup.edges
+    n_edges = len(edges)
     t0 = time.perf_counter()           # load (or compile) the kernels first, so that the timings below are work
     edge_costs(kind, edges[:0, 0].copy(), edges[:0, 1].copy(), st.V, st.W, Qv, st.T, ip, fp)
     kernels = time.perf_counter() - t0
@@ -463,48 +585,35 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
         v, w, E = edge_costs(kind, edges[:, 0].copy(), edges[:, 1].copy(), st.V, st.W, Qv, st.T, ip, fp,
                              place=place)
         first_costs = time.perf_counter() - t0
-        ecost[:n_edges], ev[:n_edges], ew[:n_edges] = E, v, w
-    estate[:n_edges] = CLEAN
-    estamp[:n_edges] += 1
+        table.ecost[:n_edges], table.ev[:n_edges], table.ew[:n_edges] = E, v, w
+    table.estate[:n_edges] = CLEAN
+    table.estamp[:n_edges] += 1
+    return kernels, first_costs
+
+
+def _sorted_queue(table, n_edges: int):
+    """The heap of the first ``n_edges`` edges (:class:`rigslim.plugins.decimation.compiled.LoopQueue`):
+    sorted by (cost, stamp, edge), which a heap may be, with room for three entries per edge."""
+    from rigslim.plugins.decimation import compiled as cc
+
+    cap = len(table.ea)
     ids = np.arange(n_edges)
-    srt = np.lexsort((ids, estamp[:n_edges], ecost[:n_edges]))     # a sorted array is a heap
+    srt = np.lexsort((ids, table.estamp[:n_edges], table.ecost[:n_edges]))     # a sorted array is a heap
     hc, hs, he = np.zeros(3 * cap), np.zeros(3 * cap, np.int64), np.zeros(3 * cap, np.int64)
-    hc[:n_edges], hs[:n_edges], he[:n_edges] = ecost[srt], estamp[srt], srt
-    free, in_dirty, dirty = np.zeros(cap, np.int64), np.zeros(cap, bool), np.zeros(2 * cap, np.int64)
-    cnt = np.zeros(eq.N_COUNTERS, np.int64)
-    cnt[eq.C_FACES], cnt[eq.C_HEAP], cnt[eq.C_SIZE], cnt[eq.C_POOL] = f, n_edges, n_edges, 3 * f
-    mesh = cc.LoopMesh(Fm, vf_start, vf_cnt, pool, setup.boundary, setup.along, setup.charts, np.zeros(N, np.int64))
-    verts = cc.LoopVertices(st.V, st.W, Qv, st.pos)
-    table = cc.LoopEdges(ea, eb, ecost, ev, ew, estamp, estate, free, in_dirty, dirty, hk, hv)
-    queue = cc.LoopQueue(hc, hs, he)
-    record = cc.LoopRecord(cnt, np.zeros((m, 2), np.int64), np.zeros(m), np.zeros(m, np.int64))
-    cost_model = cc.CostModel(kind, ip, fp, st.T)
-    scratch = cc.new_scratch(len(T))
-    tiny = degenerate_area(V)
-    total = max(0, (f - min_faces + 1) // 2)
+    hc[:n_edges], hs[:n_edges], he[:n_edges] = table.ecost[srt], table.estamp[srt], srt
+    return cc.LoopQueue(hc, hs, he)
+
+
+def _collapse_chunks(total: int, min_faces: int, loop_args: tuple, progress, method: str) -> None:
+    """The compiled loop in chunks of about 1% of the ``total`` two-face collapses, for the progress bar."""
+    from rigslim.plugins.decimation import compiled as cc
+
     chunk = max(256, -(-total // 100))
     n_chunks = -(-total // chunk)
-    t0 = time.perf_counter()
-    cc.collapse_chunk(0, min_faces, float(min_normal_cos), tiny, cost_model, mesh, verts, table, queue, record,
-                      scratch)
-    kernels += time.perf_counter() - t0
     finished = False
-    t0 = time.perf_counter()
     for _ in progress(range(n_chunks), total=n_chunks, description=f"{method} collapses"):
-        finished = cc.collapse_chunk(chunk, min_faces, float(min_normal_cos), tiny, cost_model, mesh, verts, table,
-                                     queue, record, scratch)
+        finished = cc.collapse_chunk(chunk, min_faces, *loop_args)
         if finished:
             break
     while not finished:         # collapses along a border remove one face: a few more chunks may be left
-        finished = cc.collapse_chunk(chunk, min_faces, float(min_normal_cos), tiny, cost_model, mesh, verts, table,
-                                     queue, record, scratch)
-    loop = time.perf_counter() - t0
-    k = int(cnt[eq.C_COLLAPSES])
-    stats = {"collapses": k, "pops": int(cnt[eq.C_POPS]), "attempts": int(cnt[eq.C_TRIES]),
-             "evaluations": n_edges + int(cnt[eq.C_EVALS]), "kernel_load_seconds": kernels,
-             "first_costs_seconds": first_costs,
-             "loop_seconds": loop, "loop_us_per_collapse": 1e6 * loop / max(k, 1)}
-    log.debug("%s: %d collapses, %s", method, k, stats)
-    hier = _hierarchy(st.V, st.W, F, record.col[:k], record.errs[:k], record.nfaces[:k], method, params)
-    hier.loop_stats = stats          # type: ignore[attr-defined]  (the decimate step reports it)
-    return hier
+        finished = cc.collapse_chunk(chunk, min_faces, *loop_args)

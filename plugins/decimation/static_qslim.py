@@ -38,20 +38,21 @@ def nearest_vertex_weights(V_orig: np.ndarray, W: np.ndarray, V_new: np.ndarray)
     return ReducedWeights(np.where(vals != 0, order, 0), vals, W.shape[1])
 
 
-class StaticQSlim(Decimator):
+class StaticQSlimParams(Params):
+    targets: list[float] = Field(default_factory=list)
+    """Fractions (< 1) of the input faces or face counts."""
+    max_bones: int | None = Field(default=None, ge=1)
+    preserve_boundary: bool = True
+    preserve_topology: bool = True
+    preserve_normal: bool = True
+    quality_threshold: float = Field(default=0.3, ge=0.0, le=1.0)
+
+
+class StaticQSlim(Decimator[StaticQSlimParams]):
     name = "static-qslim"
     summary = "rest-pose QSlim (pymeshlab quadric edge collapse), weights from the nearest original vertex"
 
-    class Params(Params):
-        targets: list[float] = Field(default_factory=list)
-        """Fractions (< 1) of the input faces or face counts."""
-        max_bones: int | None = Field(default=None, ge=1)
-        preserve_boundary: bool = True
-        preserve_topology: bool = True
-        preserve_normal: bool = True
-        quality_threshold: float = Field(default=0.3, ge=0.0, le=1.0)
-
-    def decimate(self, asset: Asset, params: Params, ctx: StepContext) -> Decimation:
+    def decimate(self, asset: Asset, params: StaticQSlimParams, ctx: StepContext) -> Decimation:
         try:
             import pymeshlab
         except ImportError:  # pragma: no cover - pymeshlab is in the 'metro' extra
@@ -62,6 +63,7 @@ class StaticQSlim(Decimator):
         if not params.targets:
             raise StepError("static-qslim needs targets", field="targets", fix="add e.g. 'targets: [0.1, 0.02]'")
         mesh = asset.mesh
+        assert mesh is not None  # require() raised otherwise
         W = limited_weights(asset.weights, params.max_bones)
         faces = target_faces(params.targets, mesh.n_faces)
         ms = pymeshlab.MeshSet()

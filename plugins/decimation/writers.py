@@ -69,15 +69,17 @@ class HierarchyWriter(Writer):
         write_hierarchy(path, hier)
 
 
-class LevelsWriter(Writer):
+class LevelsWriterParams(Params):
+    binary: bool = True
+    """Each level's weights as binary DMAT (false: ASCII)."""
+
+
+class LevelsWriter(Writer[LevelsWriterParams]):
     name = "levels"
     summary = "the simplified levels of a decimate step: OBJ + DMAT weights + fixed-k .npz per level"
     suffixes = ()
 
-    class Params(Params):
-        binary: bool = True
-
-    def write(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
+    def write(self, path: Path, asset: Asset, params: LevelsWriterParams, ctx: StepContext) -> None:
         levels = asset.levels
         if not levels:
             raise StepError("there are no simplified levels to write", field="write",

@@ -71,6 +71,8 @@ class CPUBound(DeviceBound):
         self.layout, self.k = layout, max(k, 1)
         if k == 0:
             idx, val = np.zeros((m, 1), np.int32), np.zeros((m, 1))
+        self._offset: np.ndarray | None  # float16 decoding tables of the compact layout
+        self._scale: np.ndarray | None
         if layout == "compact":
             if n > COMPACT_MAX_HANDLES:
                 raise StepError(f"{n} handles do not fit 16-bit indices", field="layout", fix="use layout: fixed")
@@ -88,8 +90,9 @@ class CPUBound(DeviceBound):
         self._rest = np.ascontiguousarray(mesh.V, dtype=np.float32)
         self._H = np.zeros((n, cpu_kernels.HANDLE_STRIDE), dtype=np.float32)
         self._C0 = handles.cage.V if (handles is not None and handles.is_cage) else None
-        self._C = np.zeros((n, 6)) if self._C0 is not None else None
+        self._C: np.ndarray | None = None
         if self._C0 is not None:
+            self._C = np.zeros((n, 6))
             self._C[:, 3:] = self._C0 - self._C0.mean(axis=0)
         self._mesh, self._weights_in, self._handles_in = mesh, self.effective, handles
         self._N0 = self._ridge = None          # normal data, packed on the first frame that asks for normals
@@ -112,7 +115,7 @@ class CPUBound(DeviceBound):
     def set_pose(self, T: np.ndarray) -> None:
         """Copy one pose (checked (n, 3, 4) float64) into the handle tables."""
         self._H[:, :12] = T.reshape(-1, 12)
-        if self._C is not None:
+        if self._C is not None and self._C0 is not None:
             chat = np.einsum("nij,nj->ni", T[:, :, :3], self._C0) + T[:, :, 3]
             self._C[:, :3] = chat - chat.mean(axis=0)
 

@@ -9,7 +9,7 @@ comes from the profiling event of the launch (``last_seconds``).
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
@@ -26,6 +26,9 @@ from rigslim.plugins.deformers.base import (
     resolve_normals,
     rest_normal_data,
 )
+
+if TYPE_CHECKING:
+    import pyopencl
 
 _NORMALS_CODE = {None: 0, "blended-matrix": 1, "approximate-affine": 2}
 _LAYOUT_CODE = {"fixed": 0, "compact": 1, "csr": 2}
@@ -76,9 +79,9 @@ class OpenCLBound(DeviceBound):
         self._handles = cl.Buffer(ctx, mf.READ_ONLY, size=n * 5 * 16)
         self._positions = cl.Buffer(ctx, mf.WRITE_ONLY, size=max(m, 1) * 12)
         self._mesh, self._weights_in, self._handles_in = mesh, self.packed.effective, handles
-        self._normal_data = None          # uploaded, and the normals kernel built, on the first normals frame
-        self._normals = None
-        self._kernels = {}
+        self._normal_data: pyopencl.Buffer | None = None  # uploaded, and the normals kernel built, on the first
+        self._normals: pyopencl.Buffer | None = None      # normals frame
+        self._kernels: dict[bool, pyopencl.Kernel] = {}
         self._host_positions = np.empty((m, 3), dtype=np.float32)
         self._host_normals = np.empty((m, 3), dtype=np.float32)
 
@@ -126,6 +129,7 @@ class OpenCLBound(DeviceBound):
         if read:
             cl.enqueue_copy(queue, self._host_positions, self._positions, is_blocking=not normals)
             if normals:
+                assert self._normals is not None  # allocated by self._kernel(normals=True)
                 cl.enqueue_copy(queue, self._host_normals, self._normals, is_blocking=True)
         event.wait()
         self.last_seconds = (event.profile.end - event.profile.start) * 1e-9

@@ -108,7 +108,21 @@ class OpenGLBound(DeviceBound):
         self._mesh, self._weights_in, self._handles_in = mesh, self.packed.effective, handles
 
         self.context.make_current()
-        self._vao = _one(GL.glGenVertexArrays(1))
+        self._upload_vertex_arrays(rest, idx, val)
+        self._create_handle_texture(n)
+        self._create_feedback_targets(m)
+        self._source = source("blend_vertex.glsl")
+        self._programs: dict[bool, int] = {}
+        self._host_positions = np.empty((m, 3), dtype=np.float32)
+        self._host_normals = np.empty((m, 3), dtype=np.float32)
+
+    def _upload_vertex_arrays(self, rest: np.ndarray, idx: np.ndarray, val: np.ndarray) -> None:
+        """The vertex array: rest positions (attribute 0), normal data (1, a constant until the first normals
+        frame), then ``k4`` attributes of 4 handle indices and ``k4`` of 4 weights."""
+        from OpenGL import GL
+
+        k4, compact = self.k4, self.layout == "compact"
+        self._vao: int | None = _one(GL.glGenVertexArrays(1))  # None once closed
         GL.glBindVertexArray(self._vao)
         self._buffers = [int(b) for b in np.atleast_1d(GL.glGenBuffers(4))]
         b_rest, b_normal, b_idx, b_val = self._buffers
@@ -135,7 +149,10 @@ class OpenGLBound(DeviceBound):
                                      ctypes.c_void_p(4 * j * vsize))
         GL.glBindVertexArray(0)
 
-        # handle records: a texture buffer of n * 5 RGBA32F texels, rewritten each frame
+    def _create_handle_texture(self, n: int) -> None:
+        """The handle records: a texture buffer of n * 5 RGBA32F texels, rewritten each frame."""
+        from OpenGL import GL
+
         self._tbo = _one(GL.glGenBuffers(1))
         GL.glBindBuffer(GL.GL_TEXTURE_BUFFER, self._tbo)
         GL.glBufferData(GL.GL_TEXTURE_BUFFER, n * 5 * 16, None, GL.GL_DYNAMIC_DRAW)
@@ -143,7 +160,11 @@ class OpenGLBound(DeviceBound):
         GL.glBindTexture(GL.GL_TEXTURE_BUFFER, self._texture)
         GL.glTexBuffer(GL.GL_TEXTURE_BUFFER, GL.GL_RGBA32F, self._tbo)
 
-        # feedback buffers: positions and normals, 12 bytes per vertex each
+    def _create_feedback_targets(self, m: int) -> None:
+        """Transform feedback buffers (positions and normals, 12 bytes per vertex each), the query that
+        counts them, and a 1x1 framebuffer for the draw calls."""
+        from OpenGL import GL
+
         self._feedback = [int(b) for b in np.atleast_1d(GL.glGenBuffers(2))]
         for buf in self._feedback:
             GL.glBindBuffer(GL.GL_TRANSFORM_FEEDBACK_BUFFER, buf)
@@ -159,11 +180,6 @@ class OpenGLBound(DeviceBound):
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self._fbo)
         GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0, GL.GL_RENDERBUFFER, self._rbo)
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, 0)
-
-        self._source = source("blend_vertex.glsl")
-        self._programs = {}
-        self._host_positions = np.empty((m, 3), dtype=np.float32)
-        self._host_normals = np.empty((m, 3), dtype=np.float32)
 
     def _program(self, normals: bool):
         """The program for this normal mode, linked (and normal data uploaded) on first use."""

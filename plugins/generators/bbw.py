@@ -77,18 +77,20 @@ def bounded_biharmonic_weights(V, T, joints, bones, *, max_iter: int = 8, report
     return W
 
 
-class BBWGenerator(WeightGenerator):
+class BBWGeneratorParams(Params):
+    max_iter: int = Field(8, ge=1, le=1000, description="active-set iterations of igl.bbw")
+
+
+class BBWGenerator(WeightGenerator[BBWGeneratorParams]):
     """``generate: bbw``: bounded biharmonic weights on the input's tetrahedral mesh."""
 
     name = "bbw"
     summary = "bounded biharmonic weights (Jacobson et al. 2011, igl.bbw) on a tetrahedral .mesh input"
 
-    class Params(Params):
-        max_iter: int = Field(8, ge=1, le=1000, description="active-set iterations of igl.bbw")
-
-    def generate(self, asset: Asset, params: Params, ctx: StepContext) -> sp.spmatrix | np.ndarray:
+    def generate(self, asset: Asset, params: BBWGeneratorParams, ctx: StepContext) -> sp.spmatrix | np.ndarray:
         h = asset.handles
-        if h.is_cage or h.joints is None:
+        assert h is not None and asset.mesh is not None  # WeightGenerator.apply required them
+        if h.is_cage or h.joints is None or h.bones is None:
             raise StepError("bbw needs a skeleton, the handles are a cage", field="generate.bbw",
                             fix="give 'skeleton: file.tgf' under inputs")
         volume = asset.extras.get("volume")

@@ -181,19 +181,21 @@ def bone_heat_weights(mesh, joints: np.ndarray, bones: np.ndarray, *, heat: floa
     return W
 
 
-class BoneHeatGenerator(WeightGenerator):
+class BoneHeatGeneratorParams(Params):
+    heat: float = Field(1.0, gt=0, description="c in H_jj = c / d_j^2")
+    visibility: bool = Field(True, description="only bones a vertex sees heat it")
+
+
+class BoneHeatGenerator(WeightGenerator[BoneHeatGeneratorParams]):
     """``generate: bone-heat``: Pinocchio's bone heat weights for the pipeline's skeleton."""
 
     name = "bone-heat"
     summary = "bone heat skinning weights (Baran & Popovic 2007): cotangent heat diffusion from visible bones"
 
-    class Params(Params):
-        heat: float = Field(1.0, gt=0, description="c in H_jj = c / d_j^2")
-        visibility: bool = Field(True, description="only bones a vertex sees heat it")
-
-    def generate(self, asset: Asset, params: Params, ctx: StepContext) -> sp.spmatrix | np.ndarray:
+    def generate(self, asset: Asset, params: BoneHeatGeneratorParams, ctx: StepContext) -> sp.spmatrix | np.ndarray:
         h = asset.handles
-        if h.is_cage or h.joints is None:
+        assert h is not None and asset.mesh is not None  # WeightGenerator.apply required them
+        if h.is_cage or h.joints is None or h.bones is None:
             raise StepError("bone-heat needs a skeleton, the handles are a cage", field="generate.bone-heat",
                             fix="give 'skeleton: file.tgf' under inputs, or use mean-value/harmonic for cages")
         return bone_heat_weights(asset.mesh, h.joints, h.bones, heat=params.heat, visibility=params.visibility,

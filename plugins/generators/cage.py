@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -141,7 +142,21 @@ def build_cage(mesh: Mesh, n_vertices: int = 100, *, offset: float = 0.03, resol
     if diag <= 0 or n_vertices < 4:
         raise StepError(f"cannot build a cage of {n_vertices} vertices for this mesh", field="cage_vertices",
                         fix="give a non-degenerate mesh and at least 4 cage vertices")
-    off = offset * diag
+    SV, SF = _offset_surface(V, F, offset * diag, resolution)
+    CV, CF = _decimated_cage(SV, SF, n_vertices)
+    # orient outward: the winding number at a mesh vertex must be positive
+    if igl.winding_number(CV, CF, V[:1]).item() < 0:
+        CF = CF[:, ::-1].copy()
+    best = _inflated_cage(CV, CF, V, clearance * diag, max_iterations, progress)
+    # every vertex is inside; where the clearance could not be met everywhere, keep the closest state
+    return Mesh(best, CF, source=f"cage of {mesh.source or 'mesh'}")
+
+
+def _offset_surface(V: np.ndarray, F: np.ndarray, off: float, resolution: int) -> tuple[np.ndarray, np.ndarray]:
+    """Step 1 of :func:`build_cage`: the largest component of the level set ``s(x) = off`` of the signed
+    distance to the mesh, by marching cubes on a grid of ``resolution`` cells along the longest side."""
+    import igl
+
     h = (V.max(0) - V.min(0)).max() / resolution
     lo = V.min(0) - off - 3 * h
     hi = V.max(0) + off + 3 * h
@@ -153,7 +168,14 @@ def build_cage(mesh: Mesh, n_vertices: int = 100, *, offset: float = 0.03, resol
     SV, SF = igl.marching_cubes(S - off, GV, int(counts[0]), int(counts[1]), int(counts[2]))[:2]
     if len(SF) == 0:
         raise StepError("the offset surface is empty", field="cage", fix="check that the mesh is closed")
-    SV, SF = _largest_component(SV, SF)
+    return _largest_component(SV, SF)
+
+
+def _decimated_cage(SV: np.ndarray, SF: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+    """Step 2 of :func:`build_cage`: the offset surface decimated to ``2 (n_vertices - chi)`` faces
+    (``igl.qslim``), as float64 vertices and int64 faces."""
+    import igl
+
     chi = _euler_characteristic(SV, SF)
     target_faces = max(4, 2 * (n_vertices - chi))
     if len(SF) > target_faces:
@@ -164,11 +186,16 @@ def build_cage(mesh: Mesh, n_vertices: int = 100, *, offset: float = 0.03, resol
         CV, CF = SV, SF
     CV = np.array(CV, dtype=np.float64)
     CF = np.ascontiguousarray(CF, dtype=np.int64)
-    # orient outward: the winding number at a mesh vertex must be positive
-    if igl.winding_number(CV, CF, V[:1]).item() < 0:
-        CF = CF[:, ::-1].copy()
-    min_clear = clearance * diag
-    rounds = range(max_iterations)
+    return CV, CF
+
+
+def _inflated_cage(CV: np.ndarray, CF: np.ndarray, V: np.ndarray, min_clear: float, max_iterations: int,
+                   progress) -> np.ndarray:
+    """Step 3 of :func:`build_cage`: cage vertices pushed out along their normals until every mesh vertex
+    is inside and ``min_clear`` away (else the inside state with the fewest too close)."""
+    import igl
+
+    rounds: Iterable[int] = range(max_iterations)
     if progress is not None:
         rounds = progress(rounds, total=max_iterations, description="inflating cage")
     best, best_bad = None, None
@@ -190,8 +217,7 @@ def build_cage(mesh: Mesh, n_vertices: int = 100, *, offset: float = 0.03, resol
         raise StepError(f"the cage leaves {int((enc.winding < 0.5).sum())} mesh vertices outside after "
                         f"{max_iterations} inflation rounds", field="cage",
                         fix="raise cage_offset or cage_vertices, or give a cage file")
-    # every vertex is inside; where the clearance could not be met everywhere, keep the closest state
-    return Mesh(best, CF, source=f"cage of {mesh.source or 'mesh'}")
+    return best
 
 
 def transfer_weights(mesh: Mesh, W, points: np.ndarray) -> sp.csr_matrix:

@@ -248,6 +248,7 @@ class HarmonicGenerator(WeightGenerator):
 
     def generate(self, asset: Asset, params: Params, ctx: StepContext) -> sp.spmatrix | np.ndarray:
         cage = prepare_cage(asset, params, ctx, "generate.harmonic")
+        assert asset.mesh is not None  # WeightGenerator.apply required it
         ctx.report["harmonic"] = {}
         W = harmonic_coordinates(asset.mesh.V, cage.V, cage.F, resolution=params.resolution, solver=params.solver,
                                  report=ctx.report["harmonic"])

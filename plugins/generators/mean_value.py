@@ -221,6 +221,7 @@ class MeanValueGenerator(WeightGenerator):
 
     def generate(self, asset: Asset, params: Params, ctx: StepContext) -> sp.spmatrix | np.ndarray:
         cage = prepare_cage(asset, params, ctx, "generate.mean-value")
+        assert asset.mesh is not None  # WeightGenerator.apply required it
         if params.backend == "opencl":
             W = mean_value_coordinates_opencl(asset.mesh.V, cage.V, cage.F, device=params.device)
         else:

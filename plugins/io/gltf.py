@@ -21,23 +21,32 @@ if TYPE_CHECKING:
     from rigslim.plugin import Params, StepContext
 
 
-class GltfReader(Reader):
+class GltfReaderParams(Params):
+    animation: str | int | None = None
+    """Clip name or index (default the first); a file without animations gives one frame, the rest pose."""
+    fps: float = 30.0
+    """Frame f is the pose at time f / fps s, for f = 0 .. floor(duration * fps)."""
+    mesh: str | int | None = None
+    """Read only this mesh (name or index); default every mesh a node instantiates with the skin, merged."""
+    skin: int | None = None
+    """Which skin, when mesh nodes use several (default the only one)."""
+    normalize: bool = True
+    """Divide each vertex's weights by their sum; false rejects rows off by more than 1e-6."""
+    weld: bool = True
+    """Merge vertices at identical positions (docs/gltf.md)."""
+    times: list[float] | None = None
+    """Sample the clip at these times (seconds) instead; frame j is times[j]."""
+    allow_external_uris: bool | None = None  # None: RIGSLIM_ALLOW_EXTERNAL_URIS / --allow-external-uris
+    """Let buffer/image URIs name files outside the glTF's folder (default: RIGSLIM_ALLOW_EXTERNAL_URIS)."""
+
+
+class GltfReader(Reader[GltfReaderParams]):
     name = "gltf"
     summary = "skinned glTF 2.0 (.glb/.gltf): mesh, joints as handles, JOINTS_n/WEIGHTS_n, one animation sampled at fps"
     role = "gltf"
     suffixes = (".glb", ".gltf")
 
-    class Params(Params):
-        animation: str | int | None = None
-        fps: float = 30.0
-        mesh: str | int | None = None
-        skin: int | None = None
-        normalize: bool = True
-        weld: bool = True
-        times: list[float] | None = None
-        allow_external_uris: bool | None = None  # None: RIGSLIM_ALLOW_EXTERNAL_URIS / --allow-external-uris
-
-    def read(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
+    def read(self, path: Path, asset: Asset, params: GltfReaderParams, ctx: StepContext) -> None:
         from rigslim.io.gltf.skin import read_gltf_skin
 
         skin = read_gltf_skin(path, animation=params.animation, fps=params.fps, mesh=params.mesh,
@@ -53,43 +62,51 @@ class GltfReader(Reader):
                                     "welded_vertices": skin.mesh.n_vertices}
 
 
-class GltfWriter(Writer):
+class GltfWriterParams(Params):
+    quantize: Literal["float", "ushort", "ubyte"] = "float"
+    """Encoding of WEIGHTS_n: float32, or normalised ushort / ubyte (every row still sums to one)."""
+    sets: int | None = None
+    """Number of JOINTS_n/WEIGHTS_n sets (default ceil(k / 4))."""
+    levels: bool = True
+    """Write the simplified levels a decimate step made."""
+    lod: bool = False
+    """Link the levels from each skinned node with MSFT_lod (false: each level in a scene of its own)."""
+    embed: bool = False
+    """.gltf only: the buffer as one data URI instead of a .bin beside it."""
+    fps: float = 30.0
+    """Frame rate of an exported animation (glTF inputs keep the rate they were sampled at)."""
+    keep_input_weights: bool = True
+    """With no solve step, keep the file's skinning bytes when they sum to one (else write them normalised)."""
+    clamp_negative: bool = False
+    """Set negative weights to zero and renormalise those rows instead of failing (glTF weights are >= 0)."""
+    coverage: Literal["measured", "halving"] = "measured"
+    """With ``lod``: ``MSFT_screencoverage`` from each level's test-pose error (:mod:`rigslim.io.gltf.switch`),
+    or the unmeasured series 0.5, 0.25, ..."""
+    pixel_error: float = Field(1.0, gt=0)
+    """Measured coverage: the level may show where its error projects to at most this many pixels ..."""
+    fov: float = Field(60.0, gt=0, lt=180)
+    """... for a camera of this vertical field of view (degrees) ..."""
+    resolution: int = Field(1080, ge=1)
+    """... and a viewport this many pixels high ..."""
+    aspect: float = Field(16.0 / 9.0, gt=0)
+    """... and this width / height (coverage is the bounding sphere's share of the screen area)."""
+    switch_error: Literal["max", "rms"] = "max"
+    """Measured coverage from each level's largest test-pose error (every point within ``pixel_error``)
+    or its RMS (on average)."""
+    switch_frames: int = Field(12, ge=0)
+    """Measured coverage: at most this many test frames, evenly spread (0: every test frame) ..."""
+    switch_samples: int = Field(10000, ge=100)
+    """... and this many surface samples per side and frame."""
+    level_skins: bool = True
+    """Each level mesh gets a skin of only the joints its vertices use (false: the source skin)."""
+
+
+class GltfWriter(Writer[GltfWriterParams]):
     name = "gltf"
     summary = "glTF 2.0 (.glb/.gltf): the source document with reduced weights (k<=4: one set, 5..8: two) and levels"
     suffixes = (".glb", ".gltf")
 
-    class Params(Params):
-        quantize: Literal["float", "ushort", "ubyte"] = "float"
-        sets: int | None = None
-        levels: bool = True
-        lod: bool = False
-        embed: bool = False
-        fps: float = 30.0
-        keep_input_weights: bool = True
-        """With no solve step, keep the file's skinning bytes when they sum to one (else write them normalised)."""
-        clamp_negative: bool = False
-        coverage: Literal["measured", "halving"] = "measured"
-        """With ``lod``: ``MSFT_screencoverage`` from each level's test-pose error (:mod:`rigslim.io.gltf.switch`),
-        or the unmeasured series 0.5, 0.25, ..."""
-        pixel_error: float = Field(1.0, gt=0)
-        """Measured coverage: the level may show where its error projects to at most this many pixels ..."""
-        fov: float = Field(60.0, gt=0, lt=180)
-        """... for a camera of this vertical field of view (degrees) ..."""
-        resolution: int = Field(1080, ge=1)
-        """... and a viewport this many pixels high ..."""
-        aspect: float = Field(16.0 / 9.0, gt=0)
-        """... and this width / height (coverage is the bounding sphere's share of the screen area)."""
-        switch_error: Literal["max", "rms"] = "max"
-        """Measured coverage from each level's largest test-pose error (every point within ``pixel_error``)
-        or its RMS (on average)."""
-        switch_frames: int = Field(12, ge=0)
-        """Measured coverage: at most this many test frames, evenly spread (0: every test frame) ..."""
-        switch_samples: int = Field(10000, ge=100)
-        """... and this many surface samples per side and frame."""
-        level_skins: bool = True
-        """Each level mesh gets a skin of only the joints its vertices use (false: the source skin)."""
-
-    def write(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
+    def write(self, path: Path, asset: Asset, params: GltfWriterParams, ctx: StepContext) -> None:
         from rigslim.io.gltf.write import export_skinned, fixed_width_weights, write_gltf
 
         levels = (asset.levels or None) if params.levels else None

@@ -54,17 +54,19 @@ class CageReader(Reader):
         asset.handles = Handles.from_cage(read_mesh(path), source=str(path))
 
 
-class DMATWeightsReader(Reader):
+class DMATWeightsReaderParams(Params):
+    normalize: bool = False
+    """Divide each row by its sum (false: rows must already sum to 1)."""
+
+
+class DMATWeightsReader(Reader[DMATWeightsReaderParams]):
     name = "dmat-weights"
     summary = "input weights, m x n DMAT (ASCII or binary); rows must sum to 1 unless normalize"
     role = "weights"
     suffixes = (".dmat",)
     after = ("mesh", "skeleton", "cage")
 
-    class Params(Params):
-        normalize: bool = False
-
-    def read(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
+    def read(self, path: Path, asset: Asset, params: DMATWeightsReaderParams, ctx: StepContext) -> None:
         if asset.mesh is None:
             raise InputError("weights are given but no mesh", source=path, field="inputs.mesh",
                              fix="add 'mesh:' under inputs")

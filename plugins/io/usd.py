@@ -24,22 +24,29 @@ if TYPE_CHECKING:
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 
 
-class UsdReader(Reader):
+class UsdReaderParams(Params):
+    skeleton: str | None = None
+    """Path or name of the Skeleton whose meshes to read, when several skeletons have skinned meshes."""
+    mesh: str | None = None
+    """Read only this Mesh (path or name); default every mesh bound to the skeleton, merged."""
+    animation: str | None = None
+    """Path or name of the SkelAnimation to sample (default skel:animationSource; none: the rest pose)."""
+    fps: float = 30.0
+    """Frame f is time code t0 + f * timeCodesPerSecond / fps, t0 the clip's first key."""
+    times: list[float] | None = None
+    """Sample at these times (seconds after t0) instead."""
+    normalize: bool = True
+    """Divide each point's weights by their sum; false rejects rows off by more than 1e-6."""
+
+
+class UsdReader(Reader[UsdReaderParams]):
     name = "usd"
     summary = ("UsdSkel character (.usd/.usda/.usdc/.usdz): meshes bound to one Skeleton, joints as handles, "
                "jointIndices/jointWeights, one SkelAnimation sampled at fps")
     role = "usd"
     suffixes = USD_SUFFIXES
 
-    class Params(Params):
-        skeleton: str | None = None
-        mesh: str | None = None
-        animation: str | None = None
-        fps: float = 30.0
-        times: list[float] | None = None
-        normalize: bool = True
-
-    def read(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
+    def read(self, path: Path, asset: Asset, params: UsdReaderParams, ctx: StepContext) -> None:
         from rigslim.io.usd.read import read_usd_skin
 
         skin = read_usd_skin(path, skeleton=params.skeleton, mesh=params.mesh, animation=params.animation,
@@ -54,23 +61,26 @@ class UsdReader(Reader):
                                    "frames": len(skin.poses), "vertices": skin.mesh.n_vertices, "notes": skin.notes}
 
 
-class UsdWriter(Writer):
+class UsdWriterParams(Params):
+    levels: bool = True
+    """Write the simplified levels a decimate step made."""
+    lod: Literal["variant", "prims"] = "variant"
+    """Layout of levels: a ``LOD`` variant set on the model prim, or ``UsdLod`` items (docs/usd.md)."""
+    fps: float = 30.0
+    """Frame rate of an exported animation (glTF inputs keep the rate they were sampled at)."""
+    keep_input_weights: bool = True
+    """With no solve step, keep the file's influences (else write the weights as read, normalised)."""
+    clamp_negative: bool = False
+    """Set negative weights to zero and renormalise those rows instead of failing."""
+
+
+class UsdWriter(Writer[UsdWriterParams]):
     name = "usd"
     summary = ("UsdSkel (.usd/.usda/.usdc/.usdz): the source stage with reduced weights (elementSize = k) and "
                "levels (LOD variant set or UsdLod prims), or a new UsdSkel character from any skeleton input")
     suffixes = USD_SUFFIXES
 
-    class Params(Params):
-        levels: bool = True
-        lod: Literal["variant", "prims"] = "variant"
-        """Layout of levels: a ``LOD`` variant set on the model prim, or ``UsdLod`` items (docs/usd.md)."""
-        fps: float = 30.0
-        """Frame rate of an exported animation (glTF inputs keep the rate they were sampled at)."""
-        keep_input_weights: bool = True
-        """With no solve step, keep the file's influences (else write the weights as read, normalised)."""
-        clamp_negative: bool = False
-
-    def write(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
+    def write(self, path: Path, asset: Asset, params: UsdWriterParams, ctx: StepContext) -> None:
         from rigslim.io.usd.write import write_usd
 
         levels = (asset.levels or None) if params.levels else None
@@ -95,7 +105,7 @@ class UsdWriter(Writer):
         ctx.report.update({"mode": mode, "k": asset.reduced.k if asset.reduced is not None else None})
 
     @staticmethod
-    def _export(path: Path, asset: Asset, params: Params, levels) -> dict:
+    def _export(path: Path, asset: Asset, params: UsdWriterParams, levels) -> dict:
         """A new UsdSkel stage from the asset, then levels through the same writer as a USD source."""
         from rigslim.io.usd.export import bind_transforms, build_stage
         from rigslim.io.usd.read import usd_skin_of_stage
@@ -110,7 +120,8 @@ class UsdWriter(Writer):
         bind = bind_transforms(asset.handles, gltf if gltf is not None and gltf.mesh is asset.mesh else None)
         name = getattr(asset.mesh, "source", None) or "Character"
         from_gltf = gltf is not None and gltf.mesh is asset.mesh
-        fps = gltf.fps if from_gltf else params.fps          # a glTF's frames keep the rate they were sampled at
+        # a glTF's frames keep the rate they were sampled at
+        fps = gltf.fps if from_gltf and gltf is not None else params.fps
         clips = _other_gltf_clips(gltf, fps) if from_gltf else None
         bound = _clip_name(gltf) if from_gltf else "Animation"
         stage = build_stage(asset.mesh, asset.handles, weights, asset.poses, fps=fps, bind=bind,

@@ -29,15 +29,17 @@ class NPZWriter(Writer):
         write_reduced_npz(path, _reduced(asset))
 
 
-class DMATWriter(Writer):
+class DMATWriterParams(Params):
+    binary: bool = True
+    """Binary DMAT (false: ASCII)."""
+
+
+class DMATWriter(Writer[DMATWriterParams]):
     name = "dmat"
     summary = "reduced weights as a dense m x n DMAT (binary or ASCII), as libigl reads them"
     suffixes = (".dmat",)
 
-    class Params(Params):
-        binary: bool = True
-
-    def write(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
+    def write(self, path: Path, asset: Asset, params: DMATWriterParams, ctx: StepContext) -> None:
         reduced = _reduced(asset)
         if reduced.n_vertices * reduced.n_handles > 2e8:
             raise StepError("the dense matrix would exceed 200M entries", field="write",

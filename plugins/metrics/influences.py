@@ -28,6 +28,7 @@ class MaxInfluences(Metric):
             after = np.concatenate([level.weights.influence_counts() for level in evaluation.levels])
         else:
             evaluation.asset.require("reduced", step="max-influences")
+            assert evaluation.asset.reduced is not None  # require() raised otherwise
             after = evaluation.asset.reduced.influence_counts()
         before = influence_counts(evaluation.asset.weights)
         return {"max_influences": int(after.max()), "mean_influences": float(np.mean(after)),

@@ -27,16 +27,17 @@ if TYPE_CHECKING:
 __all__ = ["Metro", "metro_distance"]
 
 
-class Metro(Metric):
+class MetroParams(Params):
+    samples: int = Field(default=20000, ge=100)
+    """Surface samples per direction and pose."""
+
+
+class Metro(Metric[MetroParams]):
     name = "metro"
     summary = ("two-sided Metro/Hausdorff distance (pymeshlab) per test pose, RMS and max in world units and % of "
                "the world-space diagonal of the first test frame")
 
-    class Params(Params):
-        samples: int = Field(default=20000, ge=100)
-        """Surface samples per direction and pose."""
-
-    def compute(self, evaluation: Evaluation, params: Params,
+    def compute(self, evaluation: Evaluation, params: MetroParams,
                 ctx: StepContext | None = None) -> dict[str, Any]:
         if not pymeshlab_available():  # pragma: no cover - pymeshlab is in the 'metro' extra
             raise StepError("the metro metric needs pymeshlab", field="evaluate",

@@ -13,30 +13,40 @@ if TYPE_CHECKING:
     from rigslim.plugin import StepContext
 
 
-class ReportWriter(Writer):
+class ReportWriterParams(Params):
+    frames: list[int] | None = None
+    """Animation frames to render (default: the worst test frame of the first evaluation)."""
+    width: int = 320
+    """Width of each render in pixels."""
+    height: int = 270
+    """Height of each render in pixels."""
+    png_dir: str | None = None
+    """Also write the renders as PNG files here (relative to the pipeline file)."""
+    compare: list[str] = []
+    """Metrics JSON files of other runs to compare with (relative to the pipeline file)."""
+    title: str | None = None
+    """Page title (default: 'rigslim report: ' and the runs' names)."""
+    backend: Literal["auto", "opengl", "numpy"] = "auto"
+    """Renderer: auto is OpenGL through EGL when available, else the numpy rasteriser."""
+    projection: Literal["perspective", "orthographic"] = "perspective"
+    """Camera projection of the renders."""
+    azimuth: float = 30.0
+    """Viewing direction in degrees around the up axis, from the axis after it."""
+    elevation: float = 15.0
+    """Viewing direction in degrees above the horizon."""
+    up_axis: Literal[0, 1, 2] = 1
+    """World axis that points up in the images (0 x, 1 y, 2 z)."""
+    render: bool = True
+    """False leaves the renders out (table and plots only)."""
+
+
+class ReportWriter(Writer[ReportWriterParams]):
     name = "report"
     summary = ("self-contained HTML report of the evaluations so far: table, error curves, error against k, "
                "weight-count histograms, OpenGL renders (full, reduced, normal deviation)")
     suffixes = (".html", ".htm")
 
-    class Params(Params):
-        #: Animation frames to render (default: the worst test frame of the first evaluation).
-        frames: list[int] | None = None
-        width: int = 320
-        height: int = 270
-        #: Also write the renders as PNG files here (relative to the pipeline file).
-        png_dir: str | None = None
-        #: Metrics JSON files of other runs to compare with (relative to the pipeline file).
-        compare: list[str] = []
-        title: str | None = None
-        backend: Literal["auto", "opengl", "numpy"] = "auto"
-        projection: Literal["perspective", "orthographic"] = "perspective"
-        azimuth: float = 30.0
-        elevation: float = 15.0
-        up_axis: Literal[0, 1, 2] = 1
-        render: bool = True
-
-    def write(self, path: Path, asset: Asset, params: Params, ctx: StepContext) -> None:
+    def write(self, path: Path, asset: Asset, params: ReportWriterParams, ctx: StepContext) -> None:
         from rigslim.report import RenderData, build_report, load_document, write_report
 
         document = ctx.document

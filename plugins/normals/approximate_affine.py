@@ -26,16 +26,17 @@ if TYPE_CHECKING:
     from rigslim.plugin import StepContext
 
 
-class ApproximateAffineNormals(NormalEstimator):
+class ApproximateAffineNormalsParams(Params):
+    #: Where to evaluate: numpy reference, the compiled cpu kernel, the OpenCL kernel, or the GLSL vertex shader.
+    backend: Backend = "numpy"
+    #: OpenCL device spec (opencl backend only).
+    device: str | None = None
+
+
+class ApproximateAffineNormals(NormalEstimator[ApproximateAffineNormalsParams]):
     name = "approximate-affine"
     summary = ("cages: normals moved by the inverse transpose of the w^2-weighted affine fit of each "
                "vertex's handles, normalize(adj(X) P n) (numpy, cpu, opencl or opengl)")
-
-    class Params(Params):
-        #: Where to evaluate: numpy reference, the compiled cpu kernel, the OpenCL kernel, or the GLSL vertex shader.
-        backend: Backend = "numpy"
-        #: OpenCL device spec (opencl backend only).
-        device: str | None = None
 
     def __init__(self):
         self._key = None
@@ -50,7 +51,8 @@ class ApproximateAffineNormals(NormalEstimator):
         return self._rest
 
     def estimate(self, mesh: Mesh, weights: ReducedWeights, handles: Handles | None, T: np.ndarray,
-                 positions: np.ndarray | None, params: Params, ctx: StepContext | None = None) -> np.ndarray:
+                 positions: np.ndarray | None, params: ApproximateAffineNormalsParams,
+                 ctx: StepContext | None = None) -> np.ndarray:
         C0 = cage_rest_positions(handles)
         if params.backend != "numpy":
             return normals_from_backend(params.backend, "approximate-affine", mesh, weights, handles, T,

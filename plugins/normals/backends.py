@@ -26,10 +26,12 @@ def bound_deformer(backend: str, mode: str, mesh, weights, handles, device: str 
         return entry[3]
     if entry is not None:
         entry[3].close()
+    from rigslim.plugin import Deformer
     from rigslim.plugin.host import get_host
 
     # the deformer plugin of that name, through the host: no plugin package imports another
     deformer = get_host().get("deformer", backend)
+    assert isinstance(deformer, Deformer)  # the host loads only Deformer instances as deformers
     raw = {"normals": mode}
     if device is not None and backend == "opencl":
         raw["device"] = device

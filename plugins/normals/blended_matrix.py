@@ -22,15 +22,16 @@ if TYPE_CHECKING:
     from rigslim.plugin import StepContext
 
 
-class BlendedMatrixNormals(NormalEstimator):
+class BlendedMatrixNormalsParams(Params):
+    #: Where to evaluate: numpy reference, the compiled cpu kernel, the OpenCL kernel, or the GLSL vertex shader.
+    backend: Backend = "numpy"
+    #: OpenCL device spec (opencl backend only).
+    device: str | None = None
+
+
+class BlendedMatrixNormals(NormalEstimator[BlendedMatrixNormalsParams]):
     name = "blended-matrix"
     summary = "skeletons: rest normals times the inverse transpose of sum_l w_l R_l (numpy, cpu, opencl or opengl)"
-
-    class Params(Params):
-        #: Where to evaluate: numpy reference, the compiled cpu kernel, the OpenCL kernel, or the GLSL vertex shader.
-        backend: Backend = "numpy"
-        #: OpenCL device spec (opencl backend only).
-        device: str | None = None
 
     def __init__(self):
         self._rest = (None, None)
@@ -41,7 +42,8 @@ class BlendedMatrixNormals(NormalEstimator):
         return self._rest[1]
 
     def estimate(self, mesh: Mesh, weights: ReducedWeights, handles: Handles | None, T: np.ndarray,
-                 positions: np.ndarray | None, params: Params, ctx: StepContext | None = None) -> np.ndarray:
+                 positions: np.ndarray | None, params: BlendedMatrixNormalsParams,
+                 ctx: StepContext | None = None) -> np.ndarray:
         if handles is not None and handles.is_cage:
             raise StepError("blended-matrix normals need bone transforms; a cage's blended linear part is zero",
                             field="normals", fix="use 'normals: approximate-affine' for cages")

@@ -22,5 +22,5 @@ class RecomputedNormals(NormalEstimator):
                "compiled; equal to igl.per_vertex_normals to rounding)")
 
     def estimate(self, mesh: Mesh, weights: ReducedWeights, handles: Handles | None, T: np.ndarray,
-                 positions: np.ndarray | None, params: Params, ctx: StepContext | None = None) -> np.ndarray:
+                 positions: np.ndarray, params: Params, ctx: StepContext | None = None) -> np.ndarray:
         return per_vertex_normals(positions, mesh.F)

@@ -20,18 +20,7 @@ KERNEL_DECORATORS = frozenset({"njit", "jit", "vectorize", "guvectorize", "intri
 
 #: ``path::qualified name`` of the functions still over the limit; split one into phases, then take it off.
 KNOWN = frozenset({
-    "framework/io/gltf/lod.py::level_primitives",
-    "framework/io/gltf/write.py::export_skinned",
-    "framework/io/gltf/write.py::write_gltf",
     "framework/numerics/small_qp.py::solve_small_qps",
-    "framework/report/data.py::load_render_data",
-    "framework/report/html.py::build_report",
-    "framework/report/render.py::Camera.fit",
-    "framework/report/renders.py::render_rows",
-    "plugins/decimation/collapse.py::_simplify_compiled",
-    "plugins/decimation/collapse.py::simplify",
-    "plugins/deformers/opengl_deformer.py::OpenGLBound.__init__",
-    "plugins/generators/cage.py::build_cage",
     "plugins/solvers/local_solver.py::local_solve",
     "plugins/solvers/methods.py::_solve",
 })

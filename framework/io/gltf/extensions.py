@@ -175,9 +175,9 @@ def _decode_draco(doc) -> None:
 def _cast(arr: np.ndarray, acc: dict, doc, where: str) -> bytes:
     """A decoded Draco attribute in the accessor's own component type and count."""
     dtype = np.dtype(_DTYPES[acc["componentType"]])
-    width = _WIDTH.get(acc.get("type"), 1)
+    width = _WIDTH.get(acc.get("type", "SCALAR"), 1)
     arr = np.asarray(arr).reshape(len(arr), -1) if width > 1 else np.asarray(arr).reshape(-1)
-    if len(arr) != acc["count"] or (width > 1 and arr.shape[1] != width):
+    if len(arr) != acc["count"] or (width > 1 and arr.shape[1:] != (width,)):
         raise InputError(f"Draco decoded {arr.shape} values, the accessor says {acc['count']} x {width}",
                          source=doc.path, field=where, fix="re-export the file")
     if dtype.kind in "iu":

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -239,12 +240,12 @@ def projected_attributes(points: np.ndarray, owners: np.ndarray, V: np.ndarray, 
         return out
     slot = {int(h): i for i, h in enumerate(owners)}
     R = corner_keys
-    pf, pq = [], []
+    hits, slots = [], []
     for corner in range(3):
         hit = np.flatnonzero(np.isin(R[:, corner], owners))
-        pf.append(hit)
-        pq.append(np.fromiter((slot[int(h)] for h in R[hit, corner]), np.int64, len(hit)))
-    pf, pq = np.concatenate(pf), np.concatenate(pq)
+        hits.append(hit)
+        slots.append(np.fromiter((slot[int(h)] for h in R[hit, corner]), np.int64, len(hit)))
+    pf, pq = np.concatenate(hits), np.concatenate(slots)
     if not len(pf):
         return out
     a, b, c = V[Fw[pf, 0]], V[Fw[pf, 1]], V[Fw[pf, 2]]
@@ -291,15 +292,11 @@ def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | No
     Faces that fold onto another face (two faces with the same three
     vertices, from selective refinement) are dropped like the level does.
     """
-    if level.vertex_ids is None:
-        raise StepError(f"level '{level.label}' was not taken from a progressive hierarchy", field="levels",
-                        fix="use a hierarchy decimator (quartic, mohr-gleicher, decoro-rusinkiewicz) for glTF LODs")
-    if transfer not in ("project", "collapse"):
-        raise StepError(f"unknown attribute transfer '{transfer}'", field="transfer", fix="use project or collapse")
+    _check_level(level, transfer)
     data = primitive_data(skin) if data is None else data
     if transfer == "collapse" and attributes is None:
         attributes = hierarchy_attributes(skin, hier, data)
-    attributes = attributes if attributes is not None else [None] * len(data)
+    per_primitive: Sequence[np.ndarray | None] = attributes if attributes is not None else [None] * len(data)
     m = hier.n_original
     ids = np.asarray(level.vertex_ids, np.int64)
     rep = level_representatives(hier, ids)
@@ -309,17 +306,13 @@ def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | No
     C = int(charts.max(initial=0)) + 1
     out = []
     offset = 0
-    for d, sl, (Fw, Ff), A in zip(data, skin.slices, welded_faces(skin, data), attributes, strict=False):
+    for d, sl, (Fw, Ff), A in zip(data, skin.slices, welded_faces(skin, data), per_primitive, strict=False):
         Ff_all_slice = Ff
         ch_all = charts[offset:offset + len(Fw)]
         offset += len(Fw)
         R = rep[Fw]
         corner_keys = R * C + ch_all[:, None]
-        keep = (R >= 0).all(axis=1) & (R[:, 0] != R[:, 1]) & (R[:, 1] != R[:, 2]) & (R[:, 2] != R[:, 0])
-        R, Ff, ch = R[keep], Ff[keep], ch_all[keep]
-        if len(R) and len(level_keys) < len(hier.F):
-            inlevel = np.array([tuple(r) in level_keys for r in np.sort(R, axis=1).tolist()], bool)
-            R, Ff, ch = R[inlevel], Ff[inlevel], ch[inlevel]
+        R, Ff, ch = _level_faces(R, Ff, ch_all, level_keys, len(hier.F))
         # output vertex key: the file vertex where the level kept the vertex, else (hierarchy vertex, chart):
         # a vertex made by collapses along a seam gets one output vertex per side
         key = np.where(R < m, Ff - sl.start, -1 - (R * C + ch[:, None]))
@@ -329,15 +322,13 @@ def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | No
         local = np.where(orig, uniq, 0)
         # hierarchy id: an original vertex's is its welded id (the level kept it), a new one's from its key
         hv = np.where(orig, vmap[sl.start + local], (-1 - uniq) // C)
-        rows = np.searchsorted(ids, hv)
-        if len(hv) and not np.array_equal(ids[np.minimum(rows, len(ids) - 1)], hv):
-            raise StepError(f"level '{level.label}' does not match its hierarchy", field="levels",
-                            fix="write levels of the hierarchy the same step built")
+        rows = _level_rows(ids, hv, level.label)
         cols = d.columns()
         X = np.empty((len(uniq), sum(w for _, w in cols)))
         if X.shape[1]:
             X[orig] = d.matrix()[local[orig]]
             if transfer == "collapse":
+                assert A is not None  # hierarchy_attributes() above
                 X[~orig] = A[hv[~orig]]
             else:
                 Y = projected_attributes(hier.V[hv[~orig]], (-1 - uniq)[~orig], hier.V[:m], Fw, Ff_all_slice,
@@ -347,17 +338,56 @@ def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | No
         if np.isnan(X).any():
             raise StepError(f"level '{level.label}': a vertex of primitive {d.index} has no attribute value",
                             field="levels", fix="report this file; simplify with seams locked")
-        attrs, targets, c = {}, [dict() for _ in d.targets], 0
-        for k, w in cols:
-            block = X[:, c:c + w]
-            if k.startswith("t") and "/" in k:
-                j, name = k[1:].split("/", 1)
-                targets[int(j)][name] = block
-            else:
-                attrs[k] = block
-            c += w
+        attrs, targets = _column_blocks(X, cols, len(d.targets))
         out.append(LevelPrimitive(d.index, hier.V[hv], faces, rows, attrs, targets))
     return out
+
+
+def _check_level(level, transfer: str) -> None:
+    """A level :func:`level_primitives` can write: taken from a hierarchy, with a known ``transfer``."""
+    if level.vertex_ids is None:
+        raise StepError(f"level '{level.label}' was not taken from a progressive hierarchy", field="levels",
+                        fix="use a hierarchy decimator (quartic, mohr-gleicher, decoro-rusinkiewicz) for glTF LODs")
+    if transfer not in ("project", "collapse"):
+        raise StepError(f"unknown attribute transfer '{transfer}'", field="transfer", fix="use project or collapse")
+
+
+def _level_rows(ids: np.ndarray, hv: np.ndarray, label: str) -> np.ndarray:
+    """Rows of the level's vertices ``ids`` (sorted) holding hierarchy vertices ``hv``; each must be there."""
+    rows = np.searchsorted(ids, hv)
+    if len(hv) and not np.array_equal(ids[np.minimum(rows, len(ids) - 1)], hv):
+        raise StepError(f"level '{label}' does not match its hierarchy", field="levels",
+                        fix="write levels of the hierarchy the same step built")
+    return rows
+
+
+def _level_faces(R: np.ndarray, Ff: np.ndarray, ch: np.ndarray, level_keys: set, n_hier_faces: int
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The source faces a level keeps, given the level vertex ``R`` of each corner: three distinct level
+    vertices, and (after selective refinement) a face of the level; their rows of ``R``, ``Ff`` and ``ch``."""
+    keep = (R >= 0).all(axis=1) & (R[:, 0] != R[:, 1]) & (R[:, 1] != R[:, 2]) & (R[:, 2] != R[:, 0])
+    R, Ff, ch = R[keep], Ff[keep], ch[keep]
+    if len(R) and len(level_keys) < n_hier_faces:
+        inlevel = np.array([tuple(r) in level_keys for r in np.sort(R, axis=1).tolist()], bool)
+        R, Ff, ch = R[inlevel], Ff[inlevel], ch[inlevel]
+    return R, Ff, ch
+
+
+def _column_blocks(X: np.ndarray, cols: list[tuple[str, int]], n_targets: int
+                   ) -> tuple[dict[str, np.ndarray], list[dict[str, np.ndarray]]]:
+    """The attribute and morph-target blocks of the columns ``X`` (:meth:`PrimitiveData.columns` order)."""
+    attrs: dict[str, np.ndarray] = {}
+    targets: list[dict[str, np.ndarray]] = [{} for _ in range(n_targets)]
+    c = 0
+    for k, w in cols:
+        block = X[:, c:c + w]
+        if k.startswith("t") and "/" in k:
+            j, name = k[1:].split("/", 1)
+            targets[int(j)][name] = block
+        else:
+            attrs[k] = block
+        c += w
+    return attrs, targets
 
 
 def lod_nodes(js: dict) -> dict[int, list[int]]:

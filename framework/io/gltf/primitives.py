@@ -34,7 +34,7 @@ class PrimitiveData:
     count: int
     attributes: dict[str, np.ndarray]
     targets: list[dict[str, np.ndarray]] = field(default_factory=list)
-    faces: np.ndarray | None = None
+    faces: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
 
     def columns(self) -> list[tuple[str, int]]:
         """``(key, width)`` of every carried column block: attributes, then ``"t{j}/{name}"`` target blocks."""

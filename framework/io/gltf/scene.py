@@ -20,9 +20,10 @@ def node_trs(node: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
 
 def node_matrix(node: dict) -> np.ndarray:
     """A node's rest local transform (4 x 4): its column-major ``matrix`` or ``T @ R @ S``."""
-    if "matrix" in node:
+    trs = node_trs(node)
+    if trs is None:  # the node has a matrix
         return np.array(node["matrix"], dtype=np.float64).reshape(4, 4).T
-    return trs_matrix(*node_trs(node))
+    return trs_matrix(*trs)
 
 
 def node_parents(doc: dict) -> np.ndarray:
@@ -243,8 +244,9 @@ def local_matrices(doc: GltfDocument, animation: int | None, t: np.ndarray) -> n
                                                                  rotation=path == "rotation")
     local = np.empty((len(nodes), p, 4, 4))
     for i, node in enumerate(nodes):
-        if i in animated:
-            rt, rr, rs = trs[i]
+        rest = trs[i]
+        if i in animated and rest is not None:  # an animated node has TRS (a matrix raised above)
+            rt, rr, rs = rest
             a = animated[i]
             local[i] = trs_matrix(a.get("translation", np.broadcast_to(rt, (p, 3))),
                                   a.get("rotation", np.broadcast_to(rr, (p, 4))),

@@ -238,11 +238,11 @@ def _check_references(doc: Document, path) -> None:
     for i, s in enumerate(doc.scenes):
         for j, n in enumerate(s.nodes):
             ref(f"scenes[{i}].nodes[{j}]", n, "nodes")
-    for i, n in enumerate(doc.nodes):
-        for j, c in enumerate(n.children):
+    for i, node in enumerate(doc.nodes):
+        for j, c in enumerate(node.children):
             ref(f"nodes[{i}].children[{j}]", c, "nodes")
-        ref(f"nodes[{i}].mesh", n.mesh, "meshes")
-        ref(f"nodes[{i}].skin", n.skin, "skins")
+        ref(f"nodes[{i}].mesh", node.mesh, "meshes")
+        ref(f"nodes[{i}].skin", node.skin, "skins")
     for i, m in enumerate(doc.meshes):
         for j, p in enumerate(m.primitives):
             where = f"meshes[{i}].primitives[{j}]"
@@ -252,25 +252,25 @@ def _check_references(doc: Document, path) -> None:
             for t, target in enumerate(p.targets or []):
                 for name, a in target.items():
                     ref(f"{where}.targets[{t}].{name}", a, "accessors")
-    for i, s in enumerate(doc.skins):
-        ref(f"skins[{i}].inverseBindMatrices", s.inverseBindMatrices, "accessors")
-        ref(f"skins[{i}].skeleton", s.skeleton, "nodes")
-        for j, n in enumerate(s.joints):
-            ref(f"skins[{i}].joints[{j}]", n, "nodes")
-    for i, a in enumerate(doc.animations):
-        for j, c in enumerate(a.channels):
-            if c.sampler >= len(a.samplers):
+    for i, skin in enumerate(doc.skins):
+        ref(f"skins[{i}].inverseBindMatrices", skin.inverseBindMatrices, "accessors")
+        ref(f"skins[{i}].skeleton", skin.skeleton, "nodes")
+        for j, joint in enumerate(skin.joints):
+            ref(f"skins[{i}].joints[{j}]", joint, "nodes")
+    for i, anim in enumerate(doc.animations):
+        for j, channel in enumerate(anim.channels):
+            if channel.sampler >= len(anim.samplers):
                 _fail(path, f"animations[{i}].channels[{j}].sampler",
-                      f"index {c.sampler} is out of range (the animation has {len(a.samplers)} samplers)")
-            ref(f"animations[{i}].channels[{j}].target.node", c.target.node, "nodes")
-        for j, s in enumerate(a.samplers):
-            ref(f"animations[{i}].samplers[{j}].input", s.input, "accessors")
-            ref(f"animations[{i}].samplers[{j}].output", s.output, "accessors")
-    for i, a in enumerate(doc.accessors):
-        ref(f"accessors[{i}].bufferView", a.bufferView, "bufferViews")
-        if a.sparse is not None:
-            ref(f"accessors[{i}].sparse.indices.bufferView", a.sparse.indices.bufferView, "bufferViews")
-            ref(f"accessors[{i}].sparse.values.bufferView", a.sparse.values.bufferView, "bufferViews")
+                      f"index {channel.sampler} is out of range (the animation has {len(anim.samplers)} samplers)")
+            ref(f"animations[{i}].channels[{j}].target.node", channel.target.node, "nodes")
+        for j, sampler in enumerate(anim.samplers):
+            ref(f"animations[{i}].samplers[{j}].input", sampler.input, "accessors")
+            ref(f"animations[{i}].samplers[{j}].output", sampler.output, "accessors")
+    for i, acc in enumerate(doc.accessors):
+        ref(f"accessors[{i}].bufferView", acc.bufferView, "bufferViews")
+        if acc.sparse is not None:
+            ref(f"accessors[{i}].sparse.indices.bufferView", acc.sparse.indices.bufferView, "bufferViews")
+            ref(f"accessors[{i}].sparse.values.bufferView", acc.sparse.values.bufferView, "bufferViews")
     for i, v in enumerate(doc.bufferViews):
         ref(f"bufferViews[{i}].buffer", v.buffer, "buffers")
     for i, im in enumerate(doc.images):
@@ -309,6 +309,8 @@ def _check_hierarchy(doc: Document, path) -> None:
 def accessor_layout(doc: Document, index: int) -> tuple[int, int, int]:
     """(element bytes, stride, bytes spanned) of accessor ``index`` with a bufferView."""
     acc = doc.accessors[index]
+    if acc.bufferView is None:
+        raise ValueError(f"accessors[{index}] has no bufferView")
     size = COMPONENT_SIZES[acc.componentType]
     ncomp = TYPE_SIZES[acc.type]
     if acc.type in ("MAT2", "MAT3") and size < 4:  # columns padded to 4 bytes (spec 3.6.2.4)

@@ -182,8 +182,9 @@ def _choose_skin(doc: GltfDocument, skin, mesh) -> tuple[int, list[int]]:
     if not skins:
         raise InputError("the file has no skin", source=doc.path, field="skins",
                          fix="give a skinned glTF (a mesh node with 'skin')")
-    users = {}  # skin -> ordered unique mesh indices
+    users: dict[int, list[int]] = {}  # skin -> ordered unique mesh indices
     nodes = js.get("nodes", [])
+    shown: list[int] | range
     if mesh is None and js.get("scenes"):
         # only what the default scene shows (levels written as extra scenes or MSFT_lod nodes stay out)
         scene = js["scenes"][js.get("scene", 0)]
@@ -437,7 +438,7 @@ def _joint_handles(doc: GltfDocument, joints: list[int], ibm: np.ndarray) -> Han
         while p >= 0 and p not in joint_of:
             p = parent[p]
         parents[i] = joint_of.get(int(p), -1) if p >= 0 else -1
-    first_child = {}
+    first_child: dict[int, int] = {}
     for i in range(n):
         if parents[i] >= 0:
             first_child.setdefault(int(parents[i]), i)

@@ -19,7 +19,7 @@ import json
 import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -508,14 +508,31 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
     the output goes to another folder.
     """
     path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in (".glb", ".gltf"):
+    js = copy.deepcopy(source.document.json)
+    _check_rewrite(path, source, reduced, quantize, js)
+    clamp: dict[str, Any] | None = {} if clamp_negative else None
+    if reduced is not None and clamp is not None:
+        reduced = _clamped(reduced, clamp)
+    blob = _repacked(path, js, source, reduced)
+    stats: dict = _put_reduced(js, blob, source, reduced, quantize, sets) if reduced is not None else {}
+    if levels:
+        stats.update(_put_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp, lod, coverage,
+                                 level_extras, level_skins))
+    _write_one_buffer(path, js, blob, embed)
+    if reduced is not None:
+        stats["sets"] = sets or max(1, -(-reduced.k // 4))
+    if clamp is not None:
+        stats.update({"clamped_vertices": 0, "most_negative": 0.0} | clamp)
+    return stats
+
+
+def _check_rewrite(path: Path, source: GltfSkin, reduced, quantize: str, js: dict) -> None:
+    """What :func:`write_gltf` can write: a glTF suffix, a known encoding, weights of the mesh read, and no
+    meshopt-compressed buffers."""
+    if path.suffix.lower() not in (".glb", ".gltf"):
         raise StepError(f"'{path.suffix}' is not a glTF suffix", field="write", fix="write to .glb or .gltf")
     if quantize not in QUANTIZATIONS:
         raise StepError(f"unknown weight encoding '{quantize}'", field="quantize", fix="use float, ushort or ubyte")
-    doc = source.document
-    js = copy.deepcopy(doc.json)
-    n_joints = len(source.joints)
     if reduced is not None and reduced.n_vertices != source.mesh.n_vertices:
         raise StepError(f"reduced weights have {reduced.n_vertices} rows, the glTF mesh {source.mesh.n_vertices}",
                         field="reduced", fix="write the weights of the mesh read from this file")
@@ -524,16 +541,22 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
             raise StepError(f"documents using {ext} cannot be rewritten", field="extensionsUsed",
                             fix="decompress the file first (e.g. gltfpack -noq)")
 
-    stats: dict = {}
-    clamp = {} if clamp_negative else None
-    if reduced is not None and clamp is not None:
-        from rigslim.model.weights import ReducedWeights
 
-        values, st = clamp_negative_weights(reduced.values)
-        _merge_clamp(clamp, st)
-        reduced = ReducedWeights(reduced.indices, values, reduced.n_handles)
+def _clamped(reduced, clamp: dict[str, Any]):
+    """``reduced`` with negative weights set to zero and the rows renormalised; the counts go to ``clamp``."""
+    from rigslim.model.weights import ReducedWeights
 
-    # 1. take the skinning attributes out; drop their accessors (and views) that nothing else uses
+    values, st = clamp_negative_weights(reduced.values)
+    _merge_clamp(clamp, st)
+    return ReducedWeights(reduced.indices, values, reduced.n_handles)
+
+
+def _repacked(path: Path, js: dict, source: GltfSkin, reduced) -> _Blob:
+    """Steps 1 and 2 of :func:`write_gltf` on ``js``, the copy of the source document: with new weights,
+    the skinning attributes come out and their accessors (and views) that nothing else uses are dropped;
+    every kept bufferView is copied byte for byte into the new blob, then images stored as files (when
+    the output goes to another folder)."""
+    doc = source.document
     replaced: set[int] = set()
     if reduced is not None:
         for sl in source.slices:
@@ -549,7 +572,6 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
     kept_views = [i for i in range(len(js.get("bufferViews", []))) if i not in orphan_views]
     _drop(js, "bufferViews", orphan_views, _view_refs)
 
-    # 2. copy every kept bufferView into the new blob byte for byte, then images stored as files
     blob = _Blob(js)
     js["bufferViews"] = [blob.add_view(doc.buffer_view_bytes(i), template=view)
                          for i, view in zip(kept_views, js.get("bufferViews", []), strict=False)]
@@ -565,44 +587,47 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
         img.pop("uri")
         img["bufferView"] = len(js["bufferViews"]) - 1
         img.setdefault("mimeType", _mime(data, uri))
+    return blob
 
-    # 2b. the new skinning attributes
-    if reduced is not None:
-        encodings, kept = [], 0
-        for sl in source.slices:
-            attrs = js["meshes"][sl.mesh]["primitives"][sl.primitive]["attributes"]
-            rows = source.file_rows(sl)
-            I, W = reduced.indices[rows], reduced.values[rows]
-            exact = source_rows(source, sl, I, W)
-            encodings.append(_put_sets(blob, attrs, I, W, n_joints, quantize, sets, exact))
-            kept += int(exact.mask.sum()) if exact is not None else 0
-        stats["weight_encodings"] = encodings
-        stats["vertices_kept_exact"] = kept
 
-    # 3. simplified levels as meshes of their own
-    if levels:
-        for level in levels:
-            if level.weights.n_handles != n_joints:
-                raise StepError(f"level '{level.label}' has weights for {level.weights.n_handles} handles, "
-                                f"the skin has {n_joints} joints", field="levels",
-                                fix="simplify the mesh read from this glTF file")
-        if hierarchy is not None and all(lv.vertex_ids is not None for lv in levels):
-            stats["level_primitives"] = _write_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp,
-                                                      lod, coverage, level_extras, level_skins)
-        else:
-            _write_merged_levels(js, blob, source, levels, quantize, sets, clamp, lod, coverage)
+def _put_reduced(js: dict, blob: _Blob, source: GltfSkin, reduced, quantize: str, sets: int | None) -> dict:
+    """Step 2b of :func:`write_gltf`: the new JOINTS_n/WEIGHTS_n of every primitive the reader used (rows a
+    source file already holds exactly keep its bytes); ``weight_encodings`` and ``vertices_kept_exact``."""
+    encodings, kept = [], 0
+    for sl in source.slices:
+        attrs = js["meshes"][sl.mesh]["primitives"][sl.primitive]["attributes"]
+        rows = source.file_rows(sl)
+        I, W = reduced.indices[rows], reduced.values[rows]
+        exact = source_rows(source, sl, I, W)
+        encodings.append(_put_sets(blob, attrs, I, W, len(source.joints), quantize, sets, exact))
+        kept += int(exact.mask.sum()) if exact is not None else 0
+    return {"weight_encodings": encodings, "vertices_kept_exact": kept}
 
-    # 4. one buffer
+
+def _put_levels(js: dict, blob: _Blob, source: GltfSkin, levels, hierarchy, quantize: str, sets: int | None,
+                clamp: dict[str, Any] | None, lod: bool, coverage, level_extras, level_skins: bool) -> dict:
+    """Step 3 of :func:`write_gltf`: the simplified levels as meshes of their own (one primitive per source
+    primitive from a hierarchy, else one merged primitive); ``level_primitives`` in the first case."""
+    n_joints = len(source.joints)
+    for level in levels:
+        if level.weights.n_handles != n_joints:
+            raise StepError(f"level '{level.label}' has weights for {level.weights.n_handles} handles, "
+                            f"the skin has {n_joints} joints", field="levels",
+                            fix="simplify the mesh read from this glTF file")
+    if hierarchy is not None and all(lv.vertex_ids is not None for lv in levels):
+        return {"level_primitives": _write_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp,
+                                                  lod, coverage, level_extras, level_skins)}
+    _write_merged_levels(js, blob, source, levels, quantize, sets, clamp, lod, coverage)
+    return {}
+
+
+def _write_one_buffer(path: Path, js: dict, blob: _Blob, embed: bool) -> None:
+    """Step 4 of :func:`write_gltf`: the blob as the document's one buffer, then the file."""
     data = blob.bytes()
     js["buffers"] = [{"byteLength": len(data)}] if data else []
     if not data:
         js.pop("buffers")
     _write_document(path, js, data, embed=embed)
-    if reduced is not None:
-        stats["sets"] = sets or max(1, -(-reduced.k // 4))
-    if clamp is not None:
-        stats.update({"clamped_vertices": 0, "most_negative": 0.0} | clamp)
-    return stats
 
 
 def _skinned_nodes(js: dict, source: GltfSkin) -> list[int]:
@@ -672,7 +697,7 @@ def _write_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp, lo
     data = primitive_data(source)
     attributes = hierarchy_attributes(source, hierarchy, data)
     skinned = _skinned_nodes(js, source)
-    node_levels = {i: [] for i in skinned}
+    node_levels: dict[int, list[int]] = {i: [] for i in skinned}
     summary = []
     ibm = source_inverse_binds(source)
     for _j, level in enumerate(levels):
@@ -747,8 +772,8 @@ def _level_skins(js, blob, source, parts, I, W, label, ibm, quantize: str = "flo
         rows.setdefault(source.slices[part.slice_index].mesh, []).append(part.weight_rows)
     out = {}
     n = len(source.joints)
-    for mi, r in rows.items():
-        r = np.concatenate(r)
+    for mi, row_blocks in rows.items():
+        r = np.concatenate(row_blocks)
         used = used_joints(I[r], quantize_weights(W[r], quantize)) if ibm is not None else np.arange(n)
         out[mi] = level_skin(js, blob, source, used, label, ibm)
     return out
@@ -776,9 +801,9 @@ def _joint_roots(js: dict, joints: list[int]) -> list[int]:
 def _write_document(path: Path, js: dict, data: bytes, *, embed: bool = False) -> None:
     """Write JSON + one binary buffer as .glb, or .gltf with a .bin (or a data URI)."""
     if path.suffix.lower() == ".glb":
-        text = json.dumps(js, separators=(",", ":"), ensure_ascii=False).encode("utf-8")
-        text += b" " * ((-len(text)) % 4)
-        chunks = struct.pack("<II", len(text), CHUNK_JSON) + text
+        json_bytes = json.dumps(js, separators=(",", ":"), ensure_ascii=False).encode("utf-8")
+        json_bytes += b" " * ((-len(json_bytes)) % 4)
+        chunks = struct.pack("<II", len(json_bytes), CHUNK_JSON) + json_bytes
         if data:
             chunks += struct.pack("<II", len(data), CHUNK_BIN) + data
         out = struct.pack("<III", GLB_MAGIC, 2, 12 + len(chunks)) + chunks
@@ -868,9 +893,6 @@ def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.
     Local transforms are ``G_parent^{-1} G_b`` (rotation ``R_p^T R_b``,
     translation ``R_p^T (x_b - x_p)``), which needs rigid ``T_b``.
     """
-    from rigslim.model.weights import ReducedWeights
-    from rigslim.numerics.blend import per_vertex_normals
-
     path = Path(path)
     if handles is None or handles.kind != "skeleton" or handles.bones is None:
         raise StepError("exporting a skinned glTF needs a skeleton with bones", field="handles",
@@ -878,21 +900,48 @@ def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.
     n = handles.n
     start = np.asarray(handles.joints, float)[np.asarray(handles.bones)[:, 0]]
     parents = np.asarray(handles.parents, np.int64)
+    clamp: dict[str, Any] | None = {} if clamp_negative else None
+    I, W = _export_weights(weights, mesh, clamp)
+    js: dict[str, Any] = {"asset": {"version": "2.0", "generator": "rigslim export_skinned"}, "scene": 0,
+                          "nodes": [], "meshes": [], "skins": [], "accessors": [], "bufferViews": []}
+    blob = _Blob(js)
+    _put_export_mesh(js, blob, mesh, I, W, n, quantize, name)
+    roots = _put_export_skeleton(js, blob, handles, n, start, parents, name)
+    _put_export_levels(js, blob, levels or [], n, quantize, clamp, lod, roots)
+    if poses is not None and len(poses):
+        _put_export_animation(js, blob, poses, n, start, parents, fps, animation_name)
+    data = blob.bytes()
+    js["buffers"] = [{"byteLength": len(data)}]
+    _write_document(path, js, data, embed=embed)
+    stats = {"sets": max(1, -(-I.shape[1] // 4))}
+    if clamp is not None:
+        stats.update({"clamped_vertices": 0, "most_negative": 0.0} | clamp)
+    return stats
+
+
+def _export_weights(weights, mesh, clamp: dict[str, Any] | None) -> tuple[np.ndarray, np.ndarray]:
+    """(m, k) joint indices and weights of every vertex for :func:`export_skinned`, negative weights
+    clamped when ``clamp`` is a dict (the counts go there)."""
+    from rigslim.model.weights import ReducedWeights
+
     if isinstance(weights, ReducedWeights):
         I, W = weights.indices, weights.values
     else:
         I, W = _dense_rows(weights)
-    clamp = {} if clamp_negative else None
     if clamp is not None:
         W, st = clamp_negative_weights(W)
         _merge_clamp(clamp, st)
     if W.shape[0] != mesh.n_vertices:
         raise StepError(f"weights have {W.shape[0]} rows, the mesh {mesh.n_vertices} vertices", field="weights",
                         fix="give the weights of this mesh")
+    return I, W
 
-    js = {"asset": {"version": "2.0", "generator": "rigslim export_skinned"}, "scene": 0,
-          "nodes": [], "meshes": [], "skins": [], "accessors": [], "bufferViews": []}
-    blob = _Blob(js)
+
+def _put_export_mesh(js: dict, blob: _Blob, mesh, I: np.ndarray, W: np.ndarray, n: int, quantize: str,
+                     name: str) -> None:
+    """Mesh 0: positions, area-weighted normals (+z where a vertex has no face), the skinning sets, indices."""
+    from rigslim.numerics.blend import per_vertex_normals
+
     V = np.asarray(mesh.V, np.float32)
     N = per_vertex_normals(mesh.V, mesh.F).astype(np.float32)
     N[~np.isfinite(N).all(axis=1) | (np.abs(N).sum(axis=1) < 0.5)] = [0, 0, 1]   # no face: zero or NaN
@@ -904,15 +953,20 @@ def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.
                                 target=ELEMENT_ARRAY_BUFFER)
     js["meshes"].append({"name": name, "primitives": [{"attributes": attrs, "indices": indices, "mode": 4}]})
 
-    # joint nodes: node b + 1 is bone b; rest = bind, no rotation
-    children = [[] for _ in range(n)]
+
+def _put_export_skeleton(js: dict, blob: _Blob, handles, n: int, start: np.ndarray, parents: np.ndarray,
+                         name: str) -> list[int]:
+    """Node 0 (the mesh) and the joint nodes: node b + 1 is bone b at its start ``s_b``, rest = bind, no
+    rotation; the skin (inverse bind matrices ``Trans(-s_b)``) and scene 0. Returns the root joint nodes."""
+    children: list[list[int]] = [[] for _ in range(n)]
     for b in range(n):
         if parents[b] >= 0:
             children[parents[b]].append(b + 1)
     js["nodes"].append({"name": name, "mesh": 0, "skin": 0})
     for b in range(n):
         p = parents[b]
-        node = {"name": handles.names[b], "translation": (start[b] - (start[p] if p >= 0 else 0)).tolist()}
+        translation = (start[b] - (start[p] if p >= 0 else 0)).tolist()
+        node: dict[str, Any] = {"name": handles.names[b], "translation": translation}
         if children[b]:
             node["children"] = children[b]
         js["nodes"].append(node)
@@ -923,8 +977,15 @@ def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.
                                                                  .astype(np.float32), 5126, "MAT4", target=None)})
     roots = [b + 1 for b in range(n) if parents[b] < 0]
     js["scenes"] = [{"name": name, "nodes": [0] + roots}]
+    return roots
+
+
+def _put_export_levels(js: dict, blob: _Blob, levels: list, n: int, quantize: str, clamp: dict[str, Any] | None,
+                       lod: bool, roots: list[int]) -> None:
+    """One mesh and node per level with the same skin: linked from node 0 by ``MSFT_lod`` (halving screen
+    coverage), or each in a scene of its own."""
     level_nodes = []
-    for level in levels or []:
+    for level in levels:
         if level.weights.n_handles != n:
             raise StepError(f"level '{level.label}' has weights for {level.weights.n_handles} handles, "
                             f"the skeleton has {n} bones", field="levels", fix="simplify this mesh")
@@ -939,39 +1000,36 @@ def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.
         js["nodes"][0]["extras"] = {"MSFT_screencoverage": [0.5 ** (j + 1) for j in range(len(level_nodes))] + [0.0]}
         js["extensionsUsed"] = ["MSFT_lod"]
 
-    if poses is not None and len(poses):
-        if poses.n_handles != n:
-            raise StepError(f"poses have {poses.n_handles} handles, the skeleton {n} bones", field="poses",
-                            fix="use the animation of this skeleton")
-        R, t = rigid_parts(poses.T, source=poses.source)            # (p, n, 3, 3), (p, n, 3)
-        x = np.einsum("pnij,nj->pni", R, start) + t                # joint world positions
-        Rl = R.copy()
-        xl = x.copy()
-        for b in range(n):
-            p = parents[b]
-            if p >= 0:
-                Rl[:, b] = np.einsum("pji,pjk->pik", R[:, p], R[:, b])
-                xl[:, b] = np.einsum("pji,pj->pi", R[:, p], x[:, b] - x[:, p])
-        q = matrix_quaternion(Rl)                                   # (p, n, 4)
-        for j in range(1, len(q)):                                  # shortest arcs between frames
-            flip = np.sum(q[j] * q[j - 1], axis=1) < 0
-            q[j, flip] *= -1
-        times = (np.arange(len(poses)) / fps).astype(np.float32)
-        tacc = blob.new_accessor(times, 5126, "SCALAR", target=None, minmax=True)
-        samplers, channels = [], []
-        for b in range(n):
-            for path_name, values, type_ in (("translation", xl[:, b], "VEC3"), ("rotation", q[:, b], "VEC4")):
-                out = blob.new_accessor(values.astype(np.float32), 5126, type_, target=None)
-                samplers.append({"input": tacc, "output": out, "interpolation": "LINEAR"})
-                channels.append({"sampler": len(samplers) - 1, "target": {"node": b + 1, "path": path_name}})
-        js["animations"] = [{"name": animation_name, "samplers": samplers, "channels": channels}]
-    data = blob.bytes()
-    js["buffers"] = [{"byteLength": len(data)}]
-    _write_document(path, js, data, embed=embed)
-    stats = {"sets": max(1, -(-I.shape[1] // 4))}
-    if clamp is not None:
-        stats.update({"clamped_vertices": 0, "most_negative": 0.0} | clamp)
-    return stats
+
+def _put_export_animation(js: dict, blob: _Blob, poses, n: int, start: np.ndarray, parents: np.ndarray,
+                          fps: float, animation_name: str) -> None:
+    """The poses as one animation: LINEAR translation and rotation channels of every joint node, local
+    transforms ``G_parent^{-1} G_b`` (the Notes of :func:`export_skinned`), frame f at ``f / fps`` s."""
+    if poses.n_handles != n:
+        raise StepError(f"poses have {poses.n_handles} handles, the skeleton {n} bones", field="poses",
+                        fix="use the animation of this skeleton")
+    R, t = rigid_parts(poses.T, source=poses.source)            # (p, n, 3, 3), (p, n, 3)
+    x = np.einsum("pnij,nj->pni", R, start) + t                # joint world positions
+    Rl = R.copy()
+    xl = x.copy()
+    for b in range(n):
+        p = parents[b]
+        if p >= 0:
+            Rl[:, b] = np.einsum("pji,pjk->pik", R[:, p], R[:, b])
+            xl[:, b] = np.einsum("pji,pj->pi", R[:, p], x[:, b] - x[:, p])
+    q = matrix_quaternion(Rl)                                   # (p, n, 4)
+    for j in range(1, len(q)):                                  # shortest arcs between frames
+        flip = np.sum(q[j] * q[j - 1], axis=1) < 0
+        q[j, flip] *= -1
+    times = (np.arange(len(poses)) / fps).astype(np.float32)
+    tacc = blob.new_accessor(times, 5126, "SCALAR", target=None, minmax=True)
+    samplers, channels = [], []
+    for b in range(n):
+        for path_name, values, type_ in (("translation", xl[:, b], "VEC3"), ("rotation", q[:, b], "VEC4")):
+            out = blob.new_accessor(values.astype(np.float32), 5126, type_, target=None)
+            samplers.append({"input": tacc, "output": out, "interpolation": "LINEAR"})
+            channels.append({"sampler": len(samplers) - 1, "target": {"node": b + 1, "path": path_name}})
+    js["animations"] = [{"name": animation_name, "samplers": samplers, "channels": channels}]
 
 
 # --------------------------------------------------------------------------- pruned copies (one file per level)

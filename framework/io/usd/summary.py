@@ -64,7 +64,8 @@ def describe(path) -> dict:
         for q in b.GetSkinningTargets():
             prim = q.GetPrim()
             mesh = UsdGeom.Mesh(prim)
-            counts = np.array(mesh.GetFaceVertexCountsAttr().Get() or [], np.int64) if prim.IsA(UsdGeom.Mesh) else []
+            counts = (np.array(mesh.GetFaceVertexCountsAttr().Get() or [], np.int64) if prim.IsA(UsdGeom.Mesh)
+                      else np.zeros(0, np.int64))
             points = mesh.GetPointsAttr().Get(Usd.TimeCode.EarliestTime()) if prim.IsA(UsdGeom.Mesh) else None
             meshes.append({"path": str(prim.GetPath()), "type": str(prim.GetTypeName()),
                            "points": 0 if points is None else len(points), "faces": int(len(counts)),
