@@ -19,6 +19,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import subprocess
 import sys
@@ -38,8 +39,10 @@ RIGSLIM = ([str(Path(sys.executable).with_name("rigslim"))] if Path(sys.executab
 TARGETS = {"reduce": ("peak_gb", 4.0), "lod": ("peak_gb", 8.0), "compare": ("seconds", 60.0)}
 
 
-def tube(triangles: int):
-    """(V, F, W) of a 2-bone tube with about ``triangles`` triangles: rings along x in [0, 2], segments around."""
+def tube(triangles: int, hard: bool = False):
+    """(V, F, W) of a 2-bone tube with about ``triangles`` triangles: rings along x in [0, 2], segments around;
+    ``hard``: one influence per vertex (bone 1 past x = 1), what ``rigslim reduce -k 1`` makes of the smooth
+    blend."""
     quads = triangles // 2
     segments = max(8, int(np.sqrt(quads / 2)))
     rings = max(2, quads // segments + 1)
@@ -57,12 +60,14 @@ def tube(triangles: int):
     F = np.concatenate([np.stack([p00, p01, p11], 1), np.stack([p00, p11, p10], 1)]).astype(np.int64)
     t = np.clip((V[:, 0] - 0.8) / 0.4, 0.0, 1.0)
     w1 = t * t * (3 - 2 * t)                       # smoothstep blend of bone 1 over x in [0.8, 1.2]
+    if hard:
+        w1 = (V[:, 0] > 1.0).astype(float)
     W = np.stack([1 - w1, w1], 1)
     return V, F, W
 
 
-def write_tube(path: Path, triangles: int) -> dict:
-    """The tube as a skinned .glb (rigslim's exporter), bent by bone 1 about z over 31 frames."""
+def write_tube(path: Path, triangles: int, hard: bool = False) -> dict:
+    """The tube (:func:`tube`) as a skinned .glb (rigslim's exporter), bent by bone 1 about z over 31 frames."""
     import scipy.sparse as sp
 
     from rigslim.io.gltf.write import export_skinned
@@ -71,7 +76,7 @@ def write_tube(path: Path, triangles: int) -> dict:
     from rigslim.model.mesh import Mesh
     from rigslim.model.poses import Poses
 
-    V, F, W = tube(triangles)
+    V, F, W = tube(triangles, hard)
     rows = np.repeat(np.arange(len(V)), 2)
     A = sp.csr_matrix((W.ravel(), (rows, np.tile([0, 1], len(V)))), shape=(len(V), 2))
     A.eliminate_zeros()
@@ -89,31 +94,43 @@ def write_tube(path: Path, triangles: int) -> dict:
     return {"vertices": int(len(V)), "triangles": int(len(F)), "bytes": path.stat().st_size}
 
 
+def _compare_summary(stdout: str) -> dict | None:
+    """The Hausdorff and vertex figures of ``rigslim compare --json``'s output (``None`` if it is cut short)."""
+    try:
+        res = json.loads(stdout.strip().splitlines()[-1])
+    except (ValueError, IndexError):
+        return None
+    keys = ("frames", "hausdorff_frames", "hausdorff_frame_cap", "samples", "hausdorff_max_m", "hausdorff_rms_m",
+            "hausdorff_max_bound_m", "position_max_m", "position_rms_m")
+    return {k: res[k] for k in keys if k in res}
+
+
 def run_one(cmd: list[str], timeout: float) -> dict:
-    """Run ``cmd`` through a fresh helper process whose RUSAGE_CHILDREN peak is that command's alone: wall time,
-    peak RSS (GB), exit status and the output's tail."""
+    """Run ``cmd`` through a fresh helper process whose RUSAGE_CHILDREN figures are that command's alone: wall
+    time, CPU time (user + system, every thread), peak RSS (GB), exit status, the output's tail and the load
+    average at the start (1 min; on a shared machine wall time is about CPU time x max(1, load / cores))."""
     helper = ("import json, os, subprocess, sys, time, resource\n"
               "t0 = time.perf_counter()\n"
               "p = subprocess.run(json.loads(sys.argv[1]), capture_output=True, text=True,\n"
               "                   timeout=float(sys.argv[2]))\n"
               "ru = resource.getrusage(resource.RUSAGE_CHILDREN)\n"
               "print(json.dumps({'rc': p.returncode, 'seconds': time.perf_counter() - t0,\n"
-              "                  'peak_gb': ru.ru_maxrss * 1024 / 1e9, 'stdout': p.stdout[-600:],\n"
+              "                  'cpu_s': ru.ru_utime + ru.ru_stime,\n"
+              "                  'peak_gb': ru.ru_maxrss * 1024 / 1e9, 'stdout': p.stdout[-4000:],\n"
               "                  'stderr': p.stderr[-600:]}))\n")
-    import json
-
+    load = os.getloadavg()[0]
     t0 = time.perf_counter()
     try:
         p = subprocess.run([sys.executable, "-c", helper, json.dumps(cmd), str(timeout)], capture_output=True,
                            text=True, timeout=timeout + 60)
     except subprocess.TimeoutExpired:
-        return {"status": "timeout", "seconds": time.perf_counter() - t0, "peak_gb": None}
+        return {"status": "timeout", "seconds": time.perf_counter() - t0, "peak_gb": None, "load_start": load}
     if p.returncode != 0:
         return {"status": "timeout" if "TimeoutExpired" in p.stderr else "error", "peak_gb": None,
-                "seconds": time.perf_counter() - t0, "tail": p.stderr[-600:]}
+                "seconds": time.perf_counter() - t0, "tail": p.stderr[-600:], "load_start": load}
     r = json.loads(p.stdout)
-    return {"status": "ok" if r["rc"] == 0 else f"exit {r['rc']}", "seconds": r["seconds"], "peak_gb": r["peak_gb"],
-            "stdout": r["stdout"], "tail": r["stderr"]}
+    return {"status": "ok" if r["rc"] == 0 else f"exit {r['rc']}", "seconds": r["seconds"], "cpu_s": r["cpu_s"],
+            "peak_gb": r["peak_gb"], "stdout": r["stdout"], "tail": r["stderr"], "load_start": load}
 
 
 def main() -> int:
@@ -143,33 +160,54 @@ def main() -> int:
             if name not in only:
                 continue
             src, cmd = jobs[name]
-            if name == "compare" and not (tmp / "reduced.glb").exists():
-                cmd[cmd.index(str(tmp / "reduced.glb"))] = str(src)
+            if name == "compare" and not (tmp / "reduced.glb").exists():   # --only compare: no reduce output
+                write_tube(tmp / "reduced.glb", 2_600_000 // div, hard=True)
             print(f"{name}: {' '.join(cmd[len(RIGSLIM):])}", flush=True)
             r = run_one(cmd, args.timeout)
             key, limit = TARGETS[name]
             size = sizes["mid" if name == "lod" else "big"]
             row = {"command": name, **size, **r, "target": f"{key} < {limit:g}" + ("" if div == 1 else " (full size)"),
-                   "met": bool(r["status"] == "ok" and r.get(key) is not None and r[key] < limit)}
+                   "met": bool(r["status"] == "ok" and r.get(key) is not None and r[key] < limit),
+                   "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+            if name == "compare" and r["status"] == "ok":
+                row["compare"] = _compare_summary(r["stdout"])
             rows.append(row)
-            print(f"  {r['status']}: {r['seconds']:.1f} s, peak {r['peak_gb'] or float('nan'):.2f} GB "
+            print(f"  {r['status']}: {r['seconds']:.1f} s wall, {r.get('cpu_s', float('nan')):.1f} s CPU, "
+                  f"load {r['load_start']:.1f} at the start, peak {r['peak_gb'] or float('nan'):.2f} GB "
                   f"({size['triangles']:,} triangles); target {row['target']}: "
                   f"{'met' if row['met'] else 'missed'}", flush=True)
             if r["status"] != "ok":
                 print("  " + (r.get("tail") or "")[-400:].replace("\n", "\n  "), flush=True)
+    stem = ROOT / "docs" / "results" / "scale"
+    if not args.quick and stem.with_suffix(".json").exists():     # keep the rows of the commands not run now
+        old = json.loads(stem.with_suffix(".json").read_text()).get("rows", [])
+        kept = [r for r in old if r["command"] not in only]
+        rows = sorted(kept + rows, key=lambda r: ("reduce", "lod", "compare").index(r["command"]))
     doc = {"machine": machine(), "quick": args.quick, "loadavg": os.getloadavg(), "rows": rows}
     md = ["# Scale: the glTF commands on big skinned meshes", "",
           "Generated by `benchmarks/scale.py` (a 2-bone tube; each command a process of its own, peak RSS = the "
-          "child's ru_maxrss).", "",
-          f"Machine: {doc['machine']}; load average at the end {doc['loadavg'][0]:.2f}.", "",
-          "| command | triangles | vertices | status | wall s | peak GB | target | met |",
-          "|---|---|---|---|---|---|---|---|"]
+          "child's ru_maxrss, CPU = its user + system time, every thread). `--only` re-runs some commands and keeps "
+          "the other rows; the load average (1 min, 2 cores) is the one at each command's start: with the machine "
+          "shared, wall time is about CPU time x load / cores.", "",
+          f"Machine: {doc['machine']}.", "",
+          "| command | triangles | vertices | status | wall s | CPU s | load | peak GB | target | met |",
+          "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
+        cpu, load = r.get("cpu_s"), r.get("load_start")
         md.append(f"| {r['command']} | {r['triangles']:,} | {r['vertices']:,} | {r['status']} | {r['seconds']:.1f} | "
+                  f"{'' if cpu is None else f'{cpu:.1f}'} | {'' if load is None else f'{load:.1f}'} | "
                   f"{r['peak_gb'] if r['peak_gb'] is None else round(r['peak_gb'], 2)} | {r['target']} | "
                   f"{'yes' if r['met'] else 'no'} |")
+    for r in rows:
+        c = r.get("compare")
+        if c:
+            md += ["", f"compare: Hausdorff on {len(c['hausdorff_frames'])} of {len(c['frames'])} frames "
+                   f"({', '.join(map(str, c['hausdorff_frames']))}; cap {c['hausdorff_frame_cap']}, every vertex "
+                   f"and {c['samples']} face samples per direction), max {c['hausdorff_max_m']:.4g} m, RMS "
+                   f"{c['hausdorff_rms_m']:.4g} m; vertex to vertex on every frame: max {c.get('position_max_m')} m "
+                   f"(the bound on every frame's Hausdorff max), RMS {c.get('position_rms_m')} m."]
     if not args.quick:
-        write_results(ROOT / "docs" / "results" / "scale", doc, "\n".join(md) + "\n")
+        write_results(stem, doc, "\n".join(md) + "\n")
     else:
         print("\n".join(md))
     return 0

@@ -80,7 +80,7 @@ def _posed_usd(path: Path, *, clip, times, level: int = 0):
 
 #: Above this many triangles (the larger of the two surfaces) ``compare`` measures the Hausdorff distance on at most
 #: :data:`LARGE_HAUSDORFF_FRAMES` evenly spread frames unless ``hausdorff_frames`` says otherwise: pymeshlab
-#: takes about 3 s of CPU per frame at 2.6M triangles (two meshes built, every vertex sampled both ways).
+#: takes about 7 s of CPU per frame at 2.6M triangles (two meshes built, every vertex sampled both ways).
 LARGE_MESH_FACES = 500_000
 LARGE_HAUSDORFF_FRAMES = 3
 
@@ -130,7 +130,6 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
     of ``sum_i b_i r_i``): ``hausdorff_max_bound_m``, the bound on every
     frame, the skipped ones too.
     """
-    from rigslim.numerics.blend import per_vertex_normals
     from rigslim.numerics.surface_distance import metro_distance, pymeshlab_available
 
     if hausdorff and not pymeshlab_available():   # found, not imported here (see surface_distance's docstring)
@@ -156,21 +155,8 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
     same = Pr.shape == Pc.shape and np.array_equal(Fr, Fc)
     worst = None
     if same:
-        sq = np.empty(len(times))      # per frame: sum of squared vertex distances, and the largest distance
-        far = np.empty(len(times))
-        ang = []
-        for j in range(len(times)):
-            d = Pc[j] - Pr[j]
-            d2 = np.einsum("vi,vi->v", d, d)
-            sq[j], far[j] = d2.sum(), np.sqrt(d2.max())
-            nr, nc = per_vertex_normals(Pr[j], Fr), per_vertex_normals(Pc[j], Fc)
-            ok = np.isfinite(nr).all(axis=1) & np.isfinite(nc).all(axis=1)
-            ang.append(np.arccos(np.clip((nr[ok] * nc[ok]).sum(axis=1), -1, 1)))
-        a = np.concatenate(ang)
-        worst = int(np.argmax(far))
-        rms_v = float(np.sqrt(sq.sum() / (len(times) * Pr.shape[1])))
-        out |= {"position_rms_m": rms_v, "position_max_m": float(far.max()), "position_rms_pct": 100 * rms_v / diag,
-                "normal_rms_rad": float(np.sqrt((a * a).mean())) if a.size else 0.0}
+        vertex, worst = vertex_errors(Pr, Pc, Fr, diag)
+        out |= vertex
     if hausdorff:
         large = max(len(Fr), len(Fc)) > large_faces
         cap = hausdorff_frames if hausdorff_frames is not None else (LARGE_HAUSDORFF_FRAMES if large else 0)
@@ -189,6 +175,32 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
         if same:
             out["hausdorff_max_bound_m"] = out["position_max_m"]
     return out
+
+
+def vertex_errors(Pr: np.ndarray, Pc: np.ndarray, F: np.ndarray, diag: float) -> tuple[dict, int]:
+    """Vertex-to-vertex errors of two posings of one mesh ``(frames, m, 3)`` on every frame, and the frame of the
+    largest distance.
+
+    ``position_rms_m = sqrt(mean_{j,v} |c_v^j - r_v^j|^2)``, ``position_max_m = max_{j,v} |c_v^j - r_v^j|``,
+    ``position_rms_pct`` (of ``diag``) and ``normal_rms_rad``, the RMS angle between the area-weighted vertex
+    normals (:func:`rigslim.numerics.blend.per_vertex_normals`) where both are finite; one frame at a time.
+    """
+    from rigslim.numerics.blend import per_vertex_normals
+
+    n = len(Pr)
+    sq, far = np.empty(n), np.empty(n)      # per frame: sum of squared vertex distances, and the largest distance
+    ang = []
+    for j in range(n):
+        d = Pc[j] - Pr[j]
+        d2 = np.einsum("vi,vi->v", d, d)
+        sq[j], far[j] = d2.sum(), np.sqrt(d2.max())
+        nr, nc = per_vertex_normals(Pr[j], F), per_vertex_normals(Pc[j], F)
+        ok = np.isfinite(nr).all(axis=1) & np.isfinite(nc).all(axis=1)
+        ang.append(np.arccos(np.clip((nr[ok] * nc[ok]).sum(axis=1), -1, 1)))
+    a = np.concatenate(ang)
+    rms = float(np.sqrt(sq.sum() / (n * Pr.shape[1])))
+    return ({"position_rms_m": rms, "position_max_m": float(far.max()), "position_rms_pct": 100 * rms / diag,
+             "normal_rms_rad": float(np.sqrt((a * a).mean())) if a.size else 0.0}, int(np.argmax(far)))
 
 
 def cmd_compare(args) -> int:
