@@ -87,6 +87,7 @@ class DecimationParams(Params):
     min_normal_cos: float = Field(default=0.0, ge=-1.0, le=1.0)
     """Refuse collapses that turn a surviving face's normal by more than arccos(this), in any pose."""
     area_weighted: bool = True
+    """Weight each face's plane in the quadrics by its area (the usual QSlim refinement)."""
     backend: Literal["numpy", "numba"] = "numba"
     """``numba``: the compiled collapse loop and per-edge solves; ``numpy``: the batched numpy reference."""
 

@@ -42,10 +42,15 @@ class StaticQSlimParams(Params):
     targets: list[float] = Field(default_factory=list)
     """Fractions (< 1) of the input faces or face counts."""
     max_bones: int | None = Field(default=None, ge=1)
+    """At most this many non-zero weights per vertex at every level."""
     preserve_boundary: bool = True
+    """pymeshlab's preserveboundary: keep the mesh border."""
     preserve_topology: bool = True
+    """pymeshlab's preservetopology: no collapse that changes the topology."""
     preserve_normal: bool = True
+    """pymeshlab's preservenormal: no collapse that flips a face."""
     quality_threshold: float = Field(default=0.3, ge=0.0, le=1.0)
+    """pymeshlab's qualitythr: penalise collapses that make faces worse than this quality (0..1)."""
 
 
 class StaticQSlim(Decimator[StaticQSlimParams]):

@@ -41,9 +41,9 @@ COMPACT_MAX_HANDLES = 65536
 class DeformerParams(Params):
     """Parameters every deformer takes."""
 
-    #: Normals computed with ``deform(T, normals=True)``: ``auto`` picks
-    #: ``approximate-affine`` for cages and ``blended-matrix`` otherwise.
     normals: NormalsMode = "auto"
+    """Normals computed with ``deform(T, normals=True)``: ``auto`` picks ``approximate-affine`` for cages and
+    ``blended-matrix`` otherwise."""
 
 
 def resolve_normals(mode: str, handles) -> str | None:

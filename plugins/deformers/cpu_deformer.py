@@ -172,10 +172,10 @@ class CPUDeformer(Deformer):
                "fixed int32/float32 or compact uint16/float16 weights, preallocated outputs)")
 
     class Params(DeformerParams):
-        #: Weight layout: auto/fixed (int32 + float32 per influence) or compact (uint16 + float16).
         layout: Literal["auto", "fixed", "compact"] = "auto"
-        #: numba (this module's kernel, measured fastest) or opencl (kernels/blend.cl on the CPU device, PoCL).
+        """Weight layout: auto/fixed (int32 + float32 per influence) or compact (uint16 + float16)."""
         engine: Literal["numba", "opencl"] = "numba"
+        """numba (this module's kernel, measured fastest) or opencl (kernels/blend.cl on the CPU device, PoCL)."""
 
     def bind(self, mesh, weights, params=None, handles=None, ctx=None):
         """A :class:`CPUBound` (numba) or an OpenCL bound deformer on the CPU device (``engine``)."""

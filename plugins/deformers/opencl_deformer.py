@@ -169,16 +169,16 @@ class OpenCLDeformer(Deformer):
                "full CSR weights; optional normals in the same kernel; buffers reused across frames")
 
     class Params(DeformerParams):
-        #: OpenCL device spec: auto, gpu, cpu or part of a device/platform name.
         device: str | None = None
-        #: Weight layout on the device: auto (fixed for reduced weights, csr for full sparse weights),
-        #: fixed (int32 + float32), compact (uint16 + float16) or csr.
+        """OpenCL device spec: auto, gpu, cpu or part of a device/platform name."""
         layout: Layout = "auto"
-        #: Work-group size (None lets the driver choose).
+        """Weight layout on the device: auto (fixed for reduced weights, csr for full sparse weights), fixed (int32 +
+        float32), compact (uint16 + float16) or csr."""
         local_size: int | None = None
-        #: Arithmetic of the approximate-affine fit: auto (double where the device has cl_khr_fp64),
-        #: single (float32: error about cond(P) * 6e-8 rad) or double.
+        """Work-group size (None lets the driver choose)."""
         fit_precision: Literal["auto", "single", "double"] = "auto"
+        """Arithmetic of the approximate-affine fit: auto (double where the device has cl_khr_fp64), single (float32:
+        error about cond(P) * 6e-8 rad) or double."""
 
     def bind(self, mesh, weights, params=None, handles=None, ctx=None) -> OpenCLBound:
         params = params if params is not None else self.Params()

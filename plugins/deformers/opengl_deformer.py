@@ -295,12 +295,12 @@ class OpenGLDeformer(Deformer):
                "context; weights/indices as vertex attributes, transforms in a texture buffer")
 
     class Params(DeformerParams):
-        #: Attribute layout: auto/fixed (int32 + float32) or compact (uint16 + float16).
-        #: Sparse input weights are padded to their widest row.
         layout: Layout = "auto"
-        #: Arithmetic of the approximate-affine fit: auto/double (GLSL doubles) or single (float32:
-        #: error about cond(P) * 6e-8 rad).
+        """Attribute layout: auto/fixed (int32 + float32) or compact (uint16 + float16). Sparse input weights are
+        padded to their widest row."""
         fit_precision: Literal["auto", "single", "double"] = "auto"
+        """Arithmetic of the approximate-affine fit: auto/double (GLSL doubles) or single (float32: error about
+        cond(P) * 6e-8 rad)."""
 
     def bind(self, mesh, weights, params=None, handles=None, ctx=None) -> OpenGLBound:
         params = params if params is not None else self.Params()

@@ -217,7 +217,9 @@ class MeanValueGenerator(WeightGenerator):
 
     class Params(CageParams):
         backend: Literal["numpy", "opencl"] = "numpy"
+        """Where to evaluate the coordinates: the numpy reference or the OpenCL kernel (mvc.cl)."""
         device: str | None = None
+        """OpenCL device spec (opencl backend only): auto, gpu, cpu or part of a device/platform name."""
 
     def generate(self, asset: Asset, params: Params, ctx: StepContext) -> sp.spmatrix | np.ndarray:
         cage = prepare_cage(asset, params, ctx, "generate.mean-value")

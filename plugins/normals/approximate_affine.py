@@ -27,10 +27,10 @@ if TYPE_CHECKING:
 
 
 class ApproximateAffineNormalsParams(Params):
-    #: Where to evaluate: numpy reference, the compiled cpu kernel, the OpenCL kernel, or the GLSL vertex shader.
     backend: Backend = "numpy"
-    #: OpenCL device spec (opencl backend only).
+    """Where to evaluate: numpy reference, the compiled cpu kernel, the OpenCL kernel, or the GLSL vertex shader."""
     device: str | None = None
+    """OpenCL device spec (opencl backend only)."""
 
 
 class ApproximateAffineNormals(NormalEstimator[ApproximateAffineNormalsParams]):

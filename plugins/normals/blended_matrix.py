@@ -23,10 +23,10 @@ if TYPE_CHECKING:
 
 
 class BlendedMatrixNormalsParams(Params):
-    #: Where to evaluate: numpy reference, the compiled cpu kernel, the OpenCL kernel, or the GLSL vertex shader.
     backend: Backend = "numpy"
-    #: OpenCL device spec (opencl backend only).
+    """Where to evaluate: numpy reference, the compiled cpu kernel, the OpenCL kernel, or the GLSL vertex shader."""
     device: str | None = None
+    """OpenCL device spec (opencl backend only)."""
 
 
 class BlendedMatrixNormals(NormalEstimator[BlendedMatrixNormalsParams]):
