@@ -110,9 +110,11 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
         ``hausdorff_rms_pct``, ``hausdorff_max_pct`` (% of the reference's
         world-space bounding-box diagonal in the first compared frame),
         ``hausdorff_rms_m``, ``hausdorff_max_m`` (world units: metres for
-        glTF), ``faces``; when both have the same vertices and faces also
+        glTF), ``faces``, ``hausdorff_frames`` (the frame numbers measured),
+        ``hausdorff_frame_cap`` (0: no cap), ``hausdorff_all_frames``; when
+        both have the same vertices and faces also
         ``position_rms_m``/``position_max_m``/``position_rms_pct`` (vertex to
-        vertex) and ``normal_rms_rad``.
+        vertex, every frame), ``normal_rms_rad`` and ``hausdorff_max_bound_m``.
 
     Notes
     -----
