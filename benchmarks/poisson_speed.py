@@ -1,0 +1,160 @@
+"""Poisson against geometric on the armadillo cage (110 -> 8), side by side in one run, and where Poisson's time goes.
+
+Sets up ``examples/armadillo-k8.yaml`` once (mean value coordinates, k-largest sets of 8;
+6 example poses), then times in one process:
+
+1. ``geometric`` (``solve_weights``, the pipeline's ``solve`` step);
+2. ``poisson`` (lambda = 0, the paper's method) as it runs now: energy, null-space system,
+   PARDISO on the upper triangle written from the blocks;
+3. the previous direct path on the same system (scalar CSR from the BSR matrix, ``scipy.sparse.triu``,
+   a new pypardiso solver that looks for ``mkl_rt`` itself), split into PARDISO's phases: symbolic
+   analysis (ordering), numerical factorisation (with PARDISO's own flop count, ``iparm(19)``) and the
+   triangular solves.
+
+Writes ``docs/results/poisson_speed.{json,md}``: seconds, the ratio to geometric, the relative energy gap
+between 2. and 3. (the same optimum), the factor's size and flops.
+
+    flock /tmp/rigslim-bench.lock .venv/bin/python benchmarks/poisson_speed.py
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+if __package__ in (None, ""):
+    sys.path.insert(0, str(ROOT))
+
+from benchmarks.datasets import machine, write_results  # noqa: E402
+
+OUT = ROOT / "docs" / "results"
+PIPELINE = ROOT / "examples" / "armadillo-k8.yaml"
+
+
+def armadillo_asset():
+    """The asset after the pipeline's ``generate`` and ``select`` steps, and their seconds."""
+    from rich.console import Console
+
+    from rigslim.plugin.host import get_host
+    from rigslim.runtime.document import load_pipeline
+    from rigslim.runtime.inputs import read_inputs
+    from rigslim.runtime.progress import Reporter
+    from rigslim.runtime.run import _run_step
+
+    host = get_host()
+    doc, steps = load_pipeline(PIPELINE, host=host)
+    reporter = Reporter(Console(quiet=True))
+    base = PIPELINE.parent
+    asset = read_inputs(doc, base, host, reporter.context(base), PIPELINE)
+    by_key = {s.key: s for s in steps}
+    t = time.perf_counter()
+    for key in ("generate", "select"):
+        _run_step(by_key[key], asset, host, reporter.context(base), base, PIPELINE, {"evaluations": []})
+    return asset, time.perf_counter() - t
+
+
+def previous_direct_path(prob) -> dict:
+    """The direct solve as it was before: BSR -> CSR -> triu, a fresh pypardiso solver, phase by phase."""
+    import numpy as np
+    import pypardiso
+    import scipy.sparse as sp
+
+    from rigslim.plugins.solvers.nullspace import nullspace_system
+
+    out: dict = {}
+    t0 = time.perf_counter()
+    system = nullspace_system(prob)
+    out["system_seconds"] = time.perf_counter() - t0
+    t = time.perf_counter()
+    U = sp.triu(system.matrix().tocsr(), format="csr")
+    U.sort_indices()
+    out["triu_seconds"] = time.perf_counter() - t
+    n = system.unknowns
+    t = time.perf_counter()
+    solver = pypardiso.PyPardisoSolver(mtype=2)
+    out["solver_init_seconds"] = time.perf_counter() - t
+    solver._check_A(U)
+    zero = np.zeros((n, 1))
+    for phase, key in ((11, "analysis_seconds"), (22, "factorisation_seconds")):
+        solver.set_phase(phase)
+        t = time.perf_counter()
+        solver._call_pardiso(U, zero)
+        out[key] = time.perf_counter() - t
+    solver.set_phase(33)
+    t = time.perf_counter()
+    z = solver._call_pardiso(U, np.asfortranarray(system.rhs[:, None])).ravel()
+    out["solve_seconds"] = time.perf_counter() - t
+    out["factor_nonzeros"] = int(solver.get_iparm(18))
+    out["factorisation_gflop"] = float(solver.get_iparm(19)) / 1000.0
+    solver.free_memory(everything=True)
+    alpha = np.where(prob.valid, system.weights(z), 0.0)
+    out["energy"] = prob.energy(alpha)
+    out["seconds"] = time.perf_counter() - t0
+    out["unknowns"] = n
+    out["nonzeros_upper"] = int(U.nnz)
+    return out
+
+
+def main() -> None:
+    from rigslim.plugins.solvers.methods import PoissonParams, ReductionParams, solve_weights
+    from rigslim.plugins.solvers.problem import build_problem
+
+    asset, setup_s = armadillo_asset()
+    print(f"setup (MVC + select) {setup_s:.1f} s", flush=True)
+    rows = {}
+    t = time.perf_counter()
+    _, rep = solve_weights(asset, "geometric", ReductionParams())
+    rows["geometric"] = {"seconds": time.perf_counter() - t, "path": rep.get("path"), "energy": rep.get("energy")}
+    print(f"geometric {rows['geometric']['seconds']:.2f} s", flush=True)
+    t = time.perf_counter()
+    _, rep = solve_weights(asset, "poisson", PoissonParams())
+    rows["poisson"] = {"seconds": time.perf_counter() - t, "path": rep.get("path"),
+                       "factorisation": rep.get("factorisation"), "energy": rep["energy"],
+                       "unknowns": rep.get("unknowns"), "kkt_residual": rep.get("kkt_residual")}
+    print(f"poisson {rows['poisson']['seconds']:.2f} s", flush=True)
+    t = time.perf_counter()
+    prob = build_problem(asset, "poisson", nonnegative=False)
+    build_s = time.perf_counter() - t
+    prev = previous_direct_path(prob)
+    prev["seconds_with_energy"] = prev["seconds"] + build_s
+    prev["build_seconds"] = build_s
+    gap = (rows["poisson"]["energy"] - prev["energy"]) / abs(prev["energy"])
+    geo = rows["geometric"]["seconds"]
+    result = {"machine": machine(), "pipeline": str(PIPELINE.relative_to(ROOT)), "k": 8,
+              "vertices": asset.mesh.n_vertices, "handles": asset.handles.n, "examples": asset.split.examples,
+              "setup_seconds": setup_s, "rows": rows, "previous_direct_path": prev,
+              "poisson_over_geometric": rows["poisson"]["seconds"] / geo,
+              "previous_over_geometric": prev["seconds_with_energy"] / geo, "gap_to_previous": gap,
+              "target_poisson_over_geometric": 3.0}
+    mach = result["machine"]
+    lines = ["# Poisson speed on the armadillo cage (110 -> 8)", "",
+             f"Machine: {mach['cpu']}, nproc {mach['nproc']}, shared with other jobs (timings are of one run, "
+             f"side by side). Pipeline `{result['pipeline']}`: {result['vertices']:,} vertices, "
+             f"{result['handles']}-vertex cage, k-largest sets of 8, {len(asset.split.examples)} example poses. "
+             "`benchmarks/poisson_speed.py`.", "",
+             "| solve | seconds | x geometric | energy |", "|---|---|---|---|",
+             f"| geometric | {geo:.2f} | 1.00 | |",
+             f"| poisson (now: upper triangle from the blocks, PARDISO) | {rows['poisson']['seconds']:.2f} | "
+             f"{result['poisson_over_geometric']:.1f} | {rows['poisson']['energy']:.10g} |",
+             f"| poisson, previous direct path | {prev['seconds_with_energy']:.2f} | "
+             f"{result['previous_over_geometric']:.1f} | {prev['energy']:.10g} |", "",
+             f"Relative energy gap now - previous: {gap:.1e} (the same optimum). Target: Poisson <= 3x geometric.", "",
+             "Where the previous path's time went:", "",
+             "| phase | seconds |", "|---|---|",
+             f"| energy (`build_problem`) | {build_s:.2f} |",
+             f"| null-space system (7 x 7 blocks on the pattern of L^T M^-1 L) | {prev['system_seconds']:.2f} |",
+             f"| BSR -> CSR -> triu | {prev['triu_seconds']:.2f} |",
+             f"| pypardiso solver set-up (library search) | {prev['solver_init_seconds']:.2f} |",
+             f"| PARDISO analysis (ordering, symbolic) | {prev['analysis_seconds']:.2f} |",
+             f"| PARDISO factorisation ({prev['factorisation_gflop']:.0f} GFlop, "
+             f"{prev['factor_nonzeros'] / 1e6:.0f}M non-zeros in L) | {prev['factorisation_seconds']:.2f} |",
+             f"| PARDISO solve | {prev['solve_seconds']:.2f} |",
+             "", f"{prev['unknowns']:,} unknowns, {prev['nonzeros_upper'] / 1e6:.1f}M non-zeros in the upper triangle."]
+    write_results(OUT / "poisson_speed", result, "\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
