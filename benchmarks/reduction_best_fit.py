@@ -352,7 +352,7 @@ def character_block(name, asset, k, fit_clips, held_clips):
     return blk
 
 
-def elephant_default(k):
+def elephant_default():
     """The elephant (one clip) as the default sees it: examples 0:457:45, validation 22:457:45 (the guard),
     test 5:457:7 minus 180 and minus validation frames."""
     import dataclasses
@@ -369,16 +369,19 @@ def elephant_default(k):
 
 
 def part_suite(repeat):
+    """The elephant and every suite character at k = 2, 3, 4, in two configurations: ``all`` (the one-liner:
+    examples from every clip, tested on held-out frames of every clip) and, for characters with held-out
+    clips, ``split`` (examples from the suite's fit clips; tested on their held-out frames and on every
+    frame of the held-out clips, which neither the fit nor the guard saw)."""
     from benchmarks.datasets import suite
+    from rigslim.plugins.solvers.safeguards import k_largest_weights
 
     out = []
+    asset = elephant_default()
     for k in SUITE_KS:
-        print(f"k = {k}", flush=True)
-        asset = elephant_default(k)
         blk = character_block("elephant", asset, k, ["elephant"], [])
+        blk["config"] = "all"
         if k == 4:     # the elephant target: errors on every test frame, times best of `repeat`
-            from rigslim.plugins.solvers.safeguards import k_largest_weights
-
             red, best = None, np.inf
             for _ in range(repeat):
                 red, _, secs = default_reduce(asset, k)
@@ -394,11 +397,21 @@ def part_suite(repeat):
             print(f"  elephant k=4 target: {p:.4f} % / {n:.4f} rad in {best:.3f}s; Dem Bones {pd:.4f} / {nd:.4f} "
                   f"in {dem:.3f}s; k-largest {pk:.4f} / {nk:.4f}", flush=True)
         out.append(blk)
-        for c in suite():
-            held = c.holdout_clips
-            asset = clip_asset(c.path, c.fit_clips, c.fit_clips + held)
-            out.append(character_block(c.name, asset, k, c.fit_clips, held))
-    return {"ks": list(SUITE_KS), "max_test_frames": MAX_TEST_FRAMES, "blocks": out, "summary": suite_summary(out)}
+    for c in suite():
+        configs = [("all", "all", "all")]
+        if c.holdout_clips:
+            configs.append(("split", c.fit_clips, c.fit_clips + c.holdout_clips))
+        for config, fit, test in configs:
+            asset = clip_asset(c.path, fit, test)
+            fit_names = [s["clip"] for s in asset.split.segments
+                         if any(e["clip"] == s["clip"] for e in asset.split.clips["examples"])]
+            held = [s["clip"] for s in asset.split.segments if s["clip"] not in fit_names]
+            for k in SUITE_KS:
+                blk = character_block(c.name, asset, k, fit_names, held)
+                blk["config"] = config
+                out.append(blk)
+    return {"ks": list(SUITE_KS), "max_test_frames": MAX_TEST_FRAMES, "blocks": out,
+            "summary": {cfg: suite_summary([b for b in out if b["config"] == cfg]) for cfg in ("all", "split")}}
 
 
 def suite_summary(blocks):
@@ -434,29 +447,49 @@ def suite_summary(blocks):
 
 def suite_markdown(doc):
     s = doc["suite"]
+    m = doc["machine"]
     out = ["## The default of `rigslim reduce` on the elephant and the real-character suite", "",
+           f"Machine: {m['cpu']}, nproc {m['nproc']}. `flock /tmp/rigslim-bench.lock .venv/bin/python "
+           "benchmarks/reduction_best_fit.py --parts suite` wrote this section.", "",
            "`rigslim reduce`'s default (best-fit by error + geometric, with the guard against k-largest on "
            "validation frames) against k-largest (the k largest weights renormalised) and Dem Bones' weight "
            "solve (`computeWeights`, true bone transforms fixed, nnz = k), all fitted to the same example poses. "
-           "Multi-clip characters: examples sampled (24 in all) from the suite's fit clips only; tested on "
-           "held-out frames of every fit clip and every frame of the held-out clips (never fitted, never "
-           f"validated), at most {s['max_test_frames']} frames per clip, evenly; position RMS in % of the rest "
+           "Two configurations: *all clips* as `rigslim reduce` runs (24 example frames sampled evenly "
+           "from every clip, validation frames the first half of each gap, tested on the second half), and, "
+           "for characters with held-out clips, *fit / held-out clips* (examples and validation from the "
+           "suite's fit clips only; tested on their held-out frames and on every frame of the held-out clips, "
+           f"which neither the fit nor the guard saw). At most {s['max_test_frames']} test frames per clip, "
+           "evenly; position RMS in % of the rest "
            "bounding-box diagonal, pooled over the clip's frames; normal p95: the 95th percentile of the "
            "per-vertex normal angle (rad), mean over frames. The elephant (one clip): examples 0:457:45, "
            "validation 22:457:45, test 5:457:7 minus those.", "",
-           "| k | clips | default / k-largest, mean (max) | clips above k-largest | default / Dem Bones, mean (max) "
+           "| configuration, k | clips | default / k-largest, mean (max) | clips above k-largest | "
+           "default / Dem Bones, mean (max) "
            "| normal p95 default / k-largest / Dem Bones (mean) | clips with normal p95 below both |",
            "|---|---|---|---|---|---|---|"]
-    for r in s["summary"]:
+    for cfg, title in (("all", "all clips fitted (the one-liner)"),
+                       ("split", "fit clips / held-out clips (multi-clip characters)")):
+        out += summary_rows(s["summary"][cfg], title)
+    out += ["", "Clips where k-largest is already exact (every vertex has at most k influences: the weights pass "
+            "through) are counted in `clips` but not in the ratios.", ""]
+    return out + suite_detail(s)
+
+
+def summary_rows(summary, title):
+    out = []
+    for r in summary:
         above = ", ".join(f"{w['character']} {w['clip']} ({w['default']:.4f} vs {w['k_largest']:.4f})"
                           for w in r["clips_above_k_largest"]) or "none"
-        out.append(f"| {r['k']} | {r['ratio_clips']} of {r['clips']} | {r['vs_k_largest_mean']:.3f} "
+        out.append(f"| {title}, k = {r['k']} | {r['ratio_clips']} of {r['clips']} | {r['vs_k_largest_mean']:.3f} "
                    f"({r['vs_k_largest_max']:.3f}) | {above} | {r['vs_dem_bones_mean']:.3f} "
                    f"({r['vs_dem_bones_max']:.3f}) | {r['normal_p95_default_mean']:.4f} / "
                    f"{r['normal_p95_k_largest_mean']:.4f} / {r['normal_p95_dem_bones_mean']:.4f} | "
                    f"{r['normal_p95_below_both']} of {r['ratio_clips']} |")
-    out += ["", "Clips where k-largest is already exact (every vertex has at most k influences: the weights pass "
-            "through) are counted in `clips` but not in the ratios.", ""]
+    return out
+
+
+def suite_detail(s):
+    out = []
     t = next((b["target"] for b in s["blocks"] if "target" in b), None)
     if t:
         out += [f"Elephant, k = 4, all {t['test_frames']} test frames: the default {t['position_pct']:.4f} % / "
@@ -464,13 +497,15 @@ def suite_markdown(doc):
                 f"{t['dem_bones_position_pct']:.4f} % / {t['dem_bones_normal_rad']:.4f} rad in "
                 f"{t['dem_bones_s']:.3f} s; k-largest {t['k_largest_position_pct']:.4f} % / "
                 f"{t['k_largest_normal_rad']:.4f} rad.", ""]
-    out += ["| character | k | vertices | joints | clip | frames | default | k-largest | Dem Bones | "
+    out += ["Per clip (position RMS, % of the rest diagonal; `fell back`: vertices the guard gave k-largest's "
+            "weights; times of the default's select + solve + guard and of Dem Bones' `computeWeights`):", "",
+            "| character, configuration | k | vertices | joints | clip | frames | default | k-largest | Dem Bones | "
             "normal p95 default / k-largest / Dem Bones | fell back | default (s) | Dem Bones (s) |",
             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for b in s["blocks"]:
         for i, r in enumerate(b["clips"]):
             held = " (held out)" if r["clip"] in b["held_out_clips"] else ""
-            head = (f"| {b['character']}{' (pass-through)' if b['pass_through'] else ''} | {b['k']} | "
+            head = (f"| {b['character']}, {b['config']}{' (pass-through)' if b['pass_through'] else ''} | {b['k']} | "
                     f"{b['vertices']} | {b['joints']} |") if i == 0 else "| | | | |"
             tail = (f" {b['fallback_vertices']} | {b['default_s']:.3f} | {b['dem_bones_s']:.3f} |" if i == 0
                     else " | | |")
