@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import csv
-import json
 from pathlib import Path
 
 from rigslim.batch.options import BatchOptions, BatchResult
+from rigslim.io.jsonsafe import dumps_strict
 
 #: Columns every summary has, in this order; metric columns follow, then :data:`TAIL_COLUMNS`.
 HEAD_COLUMNS = ["asset", "name", "status", "error", "seconds", "peak_memory_mb", "vertices", "faces", "joints",
@@ -71,5 +71,5 @@ def write_summary(opts: BatchOptions, result: BatchResult) -> dict[str, Path]:
            "cluster": result.cluster, "dashboard": result.dashboard, "columns": columns,
            "rows": [{c: r.get(c) for c in columns} for r in result.rows]}
     with atomic_path(paths["json"]) as tmp:
-        Path(tmp).write_text(json.dumps(doc, indent=2, default=str) + "\n")
+        Path(tmp).write_text(dumps_strict(doc, indent=2, default=str) + "\n")
     return paths

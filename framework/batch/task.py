@@ -261,9 +261,10 @@ def _clean(folder: Path) -> None:
 
 def _write_json(path: Path, data: dict) -> None:
     from rigslim.io.atomic import atomic_path
+    from rigslim.io.jsonsafe import dumps_strict
 
     with atomic_path(path) as tmp:
-        Path(tmp).write_text(json.dumps(data, indent=2, default=str) + "\n")
+        Path(tmp).write_text(dumps_strict(data, indent=2, default=str) + "\n")
 
 
 # --- the summary row -----------------------------------------------------------------------------
