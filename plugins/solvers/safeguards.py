@@ -123,7 +123,7 @@ def fallback_set(per_clip, e_fit, e_kl, passes, per_vertex=False) -> np.ndarray:
     while changed:
         changed = False
         for _, ef, ek in per_clip:
-            excess = np.where(worse, 0.0, ef - ek)
+            excess = np.where(worse | passes, 0.0, ef - ek)
             over = excess.sum()
             if over <= 0.0:
                 continue
