@@ -433,6 +433,9 @@ def suite_summary(blocks):
                 p95.append((r["default"]["normal_p95_rad"], r["k_largest"]["normal_p95_rad"],
                             r["dem_bones"]["normal_p95_rad"]))
                 n_better += d < q
+        if not kl:      # every clip passes through (k >= every vertex's influence count): nothing to compare
+            out.append({"k": k, "clips": n_clips, "ratio_clips": 0})
+            continue
         p95 = np.asarray(p95)
         out.append({"k": k, "clips": n_clips, "ratio_clips": len(kl),
                     "vs_k_largest_mean": float(np.mean(kl)), "vs_k_largest_max": float(np.max(kl)),
@@ -478,6 +481,9 @@ def suite_markdown(doc):
 def summary_rows(summary, title):
     out = []
     for r in summary:
+        if not r["ratio_clips"]:
+            out.append(f"| {title}, k = {r['k']} | 0 of {r['clips']} | every clip passes through | | | | |")
+            continue
         above = ", ".join(f"{w['character']} {w['clip']} ({w['default']:.4f} vs {w['k_largest']:.4f})"
                           for w in r["clips_above_k_largest"]) or "none"
         out.append(f"| {title}, k = {r['k']} | {r['ratio_clips']} of {r['clips']} | {r['vs_k_largest_mean']:.3f} "
