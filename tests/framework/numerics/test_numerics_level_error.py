@@ -48,7 +48,7 @@ def test_level_errors_pose_each_level_with_its_own_weights():
     T[:, 1, 2, 3] = [0.0, 0.02, 0.04]                       # joint 1 lifts by 0, 2, 4 cm
     levels = [SimplifiedLevel(mesh, one, "same"), SimplifiedLevel(mesh, other, "lifted")]
     out = level_errors(mesh, one.to_sparse(), T, levels, samples=2000)
-    assert out[0]["error_max"] == pytest.approx(0.0, abs=1e-12)
+    assert out[0]["error_max"] == pytest.approx(0.0, abs=1e-7)    # pymeshlab samples in float32: ~1e-8 noise
     assert out[1]["error_max"] == pytest.approx(0.04, rel=1e-6)
     assert out[1]["error_rms"] == pytest.approx(0.02, rel=1e-6)       # mean over the frames of 0, 2, 4 cm
     assert bounding_radius(V, one, T[0]) == pytest.approx(0.5 * np.sqrt(2))
