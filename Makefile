@@ -10,6 +10,8 @@ $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PIP) install --quiet --upgrade pip
 	$(PIP) install --quiet -e '.[all]'
+	@# compile the default reduction's numba kernels once into numba's cache (tools/warm-numba.py)
+	$(PY) tools/warm-numba.py
 	touch $@
 
 $(VENV)/.installed-test: $(VENV)/.installed
