@@ -372,8 +372,9 @@ def _run_asset(job, template, template_path, out_dir, force, timeout, threads, a
     record = read_record(folder)
     if not force and record is not None and is_done(record, key, folder):
         previous = dict(record.get("row") or {})
-        previous.update({"status": "skipped", "error": "", "worker": row["worker"], "attempts": attempt,
-                         "seconds": time.perf_counter() - t0, "asset": job["path"], "name": asset_job.name})
+        # the row of the run that made the outputs (its seconds, attempts, memory), marked as skipped
+        previous.update({"status": "skipped", "error": "", "worker": row["worker"], "asset": job["path"],
+                         "name": asset_job.name})
         return previous
     folder.mkdir(parents=True, exist_ok=True)
     _clean(folder)

@@ -432,8 +432,12 @@ def render_asset(folder: Path, width: int = 320, height: int = 270, backend: str
 def build_batch_report(summary, *, worst: int = 10, metric: str | None = None, render: bool = True,
                        width: int = 320, height: int = 270, backend: str = "auto", title: str | None = None,
                        progress=lambda it, total=None, description="": it) -> BatchReport:
-    """Read a batch summary.csv and build its report (see the module docstring)."""
-    summary = Path(summary)
+    """Read a batch summary.csv and build its report (see the module docstring).
+
+    The asset folders are found beside the summary, whatever the working folder: a relative
+    ``DIR/summary.csv`` (as docs/batch.md writes it) reads the same assets as its absolute path.
+    """
+    summary = Path(summary).resolve()
     rows, columns = read_summary(summary)
     metrics = error_columns(columns)
     if metric is not None and metric not in columns:

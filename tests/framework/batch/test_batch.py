@@ -128,6 +128,9 @@ def test_corrupt_asset_fails_alone_and_rerun_skips(library, tmp_path, cluster, c
     assert again["broken"]["status"] == "failed"
     assert {n: (out / n / f"{n}-k2.glb").stat().st_mtime_ns for n in mtimes} == mtimes
     assert again["bones0"]["position_rms_pct_mean"] == rows["bones0"]["position_rms_pct_mean"]
+    for n in mtimes:        # the skipped rows keep the record of the run that made the outputs
+        assert {k: again[n][k] for k in ("seconds", "attempts", "peak_memory_mb")} == \
+            {k: rows[n][k] for k in ("seconds", "attempts", "peak_memory_mb")}
 
     # a changed input reruns that asset only; --force reruns all
     (lib / "bones3.glb").write_bytes((GLTF / "huesitos.glb").read_bytes() + b"\0\0\0\0")

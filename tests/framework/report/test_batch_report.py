@@ -90,6 +90,15 @@ def test_worst_by_chosen_metric_and_no_renders(batch_dir):
     assert report.renders == {}
 
 
+def test_a_relative_summary_path_renders_the_same_assets(batch_dir, monkeypatch):
+    """``rigslim report DIR/summary.csv`` from DIR's parent, as docs/batch.md writes it (rendered nothing)."""
+    absolute = build_batch_report(batch_dir / "summary.csv", backend="numpy", width=64, height=48)
+    monkeypatch.chdir(batch_dir.parent)
+    relative = build_batch_report(Path(batch_dir.name) / "summary.csv", backend="numpy", width=64, height=48)
+    assert relative.notes == absolute.notes == {}
+    assert sorted(relative.renders) == sorted(absolute.renders) and all(relative.renders.values())
+
+
 def test_asset_without_reduced_output_is_listed_with_the_reason(batch_dir, tmp_path):
     out = tmp_path / "copy"
     shutil.copytree(batch_dir, out)
