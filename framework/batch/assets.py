@@ -118,6 +118,9 @@ def collect_assets(items) -> list[AssetJob]:
             if not p.is_file():
                 raise InputError("manifest not found", source=p, field="ASSETS", fix="check the path")
             jobs += read_manifest(p)
+        elif not p.is_file():       # refused here, before a cluster starts
+            raise InputError("asset not found" if not p.exists() else "not a file or a folder", source=p,
+                             field="ASSETS", fix="name asset files, folders of assets or a manifest .csv")
         else:
             jobs.append(AssetJob(p.resolve(), "", {}, "the command line"))
     if not jobs:

@@ -308,6 +308,7 @@ def test_bad_template_or_arguments_exit_2(library, tmp_path, capsys):
         ([str(template), str(manifest)], "column 'kk' sets nothing"),
         ([str(template), str(lib), "--workers", "0"], "--workers"),
         ([str(template), str(tmp_path / "empty-dir-missing.csv")], "manifest not found"),
+        ([str(template), str(lib / "bones0.glb"), str(tmp_path / "missing.glb")], "asset not found"),
     ]
     for argv, text in cases:
         assert main(["batch", *argv, "--out", str(out), "-q"]) == 2
