@@ -217,6 +217,9 @@ class ArticulatedDecimator(Decimator):
         """Quadrics of the example poses, the collapse loop, the levels; each phase timed in the report."""
         asset.require("mesh", "weights", "poses", "split", step=f"decimate: {self.name}")
         assert asset.mesh is not None  # require() raised otherwise
+        if asset.mesh.n_faces == 0:
+            raise StepError("the mesh has no triangles (its primitives are points or lines): nothing to simplify",
+                            field="faces", fix="give a file whose primitives are triangles")
         clock = PhaseClock()
         faces = target_faces(params.targets, asset.mesh.n_faces)
         min_faces = params.min_faces if params.min_faces is not None else (min(faces) if faces else 70)
