@@ -83,6 +83,9 @@ def _posed_usd(path: Path, *, clip, times, level: int = 0):
 #: takes about 7 s of CPU per frame at 2.6M triangles (two meshes built, every vertex sampled both ways).
 LARGE_MESH_FACES = 500_000
 LARGE_HAUSDORFF_FRAMES = 3
+#: Without ``--frames``, a clip of more frames than this is compared on this many evenly spread frames
+#: (a 3,000 s clip at 30 fps is 90,001 frames: every one would take hours and (frames, vertices, 3) memory).
+MAX_DEFAULT_FRAMES = 300
 
 
 def hausdorff_frame_indices(n: int, cap: int) -> list[int]:
@@ -143,7 +146,10 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
 
     with read_once():           # each file parsed once (the command's own session, if any, shares it)
         count, clip_name, _ = clip_frames(ref, clip, fps, None if is_usd(ref) else load_gltf(ref))
-        chosen = parse_frames_spec(frames, count)
+        if frames is None and count > MAX_DEFAULT_FRAMES:
+            chosen = sorted({int(round(x)) for x in np.linspace(0, count - 1, MAX_DEFAULT_FRAMES)})
+        else:
+            chosen = parse_frames_spec(frames, count)
         times = [f / fps for f in chosen]
         Pr, Fr, sr = posed_surfaces(ref, clip=clip, times=times)
         Pc, Fc, sc = posed_surfaces(cand, clip=clip if clip is not None else None, times=times, level=level)
@@ -153,7 +159,8 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
         raise InputError("the reference has zero extent", source=ref, field="POSITION", fix="give a real mesh")
     out = _header("compare") | {
         "reference": str(ref), "candidate": str(cand), "level": level, "clip": clip_name, "fps": fps,
-        "frames": chosen, "reference_diagonal_m": diag, "faces": int(len(Fc)), "reference_faces": int(len(Fr))}
+        "frames": chosen, "clip_frames": count, "reference_diagonal_m": diag, "faces": int(len(Fc)),
+        "reference_faces": int(len(Fr))}
     same = Pr.shape == Pc.shape and np.array_equal(Fr, Fc)
     worst = None
     if same:
@@ -220,7 +227,9 @@ def cmd_compare(args) -> int:
         print(dumps_strict({k: v for k, v in res.items() if not k.startswith("per_frame")}, default=_jsonable))
         return 0
     print(f"{cand.name} (level {args.level}, {res['faces']} faces) vs {ref.name} ({res['reference_faces']} faces), "
-          f"{len(res['frames'])} frames of {res['clip'] or 'the rest pose'}:")
+          f"{len(res['frames'])} frames of {res['clip'] or 'the rest pose'}"
+          + (f" (evenly spread over its {res['clip_frames']}; --frames chooses others)"
+             if len(res['frames']) < res['clip_frames'] and args.frames is None else "") + ":")
     if "position_rms_m" in res:
         print(f"  vertex position RMS {res['position_rms_pct']:.4g} % ({res['position_rms_m']:.4g} m), "
               f"max {res['position_max_m']:.4g} m (same topology)")
