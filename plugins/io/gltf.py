@@ -112,12 +112,13 @@ class GltfWriter(Writer[GltfWriterParams]):
         levels = (asset.levels or None) if params.levels else None
         source = asset.extras.get("gltf")
         if source is not None:
-            from rigslim.io.gltf.lod import input_joints_valid, input_weights_normalized
+            from rigslim.io.gltf.lod import input_joints_valid, input_skinning_strides_valid, input_weights_normalized
 
             reduced = asset.reduced
             renormalised = False
             if reduced is None and params.keep_input_weights and asset.weights is not None \
-                    and not (input_weights_normalized(source) and input_joints_valid(source)):
+                    and not (input_weights_normalized(source) and input_joints_valid(source)
+                             and input_skinning_strides_valid(source)):
                 # the file's own bytes do not sum to one (the validator's ACCESSOR_WEIGHTS_NON_NORMALIZED):
                 # write the weights as read (normalised) instead of keeping them
                 renormalised = True

@@ -28,6 +28,21 @@ def input_joints_valid(skin: GltfSkin) -> bool:
     return True
 
 
+def input_skinning_strides_valid(skin: GltfSkin) -> bool:
+    """Whether every JOINTS_n / WEIGHTS_n bufferView the reader used has a byteStride the specification allows
+    for a vertex attribute (a multiple of 4); otherwise the writer rewrites the skinning attributes (into new,
+    tightly packed bufferViews) instead of keeping their bytes, so that level 0 passes the validator too."""
+    js = skin.document.json
+    for sl in skin.slices:
+        attrs = js["meshes"][sl.mesh]["primitives"][sl.primitive]["attributes"]
+        for s in skinning_sets(attrs):
+            for name in (f"JOINTS_{s}", f"WEIGHTS_{s}"):
+                view = js["accessors"][attrs[name]].get("bufferView")
+                if view is not None and js["bufferViews"][view].get("byteStride", 0) % 4:
+                    return False
+    return True
+
+
 def input_weights_normalized(skin: GltfSkin) -> bool:
     r"""Whether every file vertex's decoded weights (all sets) sum to one as Khronos' glTF-Validator requires.
 

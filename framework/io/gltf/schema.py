@@ -132,6 +132,17 @@ class Skin(_Model):
     skeleton: Index | None = None
     joints: Annotated[list[Index], Field(min_length=1)]
 
+    @field_validator("joints")
+    @classmethod
+    def _distinct(cls, joints):
+        seen: set[int] = set()
+        for i, j in enumerate(joints):
+            if j in seen:       # the specification requires distinct joints; a written copy would be invalid
+                raise ValueError(f"node {j} is listed twice (joints[{i}]); a skin's joints must be distinct: "
+                                 "re-export the file")
+            seen.add(j)
+        return joints
+
 
 class Target(_Model):
     node: Index | None = None
