@@ -131,7 +131,7 @@ def solve_weights(asset, method: str, params, ctx=None) -> tuple[ReducedWeights,
     if guard in ("k-largest", "k-largest-per-vertex"):
         reduced, grep = guard_k_largest(asset, reduced, per_vertex=guard == "k-largest-per-vertex")
         report.update(grep)
-    reduced, report["passed_through"] = pass_through(asset.weights, reduced)
+    reduced, report["passed_through"] = pass_through(asset.weights, reduced, asset.influences)
     report["seconds"] = time.perf_counter() - t0
     if ctx is not None and hasattr(ctx, "report"):
         ctx.report.update(report)

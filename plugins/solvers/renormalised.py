@@ -1,7 +1,7 @@
 """The ``k-largest`` weight solver: keep the selected input weights and renormalise them ([P10] section 3).
 
 Named for what it computes, apart from the ranking (:mod:`rigslim.numerics.largest_entries`) and the
-k-largest selector (:mod:`rigslim.plugins.selection.k_largest`).
+k-largest selector (the ``k-largest`` influence-selection plugin).
 """
 
 from __future__ import annotations
@@ -58,7 +58,8 @@ class KLargestSolver(WeightSolver):
         from rigslim.plugins.solvers.safeguards import pass_through
 
         asset.require("weights", "influences", step="solve: k-largest")
-        reduced, kept = pass_through(asset.weights, renormalised_weights(asset.weights, asset.influences))
+        reduced, kept = pass_through(asset.weights, renormalised_weights(asset.weights, asset.influences),
+                                     asset.influences)
         if ctx is not None and hasattr(ctx, "report"):
             ctx.report["passed_through"] = kept
         return reduced

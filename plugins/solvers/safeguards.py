@@ -46,9 +46,12 @@ from rigslim.numerics.largest_entries import k_largest
 __all__ = ["guard_k_largest", "k_largest_weights", "pass_through"]
 
 
-def pass_through(A: sp.csr_matrix, reduced: ReducedWeights) -> tuple[ReducedWeights, int]:
+def pass_through(A: sp.csr_matrix, reduced: ReducedWeights, sets=None) -> tuple[ReducedWeights, int]:
     """``reduced`` with every row of at most k input influences replaced by its input weights, exactly.
 
+    With influence ``sets`` (the step's :class:`~rigslim.model.weights.InfluenceSets`), only rows whose
+    input influences all lie in their set pass through: a set that leaves out an influence (a joint
+    budget's dropped joint, re-fitted onto the kept ones) asks for a fit, not the input row.
     A row whose slots already hold all its influences keeps its slot order (the solvers' influence
     sets); other such rows take the input's column order. Returns the weights and the number of rows
     passed through.
@@ -58,6 +61,12 @@ def pass_through(A: sp.csr_matrix, reduced: ReducedWeights) -> tuple[ReducedWeig
     m, k = reduced.indices.shape
     counts = np.diff(A.indptr)
     small = np.flatnonzero(counts <= k)
+    if sets is not None and small.size:
+        inside = sp.csr_matrix((sets.valid.ravel().astype(np.float64),
+                                (np.repeat(np.arange(m), sets.indices.shape[1]), sets.indices.ravel())),
+                               shape=A.shape)
+        covered = np.diff(A.multiply(inside > 0).tocsr().indptr)        # input influences inside the set
+        small = small[covered[small] == counts[small]]
     if small.size == 0:
         return reduced, 0
     indices, values = reduced.indices.copy(), reduced.values.copy()
