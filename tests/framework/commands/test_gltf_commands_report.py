@@ -92,16 +92,31 @@ steps:
 """)
     assert main(["run", str(yml), "--metrics", str(tmp_path / "m.json"), "-q"]) == 0
     doc = json.loads((tmp_path / "m.json").read_text())
+    from rigslim.report.gltf import world_diagonal
+
+    world = world_diagonal(GLTF / "animation_with_skeleton.glb")
+    assert world > 50 * doc["mesh"]["bbox_diagonal"]                    # the x100 joint scale
+    # schema 3 records world units: % of the world diagonal and metres, so the report needs no conversion
+    assert doc["schema_version"] >= 3
+    metrics = doc["evaluations"][-1]["metrics"]
+    assert metrics["reference_diagonal_m"] == pytest.approx(world, rel=1e-3)
+    pct, metres = metrics["position_rms_pct"]["mean"], metrics["position_rms_m"]["mean"]
+    assert metres == pytest.approx(pct / 100 * metrics["reference_diagonal_m"], rel=1e-6)
     out = tmp_path / "report.html"
     assert main(["report", str(tmp_path / "m.json"), "-o", str(out), "--no-renders", "-q"]) == 0
+    assert "<h2>World units</h2>" not in out.read_text()
+
+    # a schema 2 document (% of the bind-space diagonal) gets the World units table, converted
+    old = dict(doc, schema_version=2)
+    old["evaluations"] = [dict(ev, metrics={"position_rms_pct": {"mean": 0.4, "max": 0.5}})
+                          for ev in doc["evaluations"]]
+    (tmp_path / "v2.json").write_text(json.dumps(old))
+    assert main(["report", str(tmp_path / "v2.json"), "-o", str(out), "--no-renders", "-q"]) == 0
     text = out.read_text()
     row = re.search(r"<td>position_rms_pct</td><td>([^<]+)</td><td>([^<]+)</td><td>([^<]+)</td><td>([^<]+)</td>",
                     text)
     assert row, "no world-units row"
-    pct_bind, metres, pct_world, world = (float(x) for x in row.groups())
-    from rigslim.report.gltf import world_diagonal
-
-    assert world == pytest.approx(world_diagonal(GLTF / "animation_with_skeleton.glb"), rel=1e-3)
-    assert world > 50 * doc["mesh"]["bbox_diagonal"]                    # the x100 joint scale
+    pct_bind, metres, pct_world, world_row = (float(x) for x in row.groups())
+    assert world_row == pytest.approx(world, rel=1e-3)
     assert metres == pytest.approx(pct_bind / 100 * doc["mesh"]["bbox_diagonal"], rel=1e-3)
     assert pct_world == pytest.approx(100 * metres / world, rel=1e-3)

@@ -84,7 +84,7 @@ def test_reduce_is_rigslims_default_reduction(tmp_path):
     import inspect
 
     defaults = inspect.signature(rigslim.reduce_weights).parameters
-    assert str(res["select"]) == defaults["select"].default and str(res["solve"]) == defaults["solve"].default
+    assert str(res["select"]) == str(defaults["select"].default) and str(res["solve"]) == str(defaults["solve"].default)
 
 
 def test_reduce_error_is_one_json_line(tmp_path):
