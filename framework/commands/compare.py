@@ -102,6 +102,14 @@ def hausdorff_frame_indices(n: int, cap: int) -> list[int]:
     return out
 
 
+def compared_frames(frames: str | None, count: int) -> list[int]:
+    """``--frames`` of a clip of ``count`` frames; without it every frame, or :data:`MAX_DEFAULT_FRAMES`
+    evenly spread ones (the first and the last among them) when the clip is longer."""
+    if frames is None and count > MAX_DEFAULT_FRAMES:
+        return sorted({int(round(x)) for x in np.linspace(0, count - 1, MAX_DEFAULT_FRAMES)})
+    return parse_frames_spec(frames, count)
+
+
 def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, level: int = 0, fps: float = DEFAULT_FPS,
             samples: int = 20000, hausdorff: bool = True, hausdorff_frames: int | None = None,
             large_faces: int = LARGE_MESH_FACES) -> dict:
@@ -146,10 +154,7 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
 
     with read_once():           # each file parsed once (the command's own session, if any, shares it)
         count, clip_name, _ = clip_frames(ref, clip, fps, None if is_usd(ref) else load_gltf(ref))
-        if frames is None and count > MAX_DEFAULT_FRAMES:
-            chosen = sorted({int(round(x)) for x in np.linspace(0, count - 1, MAX_DEFAULT_FRAMES)})
-        else:
-            chosen = parse_frames_spec(frames, count)
+        chosen = compared_frames(frames, count)
         times = [f / fps for f in chosen]
         Pr, Fr, sr = posed_surfaces(ref, clip=clip, times=times)
         Pc, Fc, sc = posed_surfaces(cand, clip=clip if clip is not None else None, times=times, level=level)
