@@ -133,22 +133,25 @@ def best_fit(asset, k: int, by: str = "weight", coherence: float = 0.0, swaps: i
     return sets, report
 
 
-class BestFitSelector(InfluenceSelector):
+class BestFitParams(Params):
+    k: int = Field(ge=1, description="influences per vertex")
+    by: Literal["weight", "error"] = Field("weight", description="keep the k largest fitted weights, or "
+                                           "drop influences greedily by least example-pose error")
+    swaps: int = Field(0, ge=0, description="by: error: passes of single exchanges (member for "
+                       "non-member) that lower the example-pose error further")
+
+
+class BestFitSelector(InfluenceSelector[BestFitParams]):
     name = "best-fit"
     summary = ("keep the influences of a sparse non-negative sum-to-one fit of the example poses over "
                "all input influences (by weight or by greedy error reduction)")
 
-    class Params(Params):
-        k: int = Field(ge=1, description="influences per vertex")
-        by: Literal["weight", "error"] = Field("weight", description="keep the k largest fitted weights, or "
-                                               "drop influences greedily by least example-pose error")
-        swaps: int = Field(0, ge=0, description="by: error: passes of single exchanges (member for "
-                           "non-member) that lower the example-pose error further")
-
-    def select(self, asset: Asset, params: Params, ctx: StepContext) -> InfluenceSets:
+    def select(self, asset: Asset, params: BestFitParams, ctx: StepContext) -> InfluenceSets:
         asset.require("mesh", "handles", "weights", "poses", "split", step="select: best-fit")
-        if pass_through_note(params.k, asset.weights.shape[1], ctx):
-            return k_largest(asset.weights, params.k)
+        weights = asset.weights
+        assert weights is not None  # require() raised otherwise
+        if pass_through_note(params.k, weights.shape[1], ctx):
+            return k_largest(weights, params.k)
         sets, report = best_fit(asset, params.k, params.by, swaps=params.swaps)
         if ctx is not None and hasattr(ctx, "report"):
             ctx.report.update(report)

@@ -14,20 +14,23 @@ if TYPE_CHECKING:
     from rigslim.model.weights import InfluenceSets
     from rigslim.plugin import StepContext
 
-__all__ = ["KLargestSelector", "pass_through_note"]
+__all__ = ["KLargestParams", "KLargestSelector", "pass_through_note"]
 
 
-class KLargestSelector(InfluenceSelector):
+class KLargestParams(Params):
+    k: int = Field(ge=1, description="influences per vertex")
+
+
+class KLargestSelector(InfluenceSelector[KLargestParams]):
     name = "k-largest"
     summary = "keep each vertex's k largest input weights (the baseline of every importer)"
 
-    class Params(Params):
-        k: int = Field(ge=1, description="influences per vertex")
-
-    def select(self, asset: Asset, params: Params, ctx: StepContext) -> InfluenceSets:
+    def select(self, asset: Asset, params: KLargestParams, ctx: StepContext) -> InfluenceSets:
         asset.require("weights", step="select: k-largest")
-        pass_through_note(params.k, asset.weights.shape[1], ctx)
-        return k_largest(asset.weights, params.k)
+        weights = asset.weights
+        assert weights is not None  # require() raised otherwise
+        pass_through_note(params.k, weights.shape[1], ctx)
+        return k_largest(weights, params.k)
 
 
 def pass_through_note(k: int, n: int, ctx) -> bool:

@@ -428,21 +428,22 @@ def sparse_fit_reference(V, T, A, k: int, by: str = "weight", swaps: int = 0):
             if zero.size:
                 inset[zero[0]] = False
                 continue
-            best = (np.inf, -1, None)
-            for j in np.flatnonzero(inset):
+            drop: tuple[float, int, np.ndarray] = (np.inf, -1, x)  # (error, dropped influence, fit)
+            for j in map(int, np.flatnonzero(inset)):
                 allowed = inset.copy()
                 allowed[j] = False
                 xc = x.copy()
                 xc[j] = 0.0
                 xc[xc > 0] /= 1.0 - x[j]
                 xc, _, ec = _reference_lh(G, c, yy, allowed, xc, list(np.flatnonzero(xc > 0)), tol, ridge, True)
-                if ec < best[0]:
-                    best = (ec, j, xc)
-            e, j, x = best
-            inset[j] = False
+                if ec < drop[0]:
+                    drop = (ec, j, xc)
+            e, dropped, x = drop
+            inset[dropped] = False
         for _ in range(swaps if by == "error" and (int((x0 > 0).sum())) > k else 0):
-            best = (e * (1.0 - 1e-9) - 1e-15 * yy, -1, -1, None)
-            for i in np.flatnonzero(inset):
+            # (error, leaving member, entering non-member, fit); an exchange must lower the error
+            best: tuple[float, int, int, np.ndarray] = (e * (1.0 - 1e-9) - 1e-15 * yy, -1, -1, x)
+            for i in map(int, np.flatnonzero(inset)):
                 allowed = inset.copy()
                 allowed[i] = False
                 xi = x.copy()
