@@ -52,6 +52,7 @@ class Poses:
 
     def select(self, frames) -> Poses:
         """The poses of the given frame numbers, in that order."""
+        assert self.frames is not None  # __post_init__ set it (0..p-1 when not given)
         index = {int(f): j for j, f in enumerate(self.frames)}
         rows = [index[int(f)] for f in frames]
         return Poses(self.T[rows], np.asarray(frames, dtype=np.int64), source=self.source)

@@ -36,6 +36,7 @@ and the choice.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -111,7 +112,7 @@ def choose_position_weight(asset, params, grid=GRID) -> tuple[float, dict]:
     groups = asset.split.clip_groups(examples)
     splits = clip_splits(groups) if len(groups) >= 2 else kfold_splits(examples)
     subs = [dataclasses.replace(asset, split=FrameSplit(fit, held, [])) for fit, held in splits]
-    rows = []
+    rows: list[dict[str, Any]] = []  # one JSON row of the report per lambda
     for lam in grid:
         p2 = n2 = secs = 0.0
         per_fold = []

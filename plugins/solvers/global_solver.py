@@ -212,7 +212,7 @@ def global_solve(prob, *, method: str = "direct", max_direct_unknowns: int | Non
         z, backend = spd_solve(system.matrix().tocsr(), system.rhs, "superlu")
     alpha = system.weights(z)
     grad = system.reduced_gradient(prob, alpha)
-    kkt = float(np.linalg.norm(grad) / max(np.linalg.norm(system.rhs), 1e-300))
+    kkt = float(np.linalg.norm(grad) / max(float(np.linalg.norm(system.rhs)), 1e-300))
     alpha = np.where(prob.valid, alpha, 0.0)
     report = dict(solver="direct", factorisation=backend, energy=prob.energy(alpha), unknowns=system.unknowns,
                   nonzeros=int(system.blocks.size), kkt_residual=kkt, seconds=time.perf_counter() - t0)

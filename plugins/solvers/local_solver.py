@@ -206,8 +206,9 @@ def local_solve(prob, adjacency, alpha=None, *, tolerance: float = 1e-8, max_swe
     order = np.concatenate(classes)
     bounds = np.concatenate([[0], np.cumsum([len(S) for S in classes])])
     Qc = sp.csc_matrix(prob.Q)
-    Qcols = [sp.csr_matrix(Qc[:, S]) for S in classes] if prob.coupled else None
+    Qcols = [sp.csr_matrix(Qc[:, S]) for S in classes] if prob.coupled else []
     Qdiag = prob.Q.diagonal()
+    qp: _NumpyQP | _OpenCLQP
     if backend == "opencl":
         qp = _OpenCLQP(prob, H, order, bounds, device=device)
     elif backend == "numpy":

@@ -47,7 +47,7 @@ from rigslim.plugins.solvers.safeguards import guard_k_largest, pass_through
 
 if TYPE_CHECKING:
     from rigslim.model.asset import Asset
-    from rigslim.plugin import Params, StepContext
+    from rigslim.plugin import StepContext
 
 
 class ReductionParams(Params):
@@ -222,30 +222,27 @@ def _solve(asset, method: str, params, ctx) -> tuple[ReducedWeights, dict]:
     return ReducedWeights.from_influences(asset.influences, alpha, asset.weights.shape[1]), report
 
 
-class GeometricSolver(WeightSolver):
+class GeometricSolver(WeightSolver[ReductionParams]):
     name = "geometric"
     summary = "per-vertex least squares fit of the example poses' positions ([P10] eq. 3)"
-    Params = ReductionParams
 
-    def solve(self, asset: Asset, params: Params, ctx: StepContext) -> ReducedWeights:
+    def solve(self, asset: Asset, params: ReductionParams, ctx: StepContext) -> ReducedWeights:
         return solve_weights(asset, "geometric", params, ctx)[0]
 
 
-class SmoothSolver(WeightSolver):
+class SmoothSolver(WeightSolver[LaplacianParams]):
     name = "smooth"
     summary = "weights whose Laplacian best matches the input weights' ([P10] sec. 3.1; no poses)"
-    Params = LaplacianParams
 
-    def solve(self, asset: Asset, params: Params, ctx: StepContext) -> ReducedWeights:
+    def solve(self, asset: Asset, params: LaplacianParams, ctx: StepContext) -> ReducedWeights:
         return solve_weights(asset, "smooth", params, ctx)[0]
 
 
-class PoissonSolver(WeightSolver):
+class PoissonSolver(WeightSolver[PoissonParams]):
     name = "poisson"
     summary = "weights whose deformed Laplacians match the full deformation's ([P10] eq. 5)"
-    Params = PoissonParams
 
-    def solve(self, asset: Asset, params: Params, ctx: StepContext) -> ReducedWeights:
+    def solve(self, asset: Asset, params: PoissonParams, ctx: StepContext) -> ReducedWeights:
         if params.position_weight != "auto":
             return solve_weights(asset, "poisson", params, ctx)[0]
         asset.require("mesh", "handles", "weights", "influences", "poses", "split", step="solve: poisson")

@@ -50,7 +50,7 @@ class BatchedQP:
         self.x0 = cl.Buffer(ctx, mf.READ_ONLY, size=cap * k * 8)
         self.x = cl.Buffer(ctx, mf.WRITE_ONLY, size=cap * k * 8)
         self.it = cl.Buffer(ctx, mf.WRITE_ONLY, size=cap * 4)
-        self.last_iterations = None
+        self.last_iterations: np.ndarray | None = None  # per problem, of the last solve_range
 
     def solve_range(self, lo: int, hi: int, g, x0) -> np.ndarray:
         """Solve problems ``lo..hi-1`` with linear terms ``g`` and feasible starts ``x0`` (hi-lo, k)."""

@@ -58,8 +58,9 @@ class KLargestSolver(WeightSolver):
         from rigslim.plugins.solvers.safeguards import pass_through
 
         asset.require("weights", "influences", step="solve: k-largest")
-        reduced, kept = pass_through(asset.weights, renormalised_weights(asset.weights, asset.influences),
-                                     asset.influences)
+        weights, influences = asset.weights, asset.influences
+        assert weights is not None and influences is not None  # require() raised otherwise
+        reduced, kept = pass_through(weights, renormalised_weights(weights, influences), influences)
         if ctx is not None and hasattr(ctx, "report"):
             ctx.report["passed_through"] = kept
         return reduced
