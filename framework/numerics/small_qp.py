@@ -145,10 +145,7 @@ def solve_small_qps(H, g, C, d, nonneg=False, x0=None, max_iter: int | None = No
     d = np.asarray(d, dtype=np.float64)
     nb, k = g.shape
     nonneg = np.broadcast_to(np.asarray(nonneg, dtype=bool), (nb,))
-    scale = np.abs(H[:, np.arange(k), np.arange(k)]).max(axis=1) + 1e-300
-    cnorm = np.einsum("bqk,bqk->b", C, C) + 1e-300
-    delta = KKT_DELTA * cnorm / scale
-    iters = np.zeros(nb, dtype=np.int64)
+    delta = _kkt_regularisation(H, C)
     if x0 is None:
         if nonneg.any():
             raise ValueError("a feasible start x0 is needed when any problem is non-negative")
@@ -159,9 +156,27 @@ def solve_small_qps(H, g, C, d, nonneg=False, x0=None, max_iter: int | None = No
         r = np.einsum("bij,bj->bi", H, x) + g
         p, _ = _kkt_step(H, r, C, np.zeros((nb, k), dtype=bool), delta)
         return QPResult(x + p, np.ones(nb, dtype=np.int64), np.ones(nb, dtype=bool))
+    return _active_set(H, g, C, delta, nonneg, x0, 3 * k + 10 if max_iter is None else max_iter)
 
+
+def _kkt_regularisation(H, C) -> np.ndarray:
+    """``delta = KKT_DELTA |C|_F^2 / max_l |H_ll|`` (B,), the constraint block's ``-delta I`` (module docstring)."""
+    k = H.shape[1]
+    scale = np.abs(H[:, np.arange(k), np.arange(k)]).max(axis=1) + 1e-300
+    cnorm = np.einsum("bqk,bqk->b", C, C) + 1e-300
+    return KKT_DELTA * cnorm / scale
+
+
+def _active_set(H, g, C, delta, nonneg, x0, max_iter: int) -> QPResult:
+    """The primal active set iterations (module docstring, steps 1-3) from the feasible ``x0``.
+
+    Each iteration solves the KKT step of the problems still active; problems whose step is zero, or a
+    full step (``t = 1``), check their bound multipliers (:func:`_bound_multipliers`), the others move
+    (:func:`_ratio_step`).
+    """
+    nb = len(g)
+    iters = np.zeros(nb, dtype=np.int64)
     x = np.array(x0, dtype=np.float64, copy=True)
-    max_iter = 3 * k + 10 if max_iter is None else max_iter
     W = nonneg[:, None] & (x <= 0.0)
     x = np.where(W, 0.0, x)
     done = np.zeros(nb, dtype=bool)
@@ -174,26 +189,11 @@ def solve_small_qps(H, g, C, d, nonneg=False, x0=None, max_iter: int | None = No
         p, lam = _kkt_step(Ha, r, Ca, Wa, delta[act])
         iters[act] += 1
         small = np.abs(p).max(axis=1) <= STEP_TOL * (1.0 + np.abs(xa).max(axis=1))
-        nn = nonneg[act]
         # Moving problems: ratio test on the variables that decrease.
         mv = ~small
         full = np.zeros(len(act), dtype=bool)
         if mv.any():
-            pm, xm = p[mv], xa[mv]
-            limited = nn[mv][:, None] & (pm < 0) & ~Wa[mv]
-            ratio = np.where(limited, -xm / np.where(limited, pm, -1.0), np.inf)
-            j = np.argmin(ratio, axis=1)
-            t = np.minimum(1.0, ratio[np.arange(len(j)), j])
-            xm = xm + t[:, None] * pm
-            block = t < 1.0
-            rows = np.flatnonzero(block)
-            Wm = Wa[mv].copy()
-            Wm[rows, j[rows]] = True
-            xm[rows, j[rows]] = 0.0
-            # Bound variables stay exactly at zero; round-off negatives are clipped.
-            xm = np.where(nn[mv][:, None], np.maximum(xm, 0.0), xm)
-            xa[mv] = xm
-            Wa[mv] = Wm
+            xa[mv], Wa[mv], block = _ratio_step(p[mv], xa[mv], Wa[mv], nonneg[act][mv])
             # A full step lands on the working set's minimiser: its multipliers
             # (from the same KKT solve) decide optimality right away.
             full[np.flatnonzero(mv)[~block]] = True
@@ -203,17 +203,72 @@ def solve_small_qps(H, g, C, d, nonneg=False, x0=None, max_iter: int | None = No
         st = small | full
         if st.any():
             idx = np.flatnonzero(st)
-            mu = r[idx] + np.einsum("bqk,bq->bk", Ca[idx], lam[idx])
-            mu = np.where(Wa[idx], mu, np.inf)
-            j = np.argmin(mu, axis=1)
-            mumin = mu[np.arange(len(idx)), j]
-            tol = 1e-12 * (1.0 + np.abs(r[idx]).max(axis=1))
-            opt = mumin >= -tol
-            rel = idx[~opt]
-            Wa[rel, j[~opt]] = False
-            fin = act[idx[opt]]
-            done[fin] = True
+            opt, j = _bound_multipliers(r[idx], lam[idx], Ca[idx], Wa[idx])
+            Wa[idx[~opt], j[~opt]] = False
+            done[act[idx[opt]]] = True
         x[act] = xa
         W[act] = Wa
         act = act[~done[act]]
     return QPResult(x, iters, done)
+
+
+def _ratio_step(p, x, W, nonneg):
+    """Move ``x += t p`` with the largest ``t <= 1`` that keeps the bounded variables at or above zero.
+
+    ``t = min(1, min_{l not in W, p_l < 0} -x_l / p_l)`` on problems with bounds (``nonneg``); where
+    ``t < 1`` the blocking variable joins the working set ``W`` and is set to exactly zero, and
+    round-off negatives of bounded problems are clipped.
+
+    Parameters
+    ----------
+    p, x : (b, k) arrays
+        Steps and iterates of the moving problems.
+    W : (b, k) bool array
+    nonneg : (b,) bool array
+
+    Returns
+    -------
+    x, W : new (b, k) arrays
+    blocked : (b,) bool array
+        ``t < 1`` (a variable blocked the step).
+    """
+    limited = nonneg[:, None] & (p < 0) & ~W
+    ratio = np.where(limited, -x / np.where(limited, p, -1.0), np.inf)
+    j = np.argmin(ratio, axis=1)
+    t = np.minimum(1.0, ratio[np.arange(len(j)), j])
+    x = x + t[:, None] * p
+    blocked = t < 1.0
+    rows = np.flatnonzero(blocked)
+    W = W.copy()
+    W[rows, j[rows]] = True
+    x[rows, j[rows]] = 0.0
+    # Bound variables stay exactly at zero; round-off negatives are clipped.
+    x = np.where(nonneg[:, None], np.maximum(x, 0.0), x)
+    return x, W, blocked
+
+
+def _bound_multipliers(r, lam, C, W):
+    """Optimality of stationary problems: ``mu_W = (H x + g + C^T lambda)_W`` all ``>= -tol``.
+
+    Parameters
+    ----------
+    r : (b, k) array
+        ``H x + g`` at the working set's minimiser.
+    lam : (b, q) array
+        Equality multipliers of the KKT step.
+    C : (b, q, k) array
+    W : (b, k) bool array
+
+    Returns
+    -------
+    optimal : (b,) bool array
+        ``min_W mu >= -1e-12 (1 + |r|_inf)`` (KKT holds).
+    release : (b,) int array
+        The variable of most negative ``mu`` (to leave ``W`` where not optimal).
+    """
+    mu = r + np.einsum("bqk,bq->bk", C, lam)
+    mu = np.where(W, mu, np.inf)
+    release = np.argmin(mu, axis=1)
+    mumin = mu[np.arange(len(release)), release]
+    tol = 1e-12 * (1.0 + np.abs(r).max(axis=1))
+    return mumin >= -tol, release

@@ -201,21 +201,8 @@ def local_solve(prob, adjacency, alpha=None, *, tolerance: float = 1e-8, max_swe
     alpha = np.array(alpha, dtype=np.float64, copy=True)
     if not prob.coupled:
         relaxation = 1.0  # independent vertices: the exact local step is the optimum
-    H = prob.local_hessians()
-    classes = vertex_classes(prob, adjacency)
-    order = np.concatenate(classes)
-    bounds = np.concatenate([[0], np.cumsum([len(S) for S in classes])])
-    Qc = sp.csc_matrix(prob.Q)
-    Qcols = [sp.csr_matrix(Qc[:, S]) for S in classes] if prob.coupled else []
-    Qdiag = prob.Q.diagonal()
-    qp: _NumpyQP | _OpenCLQP
-    if backend == "opencl":
-        qp = _OpenCLQP(prob, H, order, bounds, device=device)
-    elif backend == "numpy":
-        qp = _NumpyQP(prob, H, order, bounds)
-    else:
-        raise ValueError(f"unknown backend {backend!r}")
-    R, QR = prob.residual_energy_terms(alpha)
+    sweeper = _ColourSweeps(prob, vertex_classes(prob, adjacency), backend, device, relaxation)
+    _, QR = prob.residual_energy_terms(alpha)
     energy = prob.energy(alpha)
     E0 = energy
     history = [energy]
@@ -226,31 +213,8 @@ def local_solve(prob, adjacency, alpha=None, *, tolerance: float = 1e-8, max_swe
     loop = range(max_sweeps)
     if progress is not None:
         loop = progress(loop, total=max_sweeps, description="local sweeps")
-    pad = ~prob.valid
     for _ in loop:
-        dE = 0.0
-        max_step = 0.0
-        for ci, S in enumerate(classes):
-            BS = prob.B[S]
-            a = alpha[S]
-            h = np.einsum("skd,sd->sk", BS, QR[S]) + prob.eps * (a - prob.alpha0[S])
-            h[pad[S]] = 0.0
-            HS = H[S]
-            g = h - np.einsum("skl,sl->sk", HS, a)
-            x = qp.solve(ci, S, g, a)
-            delta = x - a
-            if relaxation != 1.0:
-                delta = delta * _relaxed_step(a, delta, relaxation, prob.nonneg)[:, None]
-                x = a + delta
-            dE += float(2.0 * np.sum(h * delta) + np.einsum("sk,skl,sl->", delta, HS, delta))
-            alpha[S] = x
-            dX = np.einsum("skd,sk->sd", BS, delta)
-            if prob.coupled:
-                QR += Qcols[ci] @ dX
-            else:
-                QR[S] += Qdiag[S, None] * dX
-            if delta.size:
-                max_step = max(max_step, float(np.abs(delta).max()))
+        dE, max_step = sweeper.sweep(alpha, QR)
         sweeps += 1
         new = energy + dE
         rel = (energy - new) / max(abs(new), 1e-300)
@@ -262,6 +226,81 @@ def local_solve(prob, adjacency, alpha=None, *, tolerance: float = 1e-8, max_swe
             break
     exact = prob.energy(alpha)
     report.update(sweeps=sweeps, energy=exact, energy_start=E0, last_relative_decrease=float(rel),
-                  max_step=float(max_step), colors=len(classes), backend=qp.name, converged=converged,
-                  seconds=time.perf_counter() - t0, energy_history=[float(e) for e in history])
+                  max_step=float(max_step), colors=len(sweeper.classes), backend=sweeper.qp.name,
+                  converged=converged, seconds=time.perf_counter() - t0,
+                  energy_history=[float(e) for e in history])
     return alpha, report
+
+
+class _ColourSweeps:
+    """One Gauss-Seidel sweep of exact per-vertex QPs over the colour classes (module docstring).
+
+    Parameters
+    ----------
+    prob : ReductionProblem
+    classes : list of (s,) int arrays
+        Batches of vertices that share no term of ``Q`` (:func:`vertex_classes`).
+    backend : {"numpy", "opencl"}
+    device : str or None
+        OpenCL device spec.
+    relaxation : float
+        Over-relaxation factor omega (:func:`local_solve`).
+    """
+
+    def __init__(self, prob, classes: list[np.ndarray], backend: str, device: str | None, relaxation: float):
+        self.prob, self.classes, self.relaxation = prob, classes, relaxation
+        self.H = prob.local_hessians()
+        order = np.concatenate(classes)
+        bounds = np.concatenate([[0], np.cumsum([len(S) for S in classes])])
+        Qc = sp.csc_matrix(prob.Q)
+        # Q's columns of each class, for the update Q R += Q[:, S] Delta X_S (its diagonal when uncoupled).
+        self.Qcols = [sp.csr_matrix(Qc[:, S]) for S in classes] if prob.coupled else []
+        self.Qdiag = prob.Q.diagonal()
+        self.qp: _NumpyQP | _OpenCLQP
+        if backend == "opencl":
+            self.qp = _OpenCLQP(prob, self.H, order, bounds, device=device)
+        elif backend == "numpy":
+            self.qp = _NumpyQP(prob, self.H, order, bounds)
+        else:
+            raise ValueError(f"unknown backend {backend!r}")
+
+    def sweep(self, alpha: np.ndarray, QR: np.ndarray) -> tuple[float, float]:
+        """Visit every colour once, updating ``alpha`` and ``Q R`` in place.
+
+        Per class ``S``: ``h_S = B_S^T (Q R)_S + eps (alpha_S - alpha0_S)``, the QPs' linear terms
+        ``h_S - H_S alpha_S``, the (relaxed) step ``delta``, and the exact energy change
+        ``2 delta^T h + delta^T H delta``.
+
+        Returns
+        -------
+        dE : float
+            Energy change of the sweep (<= 0).
+        max_step : float
+            Largest weight change.
+        """
+        prob, H = self.prob, self.H
+        pad = ~prob.valid
+        dE = 0.0
+        max_step = 0.0
+        for ci, S in enumerate(self.classes):
+            BS = prob.B[S]
+            a = alpha[S]
+            h = np.einsum("skd,sd->sk", BS, QR[S]) + prob.eps * (a - prob.alpha0[S])
+            h[pad[S]] = 0.0
+            HS = H[S]
+            g = h - np.einsum("skl,sl->sk", HS, a)
+            x = self.qp.solve(ci, S, g, a)
+            delta = x - a
+            if self.relaxation != 1.0:
+                delta = delta * _relaxed_step(a, delta, self.relaxation, prob.nonneg)[:, None]
+                x = a + delta
+            dE += float(2.0 * np.sum(h * delta) + np.einsum("sk,skl,sl->", delta, HS, delta))
+            alpha[S] = x
+            dX = np.einsum("skd,sk->sd", BS, delta)
+            if prob.coupled:
+                QR += self.Qcols[ci] @ dX
+            else:
+                QR[S] += self.Qdiag[S, None] * dX
+            if delta.size:
+                max_step = max(max_step, float(np.abs(delta).max()))
+        return dE, max_step

@@ -144,41 +144,68 @@ def _solve(asset, method: str, params, ctx) -> tuple[ReducedWeights, dict]:
     asset.require("mesh", "handles", "weights", "influences", step=f"solve: {method}")
     if method != "smooth":
         asset.require("poses", "split", step=f"solve: {method}")
-    lp = params.linear_precision
-    if method == "smooth" and asset.handles.is_cage:
-        if lp is False:
-            raise StepError("smooth weights on a cage need linear precision (without poses nothing else "
-                            "ties them to the shape)", field="linear_precision",
-                            fix="remove 'linear_precision: false' or use the poisson or geometric solver")
-        lp = True
-    lp = bool(lp) if lp is not None else method == "smooth"
+    lp = _linear_precision(asset, method, params.linear_precision)
     nonneg = default_nonnegative(asset) if params.nonnegative is None else bool(params.nonnegative)
     if (method == "geometric" and nonneg and params.device == "numpy" and params.solver in ("auto", "local")
             and not (lp and asset.handles.is_cage)):
-        # Independent per-vertex QPs with the sum-to-one row only: the compiled kernel.
-        alpha0 = initial_weights(asset.weights, asset.influences)
-        alpha, rep = geometric_nonnegative(asset, asset.influences, alpha0, params.ridge)
-        report = {"method": method, "nonnegative": True, "linear_precision": lp, "energy_name": "geometric",
-                  "constraints": 1, "example_poses": len(asset.split.examples), "path": "local",
-                  "backend": "numba", "sweeps": 1, "colors": 1, "converged": True, **rep,
-                  "seconds": time.perf_counter() - t0}
-        alpha = np.maximum(np.where(asset.influences.valid, alpha, 0.0), 0.0)
-        return ReducedWeights.from_influences(asset.influences, alpha, asset.weights.shape[1]), report
+        return _geometric_per_vertex(asset, lp, params.ridge, t0)
     prob = build_problem(asset, method, nonnegative=params.nonnegative,
                          laplacian=getattr(params, "laplacian", "mass-weighted"), linear_precision=lp,
                          position_weight=getattr(params, "position_weight", 0.0), ridge=params.ridge)
     if params.solver == "global" and prob.nonneg:
         raise StepError("the global solver handles equality constraints only, and non-negativity is on",
                         field="solver", fix="use solver: auto or local, or set nonnegative: false")
-    progress = getattr(ctx, "progress", None)
+    report = {"method": method, "nonnegative": prob.nonneg, "linear_precision": lp, **prob.info}
+    alpha = _minimise(prob, asset.mesh, params, getattr(ctx, "progress", None), report)
+    report.pop("energy_history", None)
+    report["seconds"] = time.perf_counter() - t0
+    alpha = np.where(asset.influences.valid, alpha, 0.0)
+    if prob.nonneg:
+        alpha = np.maximum(alpha, 0.0)
+    return ReducedWeights.from_influences(asset.influences, alpha, asset.weights.shape[1]), report
+
+
+def _linear_precision(asset, method: str, linear_precision: bool | None) -> bool:
+    """Whether the energy also reproduces the rest position: as asked, by default only for ``smooth``,
+    which on a cage needs it (without poses nothing else ties the weights to the shape)."""
+    if method == "smooth" and asset.handles.is_cage:
+        if linear_precision is False:
+            raise StepError("smooth weights on a cage need linear precision (without poses nothing else "
+                            "ties them to the shape)", field="linear_precision",
+                            fix="remove 'linear_precision: false' or use the poisson or geometric solver")
+        linear_precision = True
+    return bool(linear_precision) if linear_precision is not None else method == "smooth"
+
+
+def _geometric_per_vertex(asset, lp: bool, ridge: float, t0: float) -> tuple[ReducedWeights, dict]:
+    """Non-negative geometric weights: independent per-vertex QPs with the sum-to-one row only,
+    ``min ||sum_l alpha_l B_l - Y_v||^2  s.t.  1^T alpha = 1, alpha >= 0``, in the compiled kernel
+    (:func:`rigslim.plugins.solvers.geometric_kernel.geometric_nonnegative`)."""
+    alpha0 = initial_weights(asset.weights, asset.influences)
+    alpha, rep = geometric_nonnegative(asset, asset.influences, alpha0, ridge)
+    report = {"method": "geometric", "nonnegative": True, "linear_precision": lp, "energy_name": "geometric",
+              "constraints": 1, "example_poses": len(asset.split.examples), "path": "local",
+              "backend": "numba", "sweeps": 1, "colors": 1, "converged": True, **rep,
+              "seconds": time.perf_counter() - t0}
+    alpha = np.maximum(np.where(asset.influences.valid, alpha, 0.0), 0.0)
+    return ReducedWeights.from_influences(asset.influences, alpha, asset.weights.shape[1]), report
+
+
+def _minimise(prob, mesh, params, progress, report: dict) -> np.ndarray:
+    """Minimise ``prob`` on the path ``params.solver`` selects (module docstring); the path's figures
+    go into ``report``.
+
+    Paths: the global equality optimum (no non-negativity); local sweeps (uncoupled energies, or
+    ``multilevel: false``); the multilevel equality optimum (``solver: local``, no non-negativity);
+    else the equality optimum projected onto the feasible set, then local sweeps
+    (:func:`_projected_local`).
+    """
     backend = "numpy" if params.device == "numpy" else "opencl"
     cl_device = None if params.device in ("numpy", "opencl") else params.device
     sweep_args = dict(tolerance=params.tolerance, max_sweeps=params.max_sweeps, backend=backend,
                       device=cl_device, progress=progress, relaxation=params.relaxation)
-    report = {"method": method, "nonnegative": prob.nonneg, "linear_precision": lp, **prob.info}
-    adjacency = asset.mesh.adjacency
     cg_args = dict(tolerance=params.residual_tolerance, max_iterations=params.max_iterations,
-                   coordinates=asset.mesh.V)
+                   coordinates=mesh.V)
 
     def equality_optimum(kind, start):
         if kind == "global":
@@ -193,33 +220,37 @@ def _solve(asset, method: str, params, ctx) -> tuple[ReducedWeights, dict]:
         if rep["solver"] == "direct":
             report["gap"] = 0.0
     elif not prob.coupled or (params.solver == "local" and not params.multilevel):
-        alpha, rep = local_solve(prob, adjacency, **sweep_args)
+        alpha, rep = local_solve(prob, mesh.adjacency, **sweep_args)
         report.update(path="local", **rep)
     elif params.solver == "local" and not prob.nonneg:
-        start, dropped = feasible_start(prob)
+        start, _ = feasible_start(prob)
         alpha, rep = equality_optimum("local", start)
         report.update(path="local: multilevel", **rep)
     else:
-        start, dropped = feasible_start(prob)
         kind = "global" if params.solver == "auto" else "local"
-        unconstrained, grep = equality_optimum(kind, None if prob.C.shape[1] > 1 else start)
-        projected = project_feasible(prob, unconstrained, start)
-        alpha, rep = local_solve(prob, adjacency, projected, **sweep_args)
-        if dropped:
-            rep["linear_precision_dropped"] = dropped
-        k0 = kkt_residual(prob, start)
-        eq = "global" if grep["solver"] == "direct" else grep["solver"]
-        report.update(path=f"{params.solver}: {eq}, projection, local", **rep,
-                      equality_optimum=grep["energy"], equality_seconds=grep["seconds"],
-                      equality_iterations=grep.get("iterations"), factorisation=grep.get("factorisation"),
-                      gap_above_equality_optimum=(rep["energy"] - grep["energy"]) / abs(grep["energy"]),
-                      kkt_residual=kkt_residual(prob, alpha) / k0 if k0 > 0 else 0.0)
-    report.pop("energy_history", None)
-    report["seconds"] = time.perf_counter() - t0
-    alpha = np.where(asset.influences.valid, alpha, 0.0)
-    if prob.nonneg:
-        alpha = np.maximum(alpha, 0.0)
-    return ReducedWeights.from_influences(asset.influences, alpha, asset.weights.shape[1]), report
+        alpha = _projected_local(prob, mesh.adjacency, lambda start: equality_optimum(kind, start),
+                                 sweep_args, params.solver, report)
+    return alpha
+
+
+def _projected_local(prob, adjacency, equality_optimum, sweep_args: dict, solver: str, report: dict) -> np.ndarray:
+    """Non-negative optimum from the equality optimum: projected per vertex onto the feasible set
+    (:func:`project_feasible`), then local sweeps to convergence; ``report`` gets both stages' figures,
+    the gap of the result above the equality optimum and its KKT residual relative to the start's."""
+    start, dropped = feasible_start(prob)
+    unconstrained, grep = equality_optimum(None if prob.C.shape[1] > 1 else start)
+    projected = project_feasible(prob, unconstrained, start)
+    alpha, rep = local_solve(prob, adjacency, projected, **sweep_args)
+    if dropped:
+        rep["linear_precision_dropped"] = dropped
+    k0 = kkt_residual(prob, start)
+    eq = "global" if grep["solver"] == "direct" else grep["solver"]
+    report.update(path=f"{solver}: {eq}, projection, local", **rep,
+                  equality_optimum=grep["energy"], equality_seconds=grep["seconds"],
+                  equality_iterations=grep.get("iterations"), factorisation=grep.get("factorisation"),
+                  gap_above_equality_optimum=(rep["energy"] - grep["energy"]) / abs(grep["energy"]),
+                  kkt_residual=kkt_residual(prob, alpha) / k0 if k0 > 0 else 0.0)
+    return alpha
 
 
 class GeometricSolver(WeightSolver[ReductionParams]):
