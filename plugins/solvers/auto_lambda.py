@@ -49,6 +49,7 @@ from rigslim.numerics.normal_error import (
     normal_rms_angle,
     vertex_face_incidence,
 )
+from rigslim.plugins.solvers.reduction import solve_weights
 
 #: Default lambda grid (dimensionless; see :func:`rigslim.plugins.solvers.problem.build_problem`).
 GRID = (1e-3, 1e-2, 1e-1, 1.0, 10.0)
@@ -103,8 +104,6 @@ def clip_splits(groups) -> list[tuple[list[int], list[int]]]:
 
 def choose_position_weight(asset, params, grid=GRID) -> tuple[float, dict]:
     """Lambda of least held-out score (module docstring) and the report of the search."""
-    from rigslim.plugins.solvers.methods import solve_weights
-
     examples = list(asset.split.examples)
     if len(examples) < 3:
         raise StepError(f"position_weight: auto holds out example poses, and there are only {len(examples)}",

@@ -28,13 +28,16 @@ Padding slots (``valid`` False) have zero basis and are pinned to zero.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
 
 from rigslim.errors import StepError
 from rigslim.numerics.blend import basis_positions, linear_blend
-from rigslim.plugins.solvers.renormalised import gather
+
+if TYPE_CHECKING:
+    from rigslim.model.weights import InfluenceSets
 
 #: Default ridge, relative to the mean diagonal of the local Hessians.
 RIDGE = 1e-9
@@ -130,6 +133,15 @@ def laplacian_operator(mesh, laplacian: str) -> tuple[sp.csr_matrix, sp.csr_matr
     K = ((K + K.T) * 0.5).tocsr()
     K.sort_indices()
     return K, W
+
+
+def gather(A: sp.csr_matrix, influences: InfluenceSets) -> np.ndarray:
+    """(m, k) input weights ``A[v, i_l]`` on the influence sets (0 on padding slots)."""
+    A = sp.csr_matrix(A)
+    m, k = influences.indices.shape
+    rows = np.repeat(np.arange(m), k)
+    vals = np.asarray(A[rows, influences.indices.ravel()]).reshape(m, k)
+    return np.where(influences.valid, vals, 0.0)
 
 
 def default_nonnegative(asset) -> bool:

@@ -14,19 +14,12 @@ import scipy.sparse as sp
 from rigslim.errors import StepError
 from rigslim.model.weights import InfluenceSets, ReducedWeights
 from rigslim.plugin import WeightSolver
+from rigslim.plugins.solvers.problem import gather
+from rigslim.plugins.solvers.safeguards import pass_through
 
 if TYPE_CHECKING:
     from rigslim.model.asset import Asset
     from rigslim.plugin import Params, StepContext
-
-
-def gather(A: sp.csr_matrix, influences: InfluenceSets) -> np.ndarray:
-    """(m, k) input weights ``A[v, i_l]`` on the influence sets (0 on padding slots)."""
-    A = sp.csr_matrix(A)
-    m, k = influences.indices.shape
-    rows = np.repeat(np.arange(m), k)
-    vals = np.asarray(A[rows, influences.indices.ravel()]).reshape(m, k)
-    return np.where(influences.valid, vals, 0.0)
 
 
 def renormalised_weights(A: sp.csr_matrix, influences: InfluenceSets) -> ReducedWeights:
@@ -55,8 +48,6 @@ class KLargestSolver(WeightSolver):
 
     def solve(self, asset: Asset, params: Params, ctx: StepContext) -> ReducedWeights:
         """The renormalised weights; vertices with at most k input influences keep them exactly."""
-        from rigslim.plugins.solvers.safeguards import pass_through
-
         asset.require("weights", "influences", step="solve: k-largest")
         weights, influences = asset.weights, asset.influences
         assert weights is not None and influences is not None  # require() raised otherwise

@@ -10,7 +10,8 @@ from rigslim.model.poses import FrameSplit
 from rigslim.numerics.largest_entries import k_largest
 from rigslim.plugin import StepContext
 from rigslim.plugins.solvers.auto_lambda import choose_position_weight, held_out_errors, kfold_splits
-from rigslim.plugins.solvers.methods import PoissonParams, PoissonSolver, solve_weights
+from rigslim.plugins.solvers.methods import PoissonParams, PoissonSolver
+from rigslim.plugins.solvers.reduction import solve_weights
 
 
 def asset_with_examples(count=7):

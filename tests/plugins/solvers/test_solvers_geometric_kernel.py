@@ -10,8 +10,9 @@ from rigslim.numerics.largest_entries import k_largest
 from rigslim.plugin import StepContext
 from rigslim.plugins.selection.best_fit import best_fit
 from rigslim.plugins.solvers.local_solver import local_solve
-from rigslim.plugins.solvers.methods import ReductionParams, solve_weights
+from rigslim.plugins.solvers.methods import ReductionParams
 from rigslim.plugins.solvers.problem import build_problem
+from rigslim.plugins.solvers.reduction import solve_weights
 
 
 def reference(asset):

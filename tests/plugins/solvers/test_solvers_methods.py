@@ -8,7 +8,8 @@ from support.synthetic import cage_asset, tube_asset
 
 from rigslim.errors import RigslimError, StepError
 from rigslim.numerics.largest_entries import k_largest
-from rigslim.plugins.solvers.methods import LaplacianParams, PoissonParams, ReductionParams, solve_weights
+from rigslim.plugins.solvers.methods import LaplacianParams, PoissonParams, ReductionParams
+from rigslim.plugins.solvers.reduction import solve_weights
 from rigslim.runtime.run import run_pipeline
 
 PARAMS = {"geometric": ReductionParams, "smooth": LaplacianParams, "poisson": PoissonParams}

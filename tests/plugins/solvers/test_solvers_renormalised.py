@@ -2,7 +2,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from rigslim.numerics.largest_entries import k_largest
-from rigslim.plugins.solvers.renormalised import gather, renormalised_weights
+from rigslim.plugins.solvers.problem import gather
+from rigslim.plugins.solvers.renormalised import renormalised_weights
 
 
 def test_renormalised_k_largest(elephant):
