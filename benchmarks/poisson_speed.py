@@ -29,6 +29,7 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(ROOT))
 
 from benchmarks.datasets import machine, write_results  # noqa: E402
+from benchmarks.reduction_cage import PipelineSteps  # noqa: E402
 
 OUT = ROOT / "docs" / "results"
 PIPELINE = ROOT / "examples" / "armadillo-k8.yaml"
@@ -36,24 +37,11 @@ PIPELINE = ROOT / "examples" / "armadillo-k8.yaml"
 
 def armadillo_asset():
     """The asset after the pipeline's ``generate`` and ``select`` steps, and their seconds."""
-    from rich.console import Console
-
-    from rigslim.plugin.host import get_host
-    from rigslim.runtime.document import load_pipeline
-    from rigslim.runtime.inputs import read_inputs
-    from rigslim.runtime.progress import Reporter
-    from rigslim.runtime.run import _run_step
-
-    host = get_host()
-    doc, steps = load_pipeline(PIPELINE, host=host)
-    reporter = Reporter(Console(quiet=True))
-    base = PIPELINE.parent
-    asset = read_inputs(doc, base, host, reporter.context(base), PIPELINE)
-    by_key = {s.key: s for s in steps}
+    run = PipelineSteps(PIPELINE)
     t = time.perf_counter()
     for key in ("generate", "select"):
-        _run_step(by_key[key], asset, host, reporter.context(base), base, PIPELINE, {"evaluations": []})
-    return asset, time.perf_counter() - t
+        run.run(key)
+    return run.asset, time.perf_counter() - t
 
 
 def previous_direct_path(prob) -> dict:

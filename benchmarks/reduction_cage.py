@@ -33,35 +33,55 @@ METHODS = [
 ]
 
 
+class PipelineSteps:
+    """A pipeline's inputs read into one asset, and its steps, run one at a time on that asset.
+
+    The set-up of the armadillo benchmarks (this one and ``poisson_speed.py``): the pipeline runner's own
+    calls (``load_pipeline``, ``read_inputs``, ``_run_step``), quiet.
+    """
+
+    def __init__(self, pipeline: Path = PIPELINE):
+        from rich.console import Console
+
+        from rigslim.plugin.host import get_host
+        from rigslim.runtime.document import load_pipeline
+        from rigslim.runtime.inputs import read_inputs
+        from rigslim.runtime.progress import Reporter
+
+        self.pipeline = pipeline
+        self.host = get_host()
+        doc, steps = load_pipeline(pipeline, host=self.host)
+        self.reporter = Reporter(Console(quiet=True))
+        self.base = pipeline.parent
+        self.asset = read_inputs(doc, self.base, self.host, self.reporter.context(self.base), pipeline)
+        self.steps = {s.key: s for s in steps}
+
+    def run(self, key: str, document: dict | None = None):
+        """Run the step ``key`` on the asset (its metrics into ``document``); returns the step's context."""
+        from rigslim.runtime.run import _run_step
+
+        ctx = self.reporter.context(self.base)
+        _run_step(self.steps[key], self.asset, self.host, ctx, self.base, self.pipeline,
+                  {"evaluations": []} if document is None else document)
+        return ctx
+
+
 def main() -> None:
-    from rich.console import Console
-
-    from rigslim.plugin.host import get_host
-    from rigslim.runtime.document import load_pipeline
-    from rigslim.runtime.inputs import read_inputs
-    from rigslim.runtime.progress import Reporter
-    from rigslim.runtime.run import _run_step
-
-    host = get_host()
-    doc, steps = load_pipeline(PIPELINE, host=host)
-    reporter = Reporter(Console(quiet=True))
-    base = PIPELINE.parent
-    asset = read_inputs(doc, base, host, reporter.context(base), PIPELINE)
-    by_key = {s.key: s for s in steps}
+    run = PipelineSteps()
+    asset = run.asset
     t = time.perf_counter()
-    _run_step(by_key["generate"], asset, host, reporter.context(base), base, PIPELINE, {"evaluations": []})
+    run.run("generate")
     generate_s = time.perf_counter() - t
-    _run_step(by_key["select"], asset, host, reporter.context(base), base, PIPELINE, {"evaluations": []})
+    run.run("select")
     rows = []
     for label, solver, extra in METHODS:
-        step = by_key["solve"]
+        step = run.steps["solve"]
         step.plugin, step.params = solver, dict(extra)
-        ctx = reporter.context(base)
         t = time.perf_counter()
-        _run_step(step, asset, host, ctx, base, PIPELINE, {"evaluations": []})
+        ctx = run.run("solve")
         seconds = time.perf_counter() - t
-        document = {"evaluations": []}
-        _run_step(by_key["evaluate"], asset, host, reporter.context(base), base, PIPELINE, document)
+        document: dict = {"evaluations": []}
+        run.run("evaluate", document)
         m = document["evaluations"][0]["metrics"]
         rows.append({"method": label, "solver": solver, "params": extra, "seconds": seconds,
                      "position_rms_pct": m["position_rms_pct"]["mean"],
