@@ -13,7 +13,7 @@ from typing import Literal
 
 import numpy as np
 import scipy.sparse as sp
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from rigslim.errors import StepError
 from rigslim.model.asset import Asset
@@ -62,11 +62,18 @@ class DecimationParams(Params):
     attribute_weights: dict[str, float] = Field(default_factory=lambda: dict(ATTRIBUTE_WEIGHTS))
     """For a mesh read from glTF: weight of each vertex attribute's displacement term in the error, by name
     (``TEXCOORD_0``) or family (``TEXCOORD``, ``COLOR``, ``NORMAL``, ``TANGENT``); see :func:`attribute_term`."""
-    lock_seams: bool = True
-    """For a mesh read from glTF: never move a vertex on a UV/colour seam or a material (primitive) boundary
-    (:func:`rigslim.io.gltf.seams.seam_vertices`), so every level keeps them exactly."""
+    seams: Literal["move", "lock", "free"] = "move"
+    """For a mesh read from glTF, how UV/colour seams and material (primitive) boundaries
+    (:func:`rigslim.io.gltf.seams.seam_vertices`) simplify: ``move`` (default) lets seam vertices and seam
+    corners collapse like the others, held to their seams by seam planes (``seam_weight``; the level writer
+    gives each side of every seam, UV slits included, its own attributes); ``lock`` keeps every seam vertex
+    where it is, or lets it collapse only along its seam (``seams_collapse_along``), seam corners fixed;
+    ``free`` ignores seams in the error."""
+    seam_weight: float = Field(default=0.3, ge=0.0)
+    """With ``seams: move``: weight of the seam planes (through each seam edge, perpendicular to its faces;
+    :func:`rigslim.plugins.decimation.quadrics.border_quadrics`) relative to the faces' area weights."""
     seams_collapse_along: bool = True
-    """With ``lock_seams``: seam vertices may still collapse with each other along their seam (both
+    """With ``seams: lock``: seam vertices may still collapse with each other along their seam (both
     sides keep their own attributes; :func:`rigslim.io.gltf.seams.seam_structure`); false keeps every seam vertex."""
     max_error: float | str | None = None
     """Error bound of every level (:mod:`rigslim.plugins.decimation.levels`): a number or ``"E%"`` is % of
@@ -90,6 +97,20 @@ class DecimationParams(Params):
     """Weight each face's plane in the quadrics by its area (the usual QSlim refinement)."""
     backend: Literal["numpy", "numba"] = "numba"
     """``numba``: the compiled collapse loop and per-edge solves; ``numpy``: the batched numpy reference."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _lock_seams(cls, data):
+        """The earlier spelling ``lock_seams: true|false`` (``seams: lock|free``)."""
+        if isinstance(data, dict) and "lock_seams" in data:
+            data = dict(data)
+            lock = data.pop("lock_seams")
+            if not isinstance(lock, bool):
+                raise ValueError("lock_seams must be true or false (or use seams: move|lock|free)")
+            if "seams" in data:
+                raise ValueError("give seams or lock_seams, not both")
+            data["seams"] = "lock" if lock else "free"
+        return data
 
 
 def target_faces(targets, n_faces: int) -> list[int]:
@@ -178,31 +199,57 @@ def attribute_term(asset, weights: dict[str, float], Q, T, X):
             np.concatenate([X, asset.mesh.V[None]]))
 
 
-def seam_lock(asset, along: bool = True):
+def seam_lock(asset, along: bool = True, mode: str = "lock"):
     """Seam and material-boundary vertices of a mesh read from glTF, and how they may collapse.
 
     ``asset.extras["seams"] = (locked, charts)`` gives them from arrays (any input: one locked flag per
     vertex, one chart label per face; the along-seam vertices follow from them); else they come from the
     glTF file the mesh was read from.
 
-    Returns ``(locked, seams)``: ``locked`` (m,) bool, ``seams`` ``(along, charts)`` for
-    :func:`rigslim.plugins.decimation.collapse.simplify` (None when ``along`` is false), or
-    ``(None, None)`` for other inputs, or when a step replaced the mesh the glTF reader made.
+    Returns ``(locked, seams)``: with ``mode="lock"``, ``locked`` (m,) bool, the seam vertices, and ``seams``
+    ``(along, charts)`` for :func:`rigslim.plugins.decimation.collapse.simplify` (None when ``along`` is
+    false); with ``mode="move"``, only the UV slit vertices (:func:`rigslim.io.gltf.seams.slit_vertices`;
+    none for arrays) and no seams; ``(None, None)`` with ``mode="free"``, for other inputs, or when a step
+    replaced the mesh the glTF reader made.
     """
     from rigslim.io.gltf.seams import seam_structure, seams_along
 
+    if mode == "free":
+        return None, None
     given = asset.extras.get("seams")
     if given is not None:                  # from arrays (e.g. Blender): (locked (m,) bool, charts (f,) int)
         locked, charts = np.asarray(given[0], bool), np.asarray(given[1], np.int64)
         if locked.shape != (asset.mesh.n_vertices,) or charts.shape != (asset.mesh.n_faces,):
             raise StepError("extras['seams'] does not match the mesh", field="seams",
                             fix="give (locked, charts) with one flag per vertex and one chart per face")
+        if mode == "move":
+            return None, None
         return locked, ((seams_along(asset.mesh.F, charts, locked), charts) if along else None)
     source = asset.extras.get("gltf")
     if source is None or source.mesh is not asset.mesh:
         return None, None
+    if mode == "move":
+        return None, None
     locked, may, charts = seam_structure(source)
     return locked, ((may, charts) if along else None)
+
+
+def seam_charts(asset) -> np.ndarray | None:
+    """(f,) chart of every face (UV/material charts) of a mesh read from glTF or given as
+    ``asset.extras["seams"]``; None for other inputs (see :func:`seam_lock`)."""
+    from rigslim.io.gltf.seams import face_charts
+
+    given = asset.extras.get("seams")
+    if given is not None:
+        charts = np.asarray(given[1], np.int64)
+        if charts.shape != (asset.mesh.n_faces,):
+            raise StepError("extras['seams'] does not match the mesh", field="seams",
+                            fix="give (locked, charts) with one flag per vertex and one chart per face")
+        return charts
+    source = asset.extras.get("gltf")
+    if source is None or source.mesh is not asset.mesh:
+        return None
+    return face_charts(source)
 
 
 class ArticulatedDecimator(Decimator):
@@ -226,7 +273,7 @@ class ArticulatedDecimator(Decimator):
         with clock("quadrics"):
             Q, W, T, X, model = self.setup(asset, params)
         with clock("seams"):
-            locked, seams = seam_lock(asset, params.seams_collapse_along) if params.lock_seams else (None, None)
+            locked, seams = seam_lock(asset, params.seams_collapse_along, params.seams)
         with clock("collapses"):
             hier = self.collapse(asset, params, W, T, X, model, min_faces, locked, seams, ctx)
         with clock("levels"):
@@ -254,8 +301,10 @@ class ArticulatedDecimator(Decimator):
         assert mesh is not None  # decimate() required it
         T = asset.example_poses().T
         Q, X = per_pose_quadrics(mesh.V, mesh.F, asset.weights, T, params.area_weighted)
-        if params.keep_boundary and params.border_weight > 0:
-            Q = Q + border_quadrics(X, mesh.F, params.border_weight)
+        border = params.border_weight if params.keep_boundary else 0.0
+        charts = seam_charts(asset) if params.seams == "move" and params.seam_weight > 0 else None
+        if border > 0 or charts is not None:
+            Q = Q + border_quadrics(X, mesh.F, border, charts, params.seam_weight)
         Q, T, X = attribute_term(asset, params.attribute_weights, Q, T, X)
         W = limited_weights(asset.weights, params.max_bones)
         return Q, W, T, X, self.model(Q, W, T, params)
@@ -281,6 +330,7 @@ class ArticulatedDecimator(Decimator):
 
     def report(self, asset, params, ctx, hier, levels, choices, bound, locked, seams, n_poses) -> None:
         """The step report: seams, targets (what was asked and reached), the loop's counts, the levels."""
+        ctx.report["seams"] = params.seams
         if locked is not None:
             ctx.report["locked_seam_vertices"] = int(locked.sum())
             ctx.report["seam_vertices_collapsing_along"] = int(seams[0].sum()) if seams is not None else 0

@@ -82,8 +82,9 @@ def vertex_quadrics(X: np.ndarray, F: np.ndarray, area_weighted: bool = True) ->
     return Q[:, 0] if single else Q
 
 
-def border_quadrics(X: np.ndarray, F: np.ndarray, weight: float = BORDER_WEIGHT) -> np.ndarray:
-    """Quadrics of the planes through every border edge, perpendicular to its face, for every pose.
+def border_quadrics(X: np.ndarray, F: np.ndarray, weight: float = BORDER_WEIGHT,
+                    charts: np.ndarray | None = None, seam_weight: float = 0.0) -> np.ndarray:
+    """Quadrics of the planes through every border (and seam) edge, perpendicular to its face, for every pose.
 
     Parameters
     ----------
@@ -93,27 +94,45 @@ def border_quadrics(X: np.ndarray, F: np.ndarray, weight: float = BORDER_WEIGHT)
     weight : float
         Relative weight: a border edge e of face f adds ``weight |e|^2 [n_e; d_e][n_e; d_e]^T`` to both
         its vertices, ``n_e = normalize(e x n_f)`` (the plane contains e and f's normal).
+    charts : (f,) int array, optional
+        Face charts (UV/material charts, :func:`rigslim.io.gltf.seams.face_charts`). An edge whose two
+        faces lie in different charts is a seam edge: each of its faces adds its plane with ``seam_weight``.
+    seam_weight : float
+        Relative weight of the seam planes (0: none).
 
     Returns
     -------
-    (m, P, 4, 4) array (zero where a vertex has no border edge)
+    (m, P, 4, 4) array (zero where a vertex has no border or seam edge)
 
     Notes
     -----
     Garland & Heckbert 1997's boundary constraint planes, as meshoptimizer adds them: without them a
     collapse along a border (or onto it) of a flat part costs nothing, so a planar sheet's outline, a
     fin or an ear, is eaten from its edge. ``|e|^2`` has the units of the faces' area weights.
+    Garland & Heckbert 1998 and Hoppe 1999 treat attribute discontinuities the same way: the seam
+    planes make a seam vertex's error grow with its distance from the seam line, so a seam vertex may
+    move, but along its seam (where both charts' textures stay where they were) far more cheaply than
+    across it, and a seam corner (where two seam lines meet) is held by two planes.
     """
     P, m = X.shape[0], X.shape[1]
     E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
     opp = np.concatenate([F[:, 2], F[:, 0], F[:, 1]])
     key = np.sort(E, axis=1)
     _, inv, counts = np.unique(key[:, 0] * m + key[:, 1], return_inverse=True, return_counts=True)
-    border = counts[inv] == 1
+    w_edge = np.where(counts[inv] == 1, weight, 0.0)
+    if charts is not None and seam_weight > 0:
+        ch = np.tile(np.asarray(charts, np.int64), 3)
+        lo = np.full(len(counts), np.iinfo(np.int64).max)
+        hi = np.full(len(counts), np.iinfo(np.int64).min)
+        np.minimum.at(lo, inv, ch)
+        np.maximum.at(hi, inv, ch)
+        seam = (counts == 2) & (lo != hi)
+        w_edge = np.where(seam[inv], seam_weight, w_edge)
     Q = np.zeros((m, P, 4, 4))
-    if not border.any():
+    on = w_edge > 0
+    if not on.any():
         return Q
-    a, b, c = E[border, 0], E[border, 1], opp[border]
+    a, b, c = E[on, 0], E[on, 1], opp[on]
     pa, pb, pc = X[:, a], X[:, b], X[:, c]                             # (P, k, 3)
     e = pb - pa
     nf = np.cross(e, pc - pa)
@@ -122,7 +141,7 @@ def border_quadrics(X: np.ndarray, F: np.ndarray, weight: float = BORDER_WEIGHT)
     n = np.where(ln > 0, n / np.where(ln > 0, ln, 1.0), 0.0)
     d = -(n * pa).sum(axis=-1)
     plane = np.concatenate([n, d[..., None]], axis=-1)                 # (P, k, 4)
-    w = weight * (e * e).sum(axis=-1)                                  # (P, k)
+    w = w_edge[on][None] * (e * e).sum(axis=-1)                        # (P, k)
     K = np.einsum("pk,pki,pkj->kpij", w, plane, plane)
     np.add.at(Q, a, K)
     np.add.at(Q, b, K)

@@ -11,7 +11,7 @@ import numpy as np
 from rigslim.errors import InputError, StepError
 from rigslim.io.gltf.document import GltfDocument, read_accessor
 from rigslim.io.gltf.primitives import PrimitiveData, primitive_data, welded_faces, welded_vertex_map
-from rigslim.io.gltf.seams import face_charts
+from rigslim.io.gltf.seams import wedge_adjacency
 from rigslim.io.gltf.skin import GltfSkin, skinning_sets
 
 
@@ -231,10 +231,10 @@ def projected_attributes(points: np.ndarray, owners: np.ndarray, V: np.ndarray, 
 
     Parameters
     ----------
-    points : (q, 3) rest positions of the new vertices; owners : (q,) their keys (hierarchy id and chart).
+    points : (q, 3) rest positions of the new vertices; owners : (q,) their keys (a side, :func:`corner_sides`).
     V : (m, 3) welded rest positions; Fw, Ff : (f, 3) a primitive's faces (welded / file corners).
-    corner_keys : (f, 3) the key of the level vertex each corner maps to (hierarchy id and the face's
-        chart, as ``owners``); X : (count, C) the primitive's file attributes.
+    corner_keys : (f, 3) the key of the level vertex side each corner maps to (as ``owners``; -1 for a
+        kept vertex); X : (count, C) the primitive's file attributes.
 
     Returns
     -------
@@ -242,13 +242,13 @@ def projected_attributes(points: np.ndarray, owners: np.ndarray, V: np.ndarray, 
 
     Notes
     -----
-    The candidates of new vertex c in chart k are the source faces of chart k
-    with a corner that c replaced: the patch c stands for on that side of a
-    seam (a vertex made by collapses along a seam has one value per side). Its value is
-    the barycentric interpolation of the file corners' attributes at the
-    closest point of the closest candidate face (Cignoni et al. 1998's
-    attribute resampling, restricted to the patch so that it never crosses a
-    locked UV seam).
+    The candidates of one side of new vertex c are the source faces with a
+    corner that c replaced, on that side of every seam through c's patch
+    (:func:`corner_sides`; a vertex on a seam has one value per side). Its
+    value is the barycentric interpolation of the file corners' attributes at
+    the closest point of the closest candidate face (Cignoni et al. 1998's
+    attribute resampling, restricted to one side so that it never mixes the
+    two sides of a UV seam or slit).
     """
     out = np.full((len(points), X.shape[1]), np.nan)
     if not len(points) or not len(Fw):
@@ -274,6 +274,53 @@ def projected_attributes(points: np.ndarray, owners: np.ndarray, V: np.ndarray, 
     vals = np.einsum("qk,qkc->qc", bary[first], X[corners])
     out[pq[first]] = vals
     return out
+
+
+def corner_sides(F: np.ndarray, R: np.ndarray, fa: np.ndarray, fb: np.ndarray, m: int
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Which side of a seam each source corner at a vertex made by collapses lies on.
+
+    Parameters
+    ----------
+    F : (f, 3) welded source faces; R : (f, 3) the level vertex (hierarchy id) of each corner.
+    fa, fb : faces sharing an edge with the same wedges at both ends (:func:`rigslim.io.gltf.seams.wedge_adjacency`).
+    m : original vertex count (``R >= m``: a vertex made by collapses).
+
+    Returns
+    -------
+    side : (f, 3) int64
+        A side id for every corner at a new vertex (-1 elsewhere): corners at the same new vertex c whose
+        faces connect through faces of c's patch (source faces with a corner at c) across edges without a
+        seam. A side is what one output vertex stands for: the patch's faces on one side of every UV
+        seam, material boundary or UV slit through it (a slit's two sides are one chart, but not one side
+        while the slit's end is outside the patch).
+    vertex : (n_sides,) int64
+        The hierarchy vertex of each side.
+    """
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    n = 3 * len(F)
+    new = (R >= m).ravel()
+    rows, cols = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    for i in range(3):
+        for j in range(3):
+            join = (R[fa, i] == R[fb, j]) & (R[fa, i] >= m)                  # adjacent faces, one new vertex
+            rows.append(3 * fa[join] + i)
+            cols.append(3 * fb[join] + j)
+            if i < j:
+                same = (R[:, i] == R[:, j]) & (R[:, i] >= m)                 # two corners of a face merged
+                rows.append(3 * np.flatnonzero(same) + i)
+                cols.append(3 * np.flatnonzero(same) + j)
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    G = sp.csr_matrix((np.ones(len(r)), (r, c)), shape=(n, n))
+    label = connected_components(G, directed=False)[1]
+    uniq, side = np.unique(label[new], return_inverse=True)
+    out = np.full(n, -1, np.int64)
+    out[new] = side
+    vertex = np.zeros(len(uniq), np.int64)
+    vertex[side] = R.ravel()[new]
+    return out.reshape(-1, 3), vertex
 
 
 def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | None = None,
@@ -317,26 +364,26 @@ def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | No
     rep = level_representatives(hier, ids)
     level_keys = set(map(tuple, np.sort(ids[np.asarray(level.mesh.F)], axis=1).tolist()))
     vmap = welded_vertex_map(skin)
-    charts = face_charts(skin, data)
-    C = int(charts.max(initial=0)) + 1
+    parts = welded_faces(skin, data)
+    _, fa, fb = wedge_adjacency(skin, data)
+    Fall = np.concatenate([Fw for Fw, _ in parts]) if parts else np.zeros((0, 3), np.int64)
+    sides, side_vertex = corner_sides(Fall, rep[Fall], fa, fb, m)
     out = []
     offset = 0
-    for d, sl, (Fw, Ff), A in zip(data, skin.slices, welded_faces(skin, data), per_primitive, strict=False):
+    for d, sl, (Fw, Ff), A in zip(data, skin.slices, parts, per_primitive, strict=False):
         Ff_all_slice = Ff
-        ch_all = charts[offset:offset + len(Fw)]
+        corner_keys = sides[offset:offset + len(Fw)]
         offset += len(Fw)
-        R = rep[Fw]
-        corner_keys = R * C + ch_all[:, None]
-        R, Ff, ch = _level_faces(R, Ff, ch_all, level_keys, len(hier.F))
-        # output vertex key: the file vertex where the level kept the vertex, else (hierarchy vertex, chart):
-        # a vertex made by collapses along a seam gets one output vertex per side
-        key = np.where(R < m, Ff - sl.start, -1 - (R * C + ch[:, None]))
+        R, Ff, S = _level_faces(rep[Fw], Ff, corner_keys, level_keys, len(hier.F))
+        # output vertex key: the file vertex where the level kept the vertex, else (hierarchy vertex, side):
+        # a vertex made by collapses gets one output vertex per side of every seam through it
+        key = np.where(R < m, Ff - sl.start, -1 - S)
         uniq, inv = np.unique(key.ravel(), return_inverse=True)
         faces = inv.reshape(-1, 3).astype(np.int64)
         orig = uniq >= 0
         local = np.where(orig, uniq, 0)
-        # hierarchy id: an original vertex's is its welded id (the level kept it), a new one's from its key
-        hv = np.where(orig, vmap[sl.start + local], (-1 - uniq) // C)
+        # hierarchy id: an original vertex's is its welded id (the level kept it), a new one's from its side
+        hv = np.where(orig, vmap[sl.start + local], side_vertex[np.where(orig, 0, -1 - uniq)])
         rows = _level_rows(ids, hv, level.label)
         cols = d.columns()
         X = np.empty((len(uniq), sum(w for _, w in cols)))

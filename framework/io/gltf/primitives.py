@@ -28,6 +28,9 @@ class PrimitiveData:
         Morph target deltas (POSITION, NORMAL, TANGENT, ...).
     faces : (f, 3) int64 array
         Triangles in the primitive's own vertex numbering.
+    unseen : frozenset of str
+        ``TEXCOORD_n`` sets no texture of the primitive's material reads (:func:`texcoords_read`): carried,
+        but a seam in them shows nowhere, so they make no seams.
     """
 
     index: int
@@ -35,6 +38,13 @@ class PrimitiveData:
     attributes: dict[str, np.ndarray]
     targets: list[dict[str, np.ndarray]] = field(default_factory=list)
     faces: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
+    unseen: frozenset[str] = frozenset()
+
+    def seam_columns(self) -> list[np.ndarray]:
+        """The attribute blocks whose differences make seams: all but NORMAL, TANGENT and the unseen UV sets,
+        then every morph target block."""
+        cols = [v for k, v in self.attributes.items() if k not in SOFT_ATTRIBUTES and k not in self.unseen]
+        return cols + [v for t in self.targets for v in t.values()]
 
     def columns(self) -> list[tuple[str, int]]:
         """``(key, width)`` of every carried column block: attributes, then ``"t{j}/{name}"`` target blocks."""
@@ -74,8 +84,40 @@ def primitive_data(skin: GltfSkin) -> list[PrimitiveData]:
                             for name in sorted(t)})
         idx = (np.asarray(read_accessor(doc, prim["indices"]), np.int64) if "indices" in prim
                else np.arange(sl.count, dtype=np.int64))
-        out.append(PrimitiveData(i, sl.count, values, targets, primitive_triangles(prim.get("mode", 4), idx)))
+        read = texcoords_read(js, prim)
+        unseen = frozenset(k for k in values if k.startswith("TEXCOORD_") and int(k[9:]) not in read)
+        out.append(PrimitiveData(i, sl.count, values, targets, primitive_triangles(prim.get("mode", 4), idx), unseen))
     return out
+
+
+def texcoords_read(js: dict, prim: dict) -> set[int]:
+    """The ``TEXCOORD_n`` sets the textures of a primitive's material read.
+
+    Every texture reference in the material, extensions included, is an object with ``index`` and an
+    optional ``texCoord`` (default 0; ``KHR_texture_transform`` may override it); each ``texCoord`` found
+    anywhere counts too. A primitive without a material reads none.
+    """
+    mat = prim.get("material")
+    materials = js.get("materials", [])
+    if not isinstance(mat, int) or not 0 <= mat < len(materials):
+        return set()
+    found: set[int] = set()
+
+    def walk(node) -> None:
+        if isinstance(node, dict):
+            if "index" in node and isinstance(node.get("index"), int):
+                tc = node.get("texCoord", 0)
+                found.add(tc if isinstance(tc, int) else 0)
+            for key, value in node.items():
+                if key == "texCoord" and isinstance(value, int):
+                    found.add(value)
+                walk(value)
+        elif isinstance(node, list):
+            for value in node:
+                walk(value)
+
+    walk(materials[mat])
+    return found
 
 
 def welded_vertex_map(skin: GltfSkin) -> np.ndarray:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rigslim.io.gltf.primitives import SOFT_ATTRIBUTES, PrimitiveData, primitive_data, welded_faces, welded_vertex_map
+from rigslim.io.gltf.primitives import PrimitiveData, primitive_data, welded_faces, welded_vertex_map
 from rigslim.io.gltf.skin import GltfSkin
 
 
@@ -23,8 +23,7 @@ def seam_vertices(skin: GltfSkin, data: list[PrimitiveData] | None = None) -> np
     m = skin.mesh.n_vertices
     keys = []
     for d, sl in zip(data, skin.slices, strict=False):
-        cols = [v for k, v in d.attributes.items() if k not in SOFT_ATTRIBUTES]
-        cols += [v for t in d.targets for v in t.values()]
+        cols = d.seam_columns()
         keys.append((sl, np.hstack(cols) if cols else np.zeros((sl.count, 0))))
     width = max(k.shape[1] for _, k in keys)
     rows = []
@@ -119,15 +118,55 @@ def face_charts(skin: GltfSkin, data: list[PrimitiveData] | None = None) -> np.n
     a welded edge are in one chart when both endpoints have the same wedge in both faces. Charts are
     the connected components (scipy.sparse.csgraph), so UV seams and material boundaries separate them.
     """
+    return chart_wedges(skin, data)[0]
+
+
+def slit_vertices(skin: GltfSkin, data: list[PrimitiveData] | None = None) -> np.ndarray:
+    """(m,) welded vertices with two different wedges in one chart: the vertices of UV slits.
+
+    A slit is a seam that ends inside a chart, so that its two sides are one chart (:func:`face_charts`).
+    The glTF level writer gives a vertex made by collapses one attribute value per chart
+    (:func:`rigslim.io.gltf.lod.projected_attributes`), which a slit vertex, with two values in one chart,
+    cannot keep: these vertices stay where they are when the other seams may move.
+    """
+    charts, wedge = chart_wedges(skin, data)
+    F = skin.mesh.F
+    if not len(F):
+        return np.zeros(skin.mesh.n_vertices, bool)
+    C = int(charts.max()) + 1
+    triples = np.unique(np.stack([F.ravel(), np.repeat(charts, 3), wedge.ravel()], 1), axis=0)
+    vc = triples[:, 0] * C + triples[:, 1]
+    _, counts = np.unique(vc, return_counts=True)
+    keys = np.unique(vc)
+    out = np.zeros(skin.mesh.n_vertices, bool)
+    out[keys[counts > 1] // C] = True
+    return out
+
+
+def chart_wedges(skin: GltfSkin, data: list[PrimitiveData] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(f,) face charts (:func:`face_charts`) and the (f, 3) wedge id of every face corner."""
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
 
+    wedge, fa, fb = wedge_adjacency(skin, data)
+    nf = len(wedge)
+    G = sp.csr_matrix((np.ones(len(fa)), (fa, fb)), shape=(nf, nf))
+    return connected_components(G, directed=False)[1].astype(np.int64), wedge
+
+
+def wedge_adjacency(skin: GltfSkin, data: list[PrimitiveData] | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The (f, 3) wedge id of every welded face corner, and the pairs of faces ``(fa, fb)`` that share an
+    edge whose two endpoints carry the same wedge in both faces (no seam between them).
+
+    A wedge is (welded vertex, primitive, the corner's non-soft attribute values and morph deltas), numbered
+    densely; the faces are ``skin.mesh.F``, primitive after primitive (:func:`welded_faces`).
+    """
     data = primitive_data(skin) if data is None else data
     parts = welded_faces(skin, data)
     rows = []
     for i, (d, sl, (Fw, Ff)) in enumerate(zip(data, skin.slices, parts, strict=False)):
-        cols = [v for k, v in d.attributes.items() if k not in SOFT_ATTRIBUTES]
-        cols += [v for t in d.targets for v in t.values()]
+        cols = d.seam_columns()
         K = np.hstack(cols) if cols else np.zeros((sl.count, 0))
         rows.append((i, Fw, K[Ff - sl.start]))                       # (f, 3, C) corner keys
     width = max(k.shape[2] for _, _, k in rows) if rows else 0
@@ -150,9 +189,7 @@ def face_charts(skin: GltfSkin, data: list[PrimitiveData] | None = None) -> np.n
     order = np.lexsort((wh, wl, hi, lo))
     s = np.stack([lo, hi, wl, wh], 1)[order]
     same = np.flatnonzero((s[1:] == s[:-1]).all(axis=1))
-    fa, fb = he[order[same], 4], he[order[same + 1], 4]
-    G = sp.csr_matrix((np.ones(len(fa)), (fa, fb)), shape=(nf, nf))
-    return connected_components(G, directed=False)[1].astype(np.int64)
+    return wedge, he[order[same], 4], he[order[same + 1], 4]
 
 
 def seam_structure(skin: GltfSkin, data: list[PrimitiveData] | None = None):

@@ -38,8 +38,9 @@ def _decimate(skin, backend="numba", lock=True, targets=(0.5, 0.25), **extra):
     asset.extras["gltf"] = skin
     plugin = get_host().get("articulated-decimation", "quartic")
     ctx = StepContext()
+    seams = {True: "lock", False: "free", None: "move"}[lock]
     plugin.apply(asset, plugin.parse_params({"targets": list(targets), "max_bones": 4, "backend": backend,
-                                             "lock_seams": lock} | extra), ctx)
+                                             "seams": seams} | extra), ctx)
     return asset.hierarchy, asset.levels, ctx.report
 
 
@@ -148,7 +149,7 @@ def test_backends_agree_with_locked_vertices(elephant, monkeypatch, seamed):
         locked = (counts > 0).all(axis=1)
         seams = (seams_along(Fp, charts, locked), charts)
         assert seams[0].sum() > 10
-    monkeypatch.setattr(articulated, "seam_lock", lambda asset, along=True: (locked, seams))
+    monkeypatch.setattr(articulated, "seam_lock", lambda asset, along=True, mode="lock": (locked, seams))
     from rigslim.plugin import StepContext
     from rigslim.plugin.host import get_host
 
@@ -157,7 +158,8 @@ def test_backends_agree_with_locked_vertices(elephant, monkeypatch, seamed):
     for backend in ("numpy", "numba"):
         piece.extras.clear()
         ctx = StepContext()
-        plugin.apply(piece, plugin.parse_params({"backend": backend, "min_faces": 100, "max_bones": 4}), ctx)
+        plugin.apply(piece, plugin.parse_params({"backend": backend, "min_faces": 100, "max_bones": 4,
+                                                 "seams": "lock"}), ctx)
         assert ctx.report["locked_seam_vertices"] == int(locked.sum())
         hs.append(piece.hierarchy)
     assert hs[0].n_collapses > 200
@@ -301,3 +303,65 @@ def test_attribute_term_is_one_more_pose(tube):
     ctx = StepContext()
     plugin.apply(asset, plugin.parse_params({"targets": [0.5]}), ctx)
     assert ctx.report["attribute_term"] is False
+
+
+def test_corner_sides_split_a_fan_at_its_seams():
+    """Six faces around a vertex made by collapses (id 9 >= m = 8): one side while every edge between
+    neighbours is seam-free; a slit (one seam edge) still leaves one side, joined around the fan; a second
+    seam edge makes two sides, and each corner keeps the side of its own faces."""
+    from rigslim.io.gltf.lod import corner_sides
+
+    F = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5], [0, 5, 6], [0, 6, 1]])
+    R = np.where(F == 0, 9, F)
+    ring = [(i, (i + 1) % 6) for i in range(6)]
+    for cut, n_sides in [((), 1), (((5, 0),), 1), (((5, 0), (2, 3)), 2)]:
+        pairs = np.array([p for p in ring if p not in cut])
+        side, vertex = corner_sides(F, R, pairs[:, 0], pairs[:, 1], 8)
+        assert (side[:, 1:] == -1).all() and len(vertex) == n_sides and (vertex == 9).all()
+        if n_sides == 2:
+            assert len(set(side[:3, 0])) == 1 and len(set(side[3:, 0])) == 1 and side[0, 0] != side[3, 0]
+
+
+def test_moving_seams_keep_each_side_of_the_uv_seam(tube):
+    """``seams: move`` (the default): seam vertices move, held by the seam planes; no level face mixes
+    the two sides of the tube's u = 0 | 1 seam (a face spanning it would have corners near u = 0 and u = 1),
+    and the UVs still follow the surface."""
+    hier, levels, report = _decimate(tube, lock=None, targets=(0.5, 0.25))
+    assert report["seams"] == "move" and "locked_seam_vertices" not in report
+    locked = seam_vertices(tube)
+    moved = False
+    for level in levels:
+        rep = level_representatives(hier, level.vertex_ids)
+        moved |= bool((rep[locked] >= hier.n_original).any())
+        for part in level_primitives(tube, hier, level):
+            P, uv = part.positions, part.attributes["TEXCOORD_0"]
+            span = np.ptp(uv[part.faces][..., 0], axis=1)
+            assert span.max() < 0.5
+            assert np.abs(uv[:, 1] - (1 - P[:, 1] / 2)).max() < 0.03
+    assert moved
+
+
+def test_texcoords_read_by_the_material():
+    """Texture references anywhere in the material (extensions and KHR_texture_transform included) say which
+    UV sets show; a primitive without a material, or an untextured one, reads none."""
+    from rigslim.io.gltf.primitives import texcoords_read
+
+    js = {"materials": [
+        {"pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1]}},
+        {"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}, "normalTexture": {"index": 1, "texCoord": 1}},
+        {"emissiveTexture": {"index": 0, "extensions": {"KHR_texture_transform": {"texCoord": 2}}}},
+    ]}
+    assert texcoords_read(js, {}) == set()
+    assert texcoords_read(js, {"material": 0}) == set()
+    assert texcoords_read(js, {"material": 1}) == {0, 1}
+    assert texcoords_read(js, {"material": 2}) == {0, 2}
+
+
+@pytest.mark.parametrize(("name", "seams"), [("bcn_epileptic", 0), ("wuson", 0), ("re_player", 523)])
+def test_unseen_uv_sets_make_no_seams(name, seams):
+    """bcn_epileptic's and wuson's materials read no texture: their UV seams (323 and 839 vertices) show nowhere,
+    so nothing is held to them; re_player's textured seams stay."""
+    skin = read_gltf_skin(GLTF / "suite" / f"{name}.glb", weld=True)
+    assert int(seam_vertices(skin).sum()) == seams
+    if not seams:
+        assert all(d.unseen == {"TEXCOORD_0"} for d in primitive_data(skin))

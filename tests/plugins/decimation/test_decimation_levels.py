@@ -81,9 +81,9 @@ def test_seams_from_arrays_lock_and_collapse_along():
     asset.extras["seams"] = (locked, charts)
     plugin = get_host().get("articulated-decimation", "quartic")
     ctx = StepContext()
-    plugin.apply(asset, plugin.parse_params({"targets": [0.25]}), ctx)
+    plugin.apply(asset, plugin.parse_params({"targets": [0.25], "seams": "lock"}), ctx)
     assert ctx.report["locked_seam_vertices"] == int(locked.sum())
     assert ctx.report["seam_vertices_collapsing_along"] > 0
     asset.extras["seams"] = (locked[:-1], charts)
     with pytest.raises(StepError, match="seams"):
-        plugin.apply(asset, plugin.parse_params({"targets": [0.25]}), StepContext())
+        plugin.apply(asset, plugin.parse_params({"targets": [0.25], "seams": "lock"}), StepContext())
