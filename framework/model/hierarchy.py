@@ -157,16 +157,20 @@ class ProgressiveHierarchy:
                 return r
             r = nxt
 
-    def _level(self, applied: np.ndarray, label: str) -> SimplifiedLevel:
+    def _level(self, applied: np.ndarray, label: str, selective: bool = False) -> SimplifiedLevel:
         r = self._ancestors(applied)
         F = r[self.F]
         keep = (F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 2] != F[:, 0])
         F = F[keep]
-        if not applied.all() and applied.any():
-            # Selective (non-prefix) refinement may close a sheet into two opposite faces: drop both.
+        if selective and not applied.all() and applied.any():
+            # Selective (non-prefix) refinement may close a sheet into two opposite faces: drop both, but
+            # not the faces the source itself has twice (double-sided cards), which a prefix keeps too.
             key = np.sort(F, axis=1)
             _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-            F = F[counts[inv.ravel()] == 1]
+            src = np.sort(self.F, axis=1)
+            _, sinv, scounts = np.unique(src, axis=0, return_inverse=True, return_counts=True)
+            twice = (scounts[sinv.ravel()] > 1)[keep]
+            F = F[(counts[inv.ravel()] == 1) | twice]
         ids, Fc = np.unique(F, return_inverse=True)
         Fc = Fc.reshape(-1, 3)
         w = ReducedWeights(self.weights.indices[ids], self.weights.values[ids], self.weights.n_handles)
@@ -228,4 +232,4 @@ class ProgressiveHierarchy:
             if exists[a[i]] and exists[b[i]] and self.errors[i] <= lim[m + i]:
                 applied[i] = True
                 exists[m + i] = True
-        return self._level(applied, label or f"{self.method}-adaptive")
+        return self._level(applied, label or f"{self.method}-adaptive", selective=True)

@@ -36,6 +36,17 @@ def test_prefix_replays_the_collapses(fan):
     assert lv2.error == pytest.approx(0.3) and lv0.error == 0.0
 
 
+def test_prefix_keeps_the_sources_double_sided_faces(fan):
+    """A face the source has twice (a double-sided card, both orientations) stays twice in every prefix: a
+    level has the faces the loop counted (the suite's wolf lost 40 of 174 faces, its cards, before)."""
+    F = np.vstack([fan.F, fan.F[[3, 4], ::-1]])
+    h = ProgressiveHierarchy(fan.V, fan.weights, F, fan.collapses, fan.errors, [6, 5], method="test",
+                             params={"max_bones": 2})
+    for t, faces in [(0, 8), (1, 6), (2, 5)]:
+        lv = h.prefix(t)
+        assert lv.n_faces == faces == (len(F) if t == 0 else h.n_faces[t - 1])
+
+
 def test_extraction_by_faces_and_error(fan):
     assert fan.at_faces(6).n_faces == 6
     assert fan.at_faces(5).n_faces == 4
