@@ -13,8 +13,8 @@ Per character and ratio R in 0.5, 0.25, 0.1:
   ``gltf-transform weld`` then ``simplify --ratio R --error 1`` (also
   meshoptimizer, unbounded);
 - rigslim at each peer's face count: ``rigslim lod IN -o OUT --ratios F/F0 --max-error none``
-  (quartic [S09], at most 4 bones per vertex, seams and borders collapsing
-  only along themselves, no error bound), so that every comparison is at
+  (quartic [S09], at most 4 bones per vertex, borders collapsing only along
+  themselves, seams moving under seam planes, no error bound), so that every comparison is at
   equal face counts (within 3 %);
 - ``rigslim compare IN CANDIDATE --frames TEST [--level 1] --json``: the
   two-sided Hausdorff distance of each result posed by its own skin against
@@ -214,8 +214,9 @@ def markdown(doc: dict) -> str:
              f"Machine: {m['cpu']}, nproc {m['nproc']}, Python {m['python']}, load {m.get('load', 0):.1f} at the "
              "start (a shared 2-core machine: timings are upper bounds). Written by `benchmarks/gltf_lod.py`.", "",
              f"Peers: {doc['tools']}. gltfpack `-si R -sa -noq`; gltf-transform `weld`, `simplify --ratio R "
-             "--error 1`. rigslim `lod --ratios F/F0` at each peer's face count F (quartic [S09], 4 bones, seams and "
-             "borders collapsing only along themselves, no error bound). Errors: `rigslim compare` (two-sided "
+             "--error 1`. rigslim `lod --ratios F/F0` at each peer's face count F (quartic [S09], 4 bones, "
+             "borders collapsing only along themselves, seams moving under seam planes, no error bound). Errors: "
+             "`rigslim compare` (two-sided "
              f"Hausdorff, pymeshlab, {doc['samples']} samples per direction and frame) on the test frames: RMS "
              "averaged over the frames / max over them, % of the input's world diagonal. Ratios against the better "
              "peer at its face count: the peer that went furthest (fewest faces; of two within 3 % of each other, the "
