@@ -383,7 +383,8 @@ def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | No
         orig = uniq >= 0
         local = np.where(orig, uniq, 0)
         # hierarchy id: an original vertex's is its welded id (the level kept it), a new one's from its side
-        hv = np.where(orig, vmap[sl.start + local], side_vertex[np.where(orig, 0, -1 - uniq)])
+        hv = vmap[sl.start + local]
+        hv[~orig] = side_vertex[-1 - uniq[~orig]]
         rows = _level_rows(ids, hv, level.label)
         cols = d.columns()
         X = np.empty((len(uniq), sum(w for _, w in cols)))

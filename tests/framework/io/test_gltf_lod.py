@@ -365,3 +365,15 @@ def test_unseen_uv_sets_make_no_seams(name, seams):
     assert int(seam_vertices(skin).sum()) == seams
     if not seams:
         assert all(d.unseen == {"TEXCOORD_0"} for d in primitive_data(skin))
+
+
+def test_a_level_without_collapses_keeps_every_file_vertex(tube):
+    """A level before any collapse (a level stopped by max_error at once) has no vertex made by collapses:
+    every corner keeps its file vertex (minetest_character at --max-error 1 % ended in an IndexError)."""
+    hier, _, _ = _decimate(tube, lock=None, targets=(0.5,))
+    parts = level_primitives(tube, hier, hier.prefix(0))
+    assert sum(len(p.faces) for p in parts) == len(tube.mesh.F)
+    data = primitive_data(tube)
+    for p, d in zip(parts, data, strict=True):
+        np.testing.assert_array_equal(np.sort(p.attributes["TEXCOORD_0"], axis=0),
+                                      np.sort(d.attributes["TEXCOORD_0"][np.unique(d.faces)], axis=0))
