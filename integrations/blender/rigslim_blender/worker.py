@@ -118,16 +118,12 @@ def cmd_reduce(request: str, result: str) -> int:
     return 0
 
 
-def face_charts(F: np.ndarray, corner_keys: np.ndarray) -> np.ndarray:
-    """(f,) chart of each triangle: triangles joined across edges whose two corners agree on both sides.
+def seam_free_pairs(F: np.ndarray, corner_keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs of triangles ``(fa, fb)`` sharing an edge whose two endpoints carry the same corner label in both.
 
-    ``corner_keys`` (f, 3) labels each corner (its UVs in every layer and the face's material); two
-    triangles sharing an edge are in one chart when both endpoints carry the same label in both, so
-    UV seams and material boundaries separate charts (connected components, scipy.sparse.csgraph).
+    ``corner_keys`` (f, 3) labels each corner (its UVs in every layer and the face's material), so no pair
+    crosses a UV seam or a material boundary; the connected components of the pairs are the UV charts.
     """
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
-
     nf = len(F)
     he = np.concatenate([np.stack([F[:, i], F[:, (i + 1) % 3], corner_keys[:, i], corner_keys[:, (i + 1) % 3],
                                    np.arange(nf)], 1) for i in range(3)])
@@ -137,12 +133,10 @@ def face_charts(F: np.ndarray, corner_keys: np.ndarray) -> np.ndarray:
     order = np.lexsort((kh, kl, hi, lo))
     s = np.stack([lo, hi, kl, kh], 1)[order]
     same = np.flatnonzero((s[1:] == s[:-1]).all(axis=1))
-    fa, fb = he[order[same], 4], he[order[same + 1], 4]
-    G = sp.csr_matrix((np.ones(len(fa)), (fa, fb)), shape=(nf, nf))
-    return connected_components(G, directed=False)[1].astype(np.int64)
+    return he[order[same], 4], he[order[same + 1], 4]
 
 
-def level_corners(hier, level, F: np.ndarray, L: np.ndarray, charts: np.ndarray, X: np.ndarray):
+def level_corners(hier, level, F: np.ndarray, L: np.ndarray, pairs: tuple[np.ndarray, np.ndarray], X: np.ndarray):
     """One level's triangles, their source triangles, and every corner's attributes.
 
     Parameters
@@ -152,7 +146,7 @@ def level_corners(hier, level, F: np.ndarray, L: np.ndarray, charts: np.ndarray,
     level : rigslim.model.hierarchy.SimplifiedLevel
     F, L : (f, 3) int arrays
         Source triangles by vertex and by Blender loop (face corner).
-    charts : (f,) :func:`face_charts`.
+    pairs : (fa, fb) triangles joined across seam-free edges (:func:`seam_free_pairs`).
     X : (loops, C) per-loop attributes (every UV layer side by side).
 
     Returns
@@ -164,15 +158,16 @@ def level_corners(hier, level, F: np.ndarray, L: np.ndarray, charts: np.ndarray,
     A level triangle is a source triangle whose three corners map to three distinct level vertices
     (:func:`rigslim.io.gltf.lod.level_representatives`). A corner whose vertex the level kept keeps its
     loop's values; a corner at a vertex made by collapses takes the values at the closest point of the
-    source triangles of its chart that it replaced (:func:`rigslim.io.gltf.lod.projected_attributes`).
+    source triangles it replaced on its side of every seam through it (:func:`rigslim.io.gltf.lod.corner_sides`,
+    so that the two sides of a UV slit stay apart; :func:`rigslim.io.gltf.lod.projected_attributes`).
     """
-    from rigslim.io.gltf.lod import level_representatives, projected_attributes
+    from rigslim.io.gltf.lod import corner_sides, level_representatives, projected_attributes
 
     m = hier.n_original
     ids = np.asarray(level.vertex_ids, np.int64)
     rep = level_representatives(hier, ids)
     R_all = rep[F]
-    C = int(charts.max(initial=0)) + 1
+    sides, side_vertex = corner_sides(F, R_all, pairs[0], pairs[1], m)
     keep = (R_all >= 0).all(axis=1) & (R_all[:, 0] != R_all[:, 1]) & (R_all[:, 1] != R_all[:, 2]) \
         & (R_all[:, 2] != R_all[:, 0])
     source = np.flatnonzero(keep)
@@ -185,9 +180,9 @@ def level_corners(hier, level, F: np.ndarray, L: np.ndarray, charts: np.ndarray,
     kept = R < m
     values[kept] = X[L[source][kept]]
     if (~kept).any():
-        owners = (R * C + charts[source][:, None])[~kept]
+        owners = sides[source][~kept]
         uniq, inv = np.unique(owners, return_inverse=True)
-        Y = projected_attributes(hier.V[uniq // C], uniq, hier.V[:m], F, L, R_all * C + charts[:, None], X, 0)
+        Y = projected_attributes(hier.V[side_vertex[uniq]], uniq, hier.V[:m], F, L, sides, X, 0)
         values[~kept] = Y[inv.ravel()]
     if np.isnan(values).any():
         raise RuntimeError(f"level {level.label}: a corner got no attribute value")
@@ -220,11 +215,11 @@ def cmd_lod(request: str, result: str) -> int:
     progress(0.8, f"simplified in {seconds:.1f} s; resampling UVs")
     F, L = np.asarray(req["F"], np.int64), np.asarray(req["L"], np.int64)
     X = np.asarray(req["loop_values"], np.float64).reshape(int(req["n_loops"]), -1)
-    charts = face_charts(F, np.asarray(req["corner_keys"], np.int64))
+    pairs = seam_free_pairs(F, np.asarray(req["corner_keys"], np.int64))
     arrays: dict[str, Any] = {"n_levels": np.int64(len(out.levels)), "seconds": np.float64(seconds),
                                      "method": np.str_(method)}
     for i, level in enumerate(out.levels):
-        faces, source, values = level_corners(out.hierarchy, level, F, L, charts, X)
+        faces, source, values = level_corners(out.hierarchy, level, F, L, pairs, X)
         arrays.update({f"l{i}_V": level.mesh.V, f"l{i}_faces": faces, f"l{i}_source": source,
                        f"l{i}_values": values, f"l{i}_indices": level.weights.indices.astype(np.int64),
                        f"l{i}_weights": level.weights.values.astype(np.float64),

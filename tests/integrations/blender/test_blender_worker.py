@@ -121,14 +121,17 @@ def test_lod_levels_keep_uvs_and_bone_limit(tmp_path):
         assert np.isin(res[f"l{i}_source"], np.arange(len(F))).all()
 
 
-def test_face_charts_split_at_seams():
+def test_seam_free_pairs_stop_at_seams():
     F = np.array([[0, 1, 2], [2, 1, 3], [2, 3, 4]])
     same = np.zeros((3, 3), np.int64)
-    assert len(set(worker.face_charts(F, same))) == 1
+    assert _pairs(worker.seam_free_pairs(F, same)) == {(0, 1), (1, 2)}
     seam = same.copy()
     seam[2] = [5, 6, 7]                                                 # the third triangle's corners differ
-    charts = worker.face_charts(F, seam)
-    assert charts[0] == charts[1] != charts[2]
+    assert _pairs(worker.seam_free_pairs(F, seam)) == {(0, 1)}
+
+
+def _pairs(fab) -> set[tuple[int, int]]:
+    return {(min(int(a), int(b)), max(int(a), int(b))) for a, b in zip(*fab, strict=True)}
 
 
 def test_version_reports_defaults_and_decimator_parameters():
