@@ -10,6 +10,13 @@ bound multiplier ``mu_j = g_j - g_F`` is most negative, and settle the free set 
 KKT solves. Numba kernels, called per vertex inside parallel loops: the ``best-fit`` selector's sparse
 fits (:mod:`rigslim.plugins.selection.sparse_fit`) and the non-negative geometric solver
 (:mod:`rigslim.plugins.solvers.geometric_kernel`).
+
+Compilation: numba compiles a kernel once per distinct argument *type*, and a constant passed from
+another kernel has its own literal type (``Literal[int](1)``, ``Literal[bool](True)``), so each call
+site with other constants would compile the whole method again. :func:`_lawson_hanson` therefore
+turns its count and flag into plain ``int64`` / ``bool`` values before anything it calls sees them,
+and is one function (the inner settle loop and the KKT solve written in it, not called): a numba
+caller re-optimises every kernel it calls with its own module, so each level of calls is paid again.
 """
 
 from __future__ import annotations
@@ -19,42 +26,11 @@ from numba import njit
 
 
 @njit(cache=True)
-def _solve_inplace(K, r, size):  # pragma: no cover - numba
-    """Gaussian elimination with partial pivoting on ``K[:size, :size] x = r[:size]``; x overwrites r."""
-    for c in range(size):
-        piv = c
-        big = abs(K[c, c])
-        for i in range(c + 1, size):
-            if abs(K[i, c]) > big:
-                big = abs(K[i, c])
-                piv = i
-        if piv != c:
-            for j in range(size):
-                t = K[c, j]
-                K[c, j] = K[piv, j]
-                K[piv, j] = t
-            t = r[c]
-            r[c] = r[piv]
-            r[piv] = t
-        if K[c, c] == 0.0:
-            K[c, c] = 1e-300
-        for i in range(c + 1, size):
-            f = K[i, c] / K[c, c]
-            if f != 0.0:
-                for j in range(c, size):
-                    K[i, j] -= f * K[c, j]
-                r[i] -= f * r[c]
-    for c in range(size - 1, -1, -1):
-        s = r[c]
-        for j in range(c + 1, size):
-            s -= K[c, j] * r[j]
-        r[c] = s / K[c, c]
-
-
-@njit(cache=True)
 def _inverse(K, size):  # pragma: no cover - numba
     """Inverse of ``K[:size, :size]`` (Gauss-Jordan with partial pivoting; K is overwritten)."""
-    Kinv = np.eye(size)
+    Kinv = np.zeros((size, size))
+    for c in range(size):
+        Kinv[c, c] = 1.0
     for c in range(size):
         piv = c
         big = abs(K[c, c])
@@ -97,80 +73,107 @@ def _gradient(G, c, x, F, nf, g):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _error(G, c, yy, x, F, nf):  # pragma: no cover - numba
-    """``|B^T x - y|^2 = x^T G x - 2 c^T x + y^T y`` over the support ``F[:nf]``."""
-    e = yy
-    for i in range(nf):
-        fi = F[i]
-        e -= 2.0 * c[fi] * x[fi]
-        for j in range(nf):
-            e += x[fi] * G[fi, F[j]] * x[F[j]]
-    return max(e, 0.0)
-
-
-@njit(cache=True)
-def _settle(G, c, x, F, nf, infree, ridge, max_outer, K, z, entering):  # pragma: no cover - numba
-    """Inner loop of Lawson & Hanson: move ``x`` towards the sum-to-one minimiser on the free set
-    ``F[:nf]``, dropping variables that reach zero, until that minimiser is feasible.
-    Returns ``(nf, ok)``; ``ok`` is False when the ``entering`` variable (last of ``F``) was
-    rejected at once (round-off: it cannot lower the error) and has been removed again."""
-    for it in range(max_outer):
-        for i in range(nf):
-            for j in range(nf):
-                K[i, j] = G[F[i], F[j]]
-            K[i, i] += ridge
-            K[i, nf] = 1.0
-            K[nf, i] = 1.0
-            z[i] = c[F[i]]
-        K[nf, nf] = 0.0
-        z[nf] = 1.0
-        _solve_inplace(K, z, nf + 1)
-        if it == 0 and entering >= 0 and z[nf - 1] <= 0.0:
-            infree[entering] = False
-            return nf - 1, False
-        alpha = 1.0
-        for i in range(nf):
-            if z[i] <= 0.0:
-                xi = x[F[i]]
-                t = xi / (xi - z[i])
-                if t < alpha:
-                    alpha = t
-        for i in range(nf):
-            x[F[i]] += alpha * (z[i] - x[F[i]])
-        if alpha >= 1.0:
-            break
-        # Drop the variables that reached zero (keep the order of the rest).
-        keep = 0
-        for i in range(nf):
-            if x[F[i]] > 1e-15:
-                F[keep] = F[i]
-                keep += 1
-            else:
-                x[F[i]] = 0.0
-                infree[F[i]] = False
-        nf = keep
-    return nf, True
-
-
-@njit(cache=True)
 def _lawson_hanson(G, c, yy, allowed, x, F, nf, tol, ridge, max_outer, K, z, settle):  # pragma: no cover
     """Sum-to-one NNLS ``min x^T G x - 2 c^T x`` over the ``allowed`` variables, from the feasible ``x``
     whose free set is ``F[:nf]`` (``x`` and ``F`` are updated in place; ``K``, ``z`` are scratch).
     ``settle``: first move to the minimiser on ``F`` (when ``x`` is not yet optimal there).
-    Returns ``(nf, squared error)``."""
+    Returns ``(nf, squared error)``, the error ``|B^T x - y|^2 = x^T G x - 2 c^T x + y^T y``.
+
+    Outer loop: the variable of most negative bound multiplier ``mu_j = g_j - g_F`` (``g = G x - c``,
+    ``g_F`` its mean on the free set) enters. Inner loop (settle): move ``x`` towards the sum-to-one
+    minimiser ``z`` on the free set (the KKT system ``[G_FF + ridge I, 1; 1^T, 0] [z; nu] = [c_F; 1]``,
+    Gaussian elimination with partial pivoting), by the largest step ``alpha <= 1`` that keeps
+    ``x >= 0``, dropping the variables that reach zero, until ``z`` is feasible. An entering variable
+    that the first KKT solve gives a weight ``<= 0`` (round-off: it cannot lower the error) is removed
+    again and the method stops.
+    """
     n = G.shape[0]
+    nfree = np.int64(nf)    # plain int64 / bool whatever the caller passed: one compilation of the loops
+    pending = np.bool_(settle)
+    entering = np.int64(-1)
     g = np.empty(n)
     infree = np.zeros(n, dtype=np.bool_)
-    for i in range(nf):
+    for i in range(nfree):
         infree[F[i]] = True
-    if settle:
-        nf, _ = _settle(G, c, x, F, nf, infree, ridge, max_outer, K, z, -1)
-    for _ in range(max_outer):
-        _gradient(G, c, x, F, nf, g)
+    outer = 0
+    while True:
+        if pending:
+            ok = True
+            for it in range(max_outer):
+                for i in range(nfree):
+                    for j in range(nfree):
+                        K[i, j] = G[F[i], F[j]]
+                    K[i, i] += ridge
+                    K[i, nfree] = 1.0
+                    K[nfree, i] = 1.0
+                    z[i] = c[F[i]]
+                K[nfree, nfree] = 0.0
+                z[nfree] = 1.0
+                size = nfree + 1
+                for col in range(size):
+                    piv = col
+                    big = abs(K[col, col])
+                    for i in range(col + 1, size):
+                        if abs(K[i, col]) > big:
+                            big = abs(K[i, col])
+                            piv = i
+                    if piv != col:
+                        for j in range(size):
+                            t = K[col, j]
+                            K[col, j] = K[piv, j]
+                            K[piv, j] = t
+                        t = z[col]
+                        z[col] = z[piv]
+                        z[piv] = t
+                    if K[col, col] == 0.0:
+                        K[col, col] = 1e-300
+                    for i in range(col + 1, size):
+                        f = K[i, col] / K[col, col]
+                        if f != 0.0:
+                            for j in range(col, size):
+                                K[i, j] -= f * K[col, j]
+                            z[i] -= f * z[col]
+                for col in range(size - 1, -1, -1):
+                    s = z[col]
+                    for j in range(col + 1, size):
+                        s -= K[col, j] * z[j]
+                    z[col] = s / K[col, col]
+                if it == 0 and entering >= 0 and z[nfree - 1] <= 0.0:
+                    infree[entering] = False
+                    nfree -= 1
+                    ok = False
+                    break
+                alpha = 1.0
+                for i in range(nfree):
+                    if z[i] <= 0.0:
+                        xi = x[F[i]]
+                        t = xi / (xi - z[i])
+                        if t < alpha:
+                            alpha = t
+                for i in range(nfree):
+                    x[F[i]] += alpha * (z[i] - x[F[i]])
+                if alpha >= 1.0:
+                    break
+                # Drop the variables that reached zero (keep the order of the rest).
+                keep = 0
+                for i in range(nfree):
+                    if x[F[i]] > 1e-15:
+                        F[keep] = F[i]
+                        keep += 1
+                    else:
+                        x[F[i]] = 0.0
+                        infree[F[i]] = False
+                nfree = keep
+            if not ok:
+                break
+        if outer == max_outer:
+            break
+        outer += 1
+        _gradient(G, c, x, F, nfree, g)
         gF = 0.0
-        for i in range(nf):
+        for i in range(nfree):
             gF += g[F[i]]
-        gF /= max(nf, 1)
+        gF /= max(nfree, 1)
         best = -1
         bestmu = -tol
         for a in range(n):
@@ -181,9 +184,15 @@ def _lawson_hanson(G, c, yy, allowed, x, F, nf, tol, ridge, max_outer, K, z, set
                     best = a
         if best < 0:
             break
-        F[nf] = best
+        F[nfree] = best
         infree[best] = True
-        nf, ok = _settle(G, c, x, F, nf + 1, infree, ridge, max_outer, K, z, best)
-        if not ok:
-            break
-    return nf, _error(G, c, yy, x, F, nf)
+        nfree += 1
+        entering = np.int64(best)
+        pending = True
+    e = yy
+    for i in range(nfree):
+        fi = F[i]
+        e -= 2.0 * c[fi] * x[fi]
+        for j in range(nfree):
+            e += x[fi] * G[fi, F[j]] * x[F[j]]
+    return nfree, max(e, 0.0)

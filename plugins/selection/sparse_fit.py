@@ -50,25 +50,124 @@ PAIR_MAX_HANDLES = 256
 
 
 @njit(cache=True)
-def _vertex_basis(v, T, cols):  # pragma: no cover - numba
-    """(n, 3p) rows ``b_j = [T_j^1 [v;1]; ...; T_j^p [v;1]]`` for handles ``cols``."""
-    p = T.shape[0]
-    n = cols.shape[0]
-    B = np.empty((n, 3 * p))
-    for a in range(n):
-        h = cols[a]
-        for q in range(p):
-            for c in range(3):
-                B[a, 3 * q + c] = (T[q, h, c, 0] * v[0] + T[q, h, c, 1] * v[1] + T[q, h, c, 2] * v[2]
-                                   + T[q, h, c, 3])
-    return B
+def _argsort(a):  # pragma: no cover - numba
+    """``np.argsort(a)`` exactly as numba computes it (its quicksort: median-of-three partitions down to
+    runs of 15, then insertion sort; NaN last), without compiling numba's generic sort for one call."""
+    n = a.shape[0]
+    R = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        R[i] = i
+    if n < 2:
+        return R
+    los = np.empty(100, dtype=np.int64)
+    his = np.empty(100, dtype=np.int64)
+    los[0] = 0
+    his[0] = n - 1
+    ns = 1
+    while ns > 0:
+        ns -= 1
+        low = los[ns]
+        high = his[ns]
+        while high - low >= 15:
+            mid = (low + high) >> 1
+            if a[R[mid]] < a[R[low]] or (np.isnan(a[R[low]]) and not np.isnan(a[R[mid]])):
+                R[low], R[mid] = R[mid], R[low]
+            if a[R[high]] < a[R[mid]] or (np.isnan(a[R[mid]]) and not np.isnan(a[R[high]])):
+                R[high], R[mid] = R[mid], R[high]
+            if a[R[mid]] < a[R[low]] or (np.isnan(a[R[low]]) and not np.isnan(a[R[mid]])):
+                R[low], R[mid] = R[mid], R[low]
+            pivot = a[R[mid]]
+            R[high], R[mid] = R[mid], R[high]
+            i = low
+            j = high - 1
+            while True:
+                while i < high and (a[R[i]] < pivot or (np.isnan(pivot) and not np.isnan(a[R[i]]))):
+                    i += 1
+                while j >= low and (pivot < a[R[j]] or (np.isnan(a[R[j]]) and not np.isnan(pivot))):
+                    j -= 1
+                if i >= j:
+                    break
+                R[i], R[j] = R[j], R[i]
+                i += 1
+                j -= 1
+            R[i], R[high] = R[high], R[i]
+            if high - i > i - low:
+                if high > i:
+                    los[ns] = i + 1
+                    his[ns] = high
+                    ns += 1
+                high = i - 1
+            else:
+                if i > low:
+                    los[ns] = low
+                    his[ns] = i - 1
+                    ns += 1
+                low = i + 1
+        for i in range(low + 1, high + 1):
+            r = R[i]
+            v = a[r]
+            j = i
+            while j > low and (v < a[R[j - 1]] or (np.isnan(a[R[j - 1]]) and not np.isnan(v))):
+                R[j] = R[j - 1]
+                j -= 1
+            R[j] = r
+    return R
 
 
 @njit(cache=True)
-def _fit_vertex(G, avals, k, by_error, swaps):  # pragma: no cover - numba
-    """One vertex, from the Gram matrix ``G = B B^T`` of its influences' basis: fitted weights (n,),
-    the selected set (n,) and the error."""
-    n = G.shape[0]
+def _gram(v, V, T, cols, Gh, shared, pair):  # pragma: no cover - numba
+    """Gram matrix ``G = B B^T`` (n, n) of vertex v's basis rows ``b_j = [T_j^1 [v;1]; ...; T_j^p [v;1]]``."""
+    n = cols.shape[0]
+    G = np.empty((n, n))
+    if shared:
+        # Translation-only handles (cages): the basis does not depend on the vertex.
+        for a in range(n):
+            for b in range(n):
+                G[a, b] = Gh[cols[a], cols[b], 0, 0]
+    elif pair:
+        # G_ab = [v;1]^T M_ab [v;1] with M_ab = sum_q (T_a^q)^T T_b^q (4 x 4, precomputed).
+        vt = np.empty(4)
+        vt[0] = V[v, 0]
+        vt[1] = V[v, 1]
+        vt[2] = V[v, 2]
+        vt[3] = 1.0
+        for a in range(n):
+            ha = cols[a]
+            for b in range(a, n):
+                hb = cols[b]
+                s = 0.0
+                for r in range(4):
+                    t = 0.0
+                    for q in range(4):
+                        t += Gh[ha, hb, r, q] * vt[q]
+                    s += vt[r] * t
+                G[a, b] = s
+                G[b, a] = s
+    else:
+        p = T.shape[0]
+        B = np.empty((n, 3 * p))
+        for a in range(n):
+            h = cols[a]
+            for q in range(p):
+                for c in range(3):
+                    B[a, 3 * q + c] = (T[q, h, c, 0] * V[v, 0] + T[q, h, c, 1] * V[v, 1] + T[q, h, c, 2] * V[v, 2]
+                                       + T[q, h, c, 3])
+        G = B @ B.T
+    return G
+
+
+@njit(cache=True)
+def _fit_row(v, V, T, indptr, indices, data, k, by_error, Gh, shared, pair,  # pragma: no cover - numba
+             fit, member, errors, support):
+    """Vertex v: the fit over its influences and, ``by_error``, backward elimination down to k; writes
+    its entries of ``fit`` and ``member``, ``errors[v]`` and ``support[v]`` (the fit's free set size)."""
+    lo = indptr[v]
+    hi = indptr[v + 1]
+    if hi == lo:
+        return
+    n = hi - lo
+    G = _gram(v, V, T, indices[lo:hi], Gh, shared, pair)
+    avals = data[lo:hi]
     c = G @ avals
     yy = 0.0
     scale = 1e-300
@@ -92,14 +191,24 @@ def _fit_vertex(G, avals, k, by_error, swaps):  # pragma: no cover - numba
             j0 = a
     x[j0] = 1.0
     F[0] = j0
-    nf, err = _lawson_hanson(G, c, yy, allowed, x, F, 1, tol, ridge, max_outer, K, z, False)
+    nf, err = _lawson_hanson(G, c, yy, allowed, x, F, np.int64(1), tol, ridge, max_outer, K, z, np.bool_(False))
+    support[v] = nf
     inset = x > 0.0
-    if not by_error:
-        return x, inset, err
-    # Backward elimination: drop the influence whose removal raises the fit error least.
+    if by_error and nf > k:
+        x, err = _eliminate(G, c, yy, x, inset, err, nf, k, tol, ridge, max_outer, F, Fc, K, K2, z, allowed)
+    for a in range(n):
+        fit[lo + a] = x[a]
+        member[lo + a] = inset[a]
+    errors[v] = err
+
+
+@njit(cache=True)
+def _eliminate(G, c, yy, x, inset, err, nf, k, tol, ridge, max_outer, F, Fc, K, K2, z,  # pragma: no cover
+               allowed):
+    """Backward elimination from the fit's free set ``F[:nf]`` down to k: drop the influence whose removal
+    raises the fit error least; ``inset`` is updated in place. Returns the final fit and its error."""
+    n = G.shape[0]
     ns = nf
-    if ns <= k:
-        return x, inset, err  # the least-error fit already uses at most k influences
     have_inv = False
     Kinv = np.empty((1, 1))
     besti = 0
@@ -137,7 +246,7 @@ def _fit_vertex(G, avals, k, by_error, swaps):  # pragma: no cover - numba
         for i in range(nf):
             xi = x[F[i]]
             bound[i] = xi * xi / max(Kinv[i, i], 1e-300)
-        order = np.argsort(bound)
+        order = _argsort(bound)
         beste = np.inf
         bestx = x
         for oi in range(nf):
@@ -154,9 +263,10 @@ def _fit_vertex(G, avals, k, by_error, swaps):  # pragma: no cover - numba
                     neg = True
             xc[j] = 0.0
             if neg:
-                allowed[:] = inset
+                for a in range(n):
+                    allowed[a] = inset[a]
+                    xc[a] = x[a]
                 allowed[j] = False
-                xc[:] = x
                 xc[j] = 0.0
                 nfc = 0
                 for a in range(n):
@@ -164,7 +274,8 @@ def _fit_vertex(G, avals, k, by_error, swaps):  # pragma: no cover - numba
                         xc[a] /= 1.0 - x[j]
                         Fc[nfc] = a
                         nfc += 1
-                nfc, ec = _lawson_hanson(G, c, yy, allowed, xc, Fc, nfc, tol, ridge, max_outer, K2, z, True)
+                nfc, ec = _lawson_hanson(G, c, yy, allowed, xc, Fc, np.int64(nfc), tol, ridge, max_outer, K2, z,
+                                         np.bool_(True))
             else:
                 ec = err + bound[i]
             if ec < beste:
@@ -203,7 +314,50 @@ def _fit_vertex(G, avals, k, by_error, swaps):  # pragma: no cover - numba
                 F[r] = F[r + 1]
             nf -= 1
             have_inv = True
-    # Exchange passes: the best swap of a member i for a non-member j that lowers the error.
+    return x, err
+
+
+@njit(parallel=True, cache=True)
+def _fit_all(V, T, indptr, indices, data, k, by_error, Gh, shared, pair,  # pragma: no cover - numba
+             fit, member, errors, support):
+    for v in prange(V.shape[0]):
+        # np.int64: numba types the loop index int64, then uint64 in the parallel loop's body (two compilations)
+        _fit_row(np.int64(v), V, T, indptr, indices, data, k, by_error, Gh, shared, pair, fit, member, errors, support)
+
+
+@njit(cache=True)
+def _exchange_row(v, V, T, indptr, indices, data, k, swaps, Gh, shared, pair,  # pragma: no cover - numba
+                  fit, member, errors, support):
+    """Exchange passes on vertex v's eliminated set (``fit``, ``member``, ``errors`` of :func:`_fit_row`,
+    updated in place): the best swap of a member i for a non-member j that lowers the error."""
+    lo = indptr[v]
+    hi = indptr[v + 1]
+    if hi == lo or support[v] <= k:
+        return  # no elimination ran: the fit's own support is already the least-error set
+    n = hi - lo
+    G = _gram(v, V, T, indices[lo:hi], Gh, shared, pair)
+    avals = data[lo:hi]
+    c = G @ avals
+    yy = 0.0
+    scale = 1e-300
+    for a in range(n):
+        yy += avals[a] * c[a]
+        scale = max(scale, G[a, a])
+    tol = MU_TOL * scale
+    ridge = RIDGE * scale
+    max_outer = 3 * n + 10
+    K = np.empty((n + 1, n + 1))
+    K2 = np.empty((n + 1, n + 1))
+    z = np.empty(n + 1)
+    F = np.zeros(n + 1, dtype=np.int64)
+    Fc = np.zeros(n + 1, dtype=np.int64)
+    allowed = np.ones(n, dtype=np.bool_)
+    x = np.empty(n)
+    inset = np.empty(n, dtype=np.bool_)
+    for a in range(n):
+        x[a] = fit[lo + a]
+        inset[a] = member[lo + a]
+    err = errors[v]
     g = np.empty(n)
     for _ in range(swaps):
         best_gain_e = err * (1.0 - 1e-9) - 1e-15 * yy
@@ -213,7 +367,8 @@ def _fit_vertex(G, avals, k, by_error, swaps):  # pragma: no cover - numba
         for i in range(n):
             if not inset[i]:
                 continue
-            allowed[:] = inset
+            for a in range(n):
+                allowed[a] = inset[a]
             allowed[i] = False
             xi = x.copy()
             nfi = 0
@@ -235,7 +390,8 @@ def _fit_vertex(G, avals, k, by_error, swaps):  # pragma: no cover - numba
                 xi[j1] = 1.0
                 Fc[0] = j1
                 nfi = 1
-            nfi, _ = _lawson_hanson(G, c, yy, allowed, xi, Fc, nfi, tol, ridge, max_outer, K2, z, True)
+            nfi, _ = _lawson_hanson(G, c, yy, allowed, xi, Fc, np.int64(nfi), tol, ridge, max_outer, K2, z,
+                                    np.bool_(True))
             _gradient(G, c, xi, Fc, nfi, g)
             gF = 0.0
             for l in range(nfi):
@@ -244,13 +400,15 @@ def _fit_vertex(G, avals, k, by_error, swaps):  # pragma: no cover - numba
             for j in range(n):
                 if inset[j] or g[j] - gF >= -tol:
                     continue
-                allowed[:] = inset
+                for a in range(n):
+                    allowed[a] = inset[a]
                 allowed[i] = False
                 allowed[j] = True
                 xc = xi.copy()
                 for l in range(nfi):
                     F[l] = Fc[l]
-                nfc, ec = _lawson_hanson(G, c, yy, allowed, xc, F, nfi, tol, ridge, max_outer, K, z, False)
+                nfc, ec = _lawson_hanson(G, c, yy, allowed, xc, F, np.int64(nfi), tol, ridge, max_outer, K, z,
+                                         np.bool_(False))
                 if ec < best_gain_e:
                     best_gain_e = ec
                     besti = i
@@ -262,53 +420,18 @@ def _fit_vertex(G, avals, k, by_error, swaps):  # pragma: no cover - numba
         inset[bestj] = True
         x = bestx
         err = best_gain_e
-    return x, inset, err
+    for a in range(n):
+        fit[lo + a] = x[a]
+        member[lo + a] = inset[a]
+    errors[v] = err
 
 
 @njit(parallel=True, cache=True)
-def _fit_all(V, T, indptr, indices, data, k, by_error, swaps, Gh, shared, pair,  # pragma: no cover - numba
-             fit, member, errors):
-    m = V.shape[0]
-    for v in prange(m):
-        lo = indptr[v]
-        hi = indptr[v + 1]
-        if hi == lo:
-            continue
-        cols = indices[lo:hi]
-        n = hi - lo
-        G = np.empty((n, n))
-        if shared:
-            # Translation-only handles (cages): the basis does not depend on the vertex.
-            for a in range(n):
-                for b in range(n):
-                    G[a, b] = Gh[cols[a], cols[b], 0, 0]
-        elif pair:
-            # G_ab = [v;1]^T M_ab [v;1] with M_ab = sum_q (T_a^q)^T T_b^q (4 x 4, precomputed).
-            vt = np.empty(4)
-            vt[0] = V[v, 0]
-            vt[1] = V[v, 1]
-            vt[2] = V[v, 2]
-            vt[3] = 1.0
-            for a in range(n):
-                ha = cols[a]
-                for b in range(a, n):
-                    hb = cols[b]
-                    s = 0.0
-                    for r in range(4):
-                        t = 0.0
-                        for q in range(4):
-                            t += Gh[ha, hb, r, q] * vt[q]
-                        s += vt[r] * t
-                    G[a, b] = s
-                    G[b, a] = s
-        else:
-            B = _vertex_basis(V[v], T, cols)
-            G = B @ B.T
-        x, inset, e = _fit_vertex(G, data[lo:hi], k, by_error, swaps)
-        for a in range(hi - lo):
-            fit[lo + a] = x[a]
-            member[lo + a] = inset[a]
-        errors[v] = e
+def _exchange_all(V, T, indptr, indices, data, k, swaps, Gh, shared, pair,  # pragma: no cover - numba
+                  fit, member, errors, support):
+    for v in prange(V.shape[0]):
+        _exchange_row(np.int64(v), V, T, indptr, indices, data, k, swaps, Gh, shared, pair, fit, member, errors,
+                      support)
 
 
 def sparse_fit(V, T, A, k: int, by: str = "weight", swaps: int = 0):
@@ -325,6 +448,9 @@ def sparse_fit(V, T, A, k: int, by: str = "weight", swaps: int = 0):
     k : int
     by : {"weight", "error"}
         ``error``: backward elimination from the fit's support down to k influences.
+    swaps : int
+        ``by: error``: passes of single exchanges after the elimination (a kernel of their own,
+        compiled only when used).
 
     Returns
     -------
@@ -340,6 +466,7 @@ def sparse_fit(V, T, A, k: int, by: str = "weight", swaps: int = 0):
     fit = np.zeros(A.nnz)
     member = np.zeros(A.nnz, dtype=bool)
     errors = np.zeros(V.shape[0])
+    support = np.zeros(V.shape[0], dtype=np.int64)
     shared = not np.any(T[..., :3])
     pair = not shared and T.shape[1] <= PAIR_MAX_HANDLES
     if shared:
@@ -348,8 +475,12 @@ def sparse_fit(V, T, A, k: int, by: str = "weight", swaps: int = 0):
         Gh = np.ascontiguousarray(np.einsum("pacr,pbcs->abrs", T, T, optimize=True))
     else:
         Gh = np.zeros((1, 1, 1, 1))
-    _fit_all(V, T, A.indptr.astype(np.int64), A.indices.astype(np.int64), np.ascontiguousarray(A.data),
-             int(k), by == "error", int(swaps), Gh, shared, pair, fit, member, errors)
+    Gh = np.ascontiguousarray(Gh, dtype=np.float64)
+    args = (V, T, A.indptr.astype(np.int64), A.indices.astype(np.int64),
+            np.ascontiguousarray(A.data, dtype=np.float64), int(k))
+    _fit_all(*args, by == "error", Gh, bool(shared), bool(pair), fit, member, errors, support)
+    if by == "error" and swaps > 0:
+        _exchange_all(*args, int(swaps), Gh, bool(shared), bool(pair), fit, member, errors, support)
     return fit, member, errors
 
 
