@@ -25,7 +25,8 @@ Two selections use it (``by``):
   zero weight go first, at no cost. When the support has at most k
   influences it is already the least-error set.
 
-Implementation: numba, parallel over vertices (``prange``); per vertex the
+Implementation: numba kernels over a range of vertices that release the GIL,
+run on threads over parts of the vertices (:func:`_over_rows`); per vertex the
 Gram matrix ``G = B_v B_v^T`` of the basis is formed once (for cages, whose
 handle transforms are translations ``[0 | c_j]``, it is the same for every
 vertex and is gathered from one handle Gram matrix), and the free-set systems
@@ -36,7 +37,7 @@ Python/numpy reference of the same iteration (tests check both agree).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from rigslim.numerics.simplex_nnls import _gradient, _inverse, _lawson_hanson
 
@@ -156,50 +157,52 @@ def _gram(v, V, T, cols, Gh, shared, pair):  # pragma: no cover - numba
     return G
 
 
-@njit(cache=True)
-def _fit_row(v, V, T, indptr, indices, data, k, by_error, Gh, shared, pair,  # pragma: no cover - numba
-             fit, member, errors, support):
-    """Vertex v: the fit over its influences and, ``by_error``, backward elimination down to k; writes
-    its entries of ``fit`` and ``member``, ``errors[v]`` and ``support[v]`` (the fit's free set size)."""
-    lo = indptr[v]
-    hi = indptr[v + 1]
-    if hi == lo:
-        return
-    n = hi - lo
-    G = _gram(v, V, T, indices[lo:hi], Gh, shared, pair)
-    avals = data[lo:hi]
-    c = G @ avals
-    yy = 0.0
-    scale = 1e-300
-    for a in range(n):
-        yy += avals[a] * c[a]
-        scale = max(scale, G[a, a])
-    tol = MU_TOL * scale
-    ridge = RIDGE * scale
-    max_outer = 3 * n + 10
-    K = np.empty((n + 1, n + 1))
-    K2 = np.empty((n + 1, n + 1))
-    z = np.empty(n + 1)
-    x = np.zeros(n)
-    F = np.zeros(n + 1, dtype=np.int64)
-    Fc = np.zeros(n + 1, dtype=np.int64)
-    allowed = np.ones(n, dtype=np.bool_)
-    # Start: the single influence of least error G_jj - 2 c_j + y^T y (lowest index on ties).
-    j0 = 0
-    for a in range(1, n):
-        if G[a, a] - 2.0 * c[a] < G[j0, j0] - 2.0 * c[j0]:
-            j0 = a
-    x[j0] = 1.0
-    F[0] = j0
-    nf, err = _lawson_hanson(G, c, yy, allowed, x, F, np.int64(1), tol, ridge, max_outer, K, z, np.bool_(False))
-    support[v] = nf
-    inset = x > 0.0
-    if by_error and nf > k:
-        x, err = _eliminate(G, c, yy, x, inset, err, nf, k, tol, ridge, max_outer, F, Fc, K, K2, z, allowed)
-    for a in range(n):
-        fit[lo + a] = x[a]
-        member[lo + a] = inset[a]
-    errors[v] = err
+@njit(cache=True, nogil=True)
+def _fit_rows(start, stop, V, T, indptr, indices, data, k, by_error, Gh, shared, pair,  # pragma: no cover - numba
+              fit, member, errors, support):
+    """Vertices ``start:stop``: the fit over each one's influences and, ``by_error``, backward elimination
+    down to k; writes their entries of ``fit`` and ``member``, ``errors[v]`` and ``support[v]`` (the fit's
+    free set size). Releases the GIL: :func:`sparse_fit` runs parts of the rows on threads."""
+    for v in range(start, stop):
+        lo = indptr[v]
+        hi = indptr[v + 1]
+        if hi == lo:
+            continue
+        n = hi - lo
+        G = _gram(v, V, T, indices[lo:hi], Gh, shared, pair)
+        avals = data[lo:hi]
+        c = G @ avals
+        yy = 0.0
+        scale = 1e-300
+        for a in range(n):
+            yy += avals[a] * c[a]
+            scale = max(scale, G[a, a])
+        tol = MU_TOL * scale
+        ridge = RIDGE * scale
+        max_outer = 3 * n + 10
+        K = np.empty((n + 1, n + 1))
+        K2 = np.empty((n + 1, n + 1))
+        z = np.empty(n + 1)
+        x = np.zeros(n)
+        F = np.zeros(n + 1, dtype=np.int64)
+        Fc = np.zeros(n + 1, dtype=np.int64)
+        allowed = np.ones(n, dtype=np.bool_)
+        # Start: the single influence of least error G_jj - 2 c_j + y^T y (lowest index on ties).
+        j0 = 0
+        for a in range(1, n):
+            if G[a, a] - 2.0 * c[a] < G[j0, j0] - 2.0 * c[j0]:
+                j0 = a
+        x[j0] = 1.0
+        F[0] = j0
+        nf, err = _lawson_hanson(G, c, yy, allowed, x, F, np.int64(1), tol, ridge, max_outer, K, z, np.bool_(False))
+        support[v] = nf
+        inset = x > 0.0
+        if by_error and nf > k:
+            x, err = _eliminate(G, c, yy, x, inset, err, nf, k, tol, ridge, max_outer, F, Fc, K, K2, z, allowed)
+        for a in range(n):
+            fit[lo + a] = x[a]
+            member[lo + a] = inset[a]
+        errors[v] = err
 
 
 @njit(cache=True)
@@ -317,121 +320,126 @@ def _eliminate(G, c, yy, x, inset, err, nf, k, tol, ridge, max_outer, F, Fc, K, 
     return x, err
 
 
-@njit(parallel=True, cache=True)
-def _fit_all(V, T, indptr, indices, data, k, by_error, Gh, shared, pair,  # pragma: no cover - numba
-             fit, member, errors, support):
-    for v in prange(V.shape[0]):
-        # np.int64: numba types the loop index int64, then uint64 in the parallel loop's body (two compilations)
-        _fit_row(np.int64(v), V, T, indptr, indices, data, k, by_error, Gh, shared, pair, fit, member, errors, support)
-
-
-@njit(cache=True)
-def _exchange_row(v, V, T, indptr, indices, data, k, swaps, Gh, shared, pair,  # pragma: no cover - numba
-                  fit, member, errors, support):
-    """Exchange passes on vertex v's eliminated set (``fit``, ``member``, ``errors`` of :func:`_fit_row`,
-    updated in place): the best swap of a member i for a non-member j that lowers the error."""
-    lo = indptr[v]
-    hi = indptr[v + 1]
-    if hi == lo or support[v] <= k:
-        return  # no elimination ran: the fit's own support is already the least-error set
-    n = hi - lo
-    G = _gram(v, V, T, indices[lo:hi], Gh, shared, pair)
-    avals = data[lo:hi]
-    c = G @ avals
-    yy = 0.0
-    scale = 1e-300
-    for a in range(n):
-        yy += avals[a] * c[a]
-        scale = max(scale, G[a, a])
-    tol = MU_TOL * scale
-    ridge = RIDGE * scale
-    max_outer = 3 * n + 10
-    K = np.empty((n + 1, n + 1))
-    K2 = np.empty((n + 1, n + 1))
-    z = np.empty(n + 1)
-    F = np.zeros(n + 1, dtype=np.int64)
-    Fc = np.zeros(n + 1, dtype=np.int64)
-    allowed = np.ones(n, dtype=np.bool_)
-    x = np.empty(n)
-    inset = np.empty(n, dtype=np.bool_)
-    for a in range(n):
-        x[a] = fit[lo + a]
-        inset[a] = member[lo + a]
-    err = errors[v]
-    g = np.empty(n)
-    for _ in range(swaps):
-        best_gain_e = err * (1.0 - 1e-9) - 1e-15 * yy
-        besti = -1
-        bestj = -1
-        bestx = x
-        for i in range(n):
-            if not inset[i]:
-                continue
-            for a in range(n):
-                allowed[a] = inset[a]
-            allowed[i] = False
-            xi = x.copy()
-            nfi = 0
-            if x[i] < 1.0:
-                xi[i] = 0.0
-                for a in range(n):
-                    if xi[a] > 0.0:
-                        xi[a] /= 1.0 - x[i]
-                        Fc[nfi] = a
-                        nfi += 1
-            else:  # i carries everything: restart from the best other member
-                xi[i] = 0.0
-                j1 = -1
-                for a in range(n):
-                    if allowed[a] and (j1 < 0 or G[a, a] - 2.0 * c[a] < G[j1, j1] - 2.0 * c[j1]):
-                        j1 = a
-                if j1 < 0:
-                    continue
-                xi[j1] = 1.0
-                Fc[0] = j1
-                nfi = 1
-            nfi, _ = _lawson_hanson(G, c, yy, allowed, xi, Fc, np.int64(nfi), tol, ridge, max_outer, K2, z,
-                                    np.bool_(True))
-            _gradient(G, c, xi, Fc, nfi, g)
-            gF = 0.0
-            for l in range(nfi):
-                gF += g[Fc[l]]
-            gF /= max(nfi, 1)
-            for j in range(n):
-                if inset[j] or g[j] - gF >= -tol:
+@njit(cache=True, nogil=True)
+def _exchange_rows(start, stop, V, T, indptr, indices, data, k, swaps, Gh, shared, pair,  # pragma: no cover
+                   fit, member, errors, support):
+    """Exchange passes on the eliminated sets of vertices ``start:stop`` (``fit``, ``member``, ``errors`` of
+    :func:`_fit_rows`, updated in place): the best swap of a member i for a non-member j that lowers the
+    error. Releases the GIL."""
+    for v in range(start, stop):
+        lo = indptr[v]
+        hi = indptr[v + 1]
+        if hi == lo or support[v] <= k:
+            continue  # no elimination ran: the fit's own support is already the least-error set
+        n = hi - lo
+        G = _gram(v, V, T, indices[lo:hi], Gh, shared, pair)
+        avals = data[lo:hi]
+        c = G @ avals
+        yy = 0.0
+        scale = 1e-300
+        for a in range(n):
+            yy += avals[a] * c[a]
+            scale = max(scale, G[a, a])
+        tol = MU_TOL * scale
+        ridge = RIDGE * scale
+        max_outer = 3 * n + 10
+        K = np.empty((n + 1, n + 1))
+        K2 = np.empty((n + 1, n + 1))
+        z = np.empty(n + 1)
+        F = np.zeros(n + 1, dtype=np.int64)
+        Fc = np.zeros(n + 1, dtype=np.int64)
+        allowed = np.ones(n, dtype=np.bool_)
+        x = np.empty(n)
+        inset = np.empty(n, dtype=np.bool_)
+        for a in range(n):
+            x[a] = fit[lo + a]
+            inset[a] = member[lo + a]
+        err = errors[v]
+        g = np.empty(n)
+        for _ in range(swaps):
+            best_gain_e = err * (1.0 - 1e-9) - 1e-15 * yy
+            besti = -1
+            bestj = -1
+            bestx = x
+            for i in range(n):
+                if not inset[i]:
                     continue
                 for a in range(n):
                     allowed[a] = inset[a]
                 allowed[i] = False
-                allowed[j] = True
-                xc = xi.copy()
+                xi = x.copy()
+                nfi = 0
+                if x[i] < 1.0:
+                    xi[i] = 0.0
+                    for a in range(n):
+                        if xi[a] > 0.0:
+                            xi[a] /= 1.0 - x[i]
+                            Fc[nfi] = a
+                            nfi += 1
+                else:  # i carries everything: restart from the best other member
+                    xi[i] = 0.0
+                    j1 = -1
+                    for a in range(n):
+                        if allowed[a] and (j1 < 0 or G[a, a] - 2.0 * c[a] < G[j1, j1] - 2.0 * c[j1]):
+                            j1 = a
+                    if j1 < 0:
+                        continue
+                    xi[j1] = 1.0
+                    Fc[0] = j1
+                    nfi = 1
+                nfi, _ = _lawson_hanson(G, c, yy, allowed, xi, Fc, np.int64(nfi), tol, ridge, max_outer, K2, z,
+                                        np.bool_(True))
+                _gradient(G, c, xi, Fc, nfi, g)
+                gF = 0.0
                 for l in range(nfi):
-                    F[l] = Fc[l]
-                nfc, ec = _lawson_hanson(G, c, yy, allowed, xc, F, np.int64(nfi), tol, ridge, max_outer, K, z,
-                                         np.bool_(False))
-                if ec < best_gain_e:
-                    best_gain_e = ec
-                    besti = i
-                    bestj = j
-                    bestx = xc
-        if besti < 0:
-            break
-        inset[besti] = False
-        inset[bestj] = True
-        x = bestx
-        err = best_gain_e
-    for a in range(n):
-        fit[lo + a] = x[a]
-        member[lo + a] = inset[a]
-    errors[v] = err
+                    gF += g[Fc[l]]
+                gF /= max(nfi, 1)
+                for j in range(n):
+                    if inset[j] or g[j] - gF >= -tol:
+                        continue
+                    for a in range(n):
+                        allowed[a] = inset[a]
+                    allowed[i] = False
+                    allowed[j] = True
+                    xc = xi.copy()
+                    for l in range(nfi):
+                        F[l] = Fc[l]
+                    nfc, ec = _lawson_hanson(G, c, yy, allowed, xc, F, np.int64(nfi), tol, ridge, max_outer, K, z,
+                                             np.bool_(False))
+                    if ec < best_gain_e:
+                        best_gain_e = ec
+                        besti = i
+                        bestj = j
+                        bestx = xc
+            if besti < 0:
+                break
+            inset[besti] = False
+            inset[bestj] = True
+            x = bestx
+            err = best_gain_e
+        for a in range(n):
+            fit[lo + a] = x[a]
+            member[lo + a] = inset[a]
+        errors[v] = err
 
 
-@njit(parallel=True, cache=True)
-def _exchange_all(V, T, indptr, indices, data, k, swaps, Gh, shared, pair,  # pragma: no cover - numba
-                  fit, member, errors, support):
-    for v in prange(V.shape[0]):
-        _exchange_row(np.int64(v), V, T, indptr, indices, data, k, swaps, Gh, shared, pair, fit, member, errors,
-                      support)
+def _over_rows(kernel, m: int, *args) -> None:
+    """``kernel(start, stop, *args)`` over the rows ``0:m``: on ``numba.get_num_threads()`` Python threads, in
+    parts of about 1/8 of a thread's share (uneven rows balance), when there are enough rows to pay for it.
+
+    The kernels release the GIL, so the threads run in parallel; a numba ``prange`` loop would do the same
+    but costs seconds of compilation (its parallel-loop passes, and LLVM once more over all it calls)."""
+    import numba
+
+    threads = max(1, min(numba.get_num_threads(), m // 256))
+    if threads == 1:
+        kernel(np.int64(0), np.int64(m), *args)
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    bounds = np.linspace(0, m, 8 * threads + 1).astype(np.int64)
+    with ThreadPoolExecutor(threads) as pool:
+        list(pool.map(lambda i: kernel(bounds[i], bounds[i + 1], *args), range(len(bounds) - 1)))
 
 
 def sparse_fit(V, T, A, k: int, by: str = "weight", swaps: int = 0):
@@ -478,9 +486,10 @@ def sparse_fit(V, T, A, k: int, by: str = "weight", swaps: int = 0):
     Gh = np.ascontiguousarray(Gh, dtype=np.float64)
     args = (V, T, A.indptr.astype(np.int64), A.indices.astype(np.int64),
             np.ascontiguousarray(A.data, dtype=np.float64), int(k))
-    _fit_all(*args, by == "error", Gh, bool(shared), bool(pair), fit, member, errors, support)
+    m = V.shape[0]
+    _over_rows(_fit_rows, m, *args, by == "error", Gh, bool(shared), bool(pair), fit, member, errors, support)
     if by == "error" and swaps > 0:
-        _exchange_all(*args, int(swaps), Gh, bool(shared), bool(pair), fit, member, errors, support)
+        _over_rows(_exchange_rows, m, *args, int(swaps), Gh, bool(shared), bool(pair), fit, member, errors, support)
     return fit, member, errors
 
 
