@@ -1,19 +1,24 @@
-"""Compile the default weight reduction's numba kernels once, into numba's on-disk cache.
+"""Compile rigslim's numba kernels once, into numba's on-disk cache: the default reduction's and ``rigslim lod``'s.
 
 ``make install`` (and so ``make demo`` and ``make test``) runs this right after installing rigslim, so that
-the first ``rigslim reduce`` / ``rigslim.reduce_weights`` a user runs loads the kernels instead of compiling
-them (measured on 2 cores: about 40 s of compilation on a fresh cache, under a second once cached). The
-kernels are those of the default method on several clips: best-fit selection by error, the non-negative
-geometric fit, the guard against k-largest. A pip-installed rigslim compiles them on its first call instead
-and caches them where numba may write (``NUMBA_CACHE_DIR`` chooses the folder).
+the first ``rigslim reduce`` / ``rigslim.reduce_weights`` and the first ``rigslim lod`` a user runs load the
+kernels instead of compiling them. The reduction's kernels are those of the default method on several clips:
+best-fit selection by error, the non-negative geometric fit, the guard against k-largest; ``lod``'s are the
+decimation loop's (edge costs, the collapse queue), warmed by an LOD chain of the bundled
+``examples/data/gltf/huesitos.glb`` written to a temporary folder. ``benchmarks/compile_time.py`` measures
+each on a fresh cache and after this warm-up (docs/results/compile_time.md). A pip-installed rigslim compiles
+them on its first call instead and caches them where numba may write (``NUMBA_CACHE_DIR`` chooses the folder).
 """
 
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
+
+HUESITOS = Path(__file__).resolve().parents[1] / "examples" / "data" / "gltf" / "huesitos.glb"
 
 
 def tube(rings: int = 10, segments: int = 8, bones: int = 4) -> tuple[np.ndarray, np.ndarray, sp.csr_matrix]:
@@ -43,14 +48,40 @@ def clip(frames: int, bones: int, rng: np.random.Generator) -> np.ndarray:
     return T
 
 
-def main() -> None:
+def warm_reduce() -> float:
+    """The default ``rigslim.reduce_weights`` on a small tube with two clips; its seconds."""
     import rigslim
 
     rng = np.random.default_rng(0)
     V, F, W = tube()
     t0 = time.perf_counter()
     rigslim.reduce_weights((V, F), W, [clip(12, 4, rng), clip(12, 4, rng)], k=2)
-    print(f"warm-numba: the default reduction's kernels are compiled and cached ({time.perf_counter() - t0:.1f} s)")
+    return time.perf_counter() - t0
+
+
+def warm_lod() -> float:
+    """``rigslim lod huesitos.glb --ratios 0.5,0.25`` into a temporary folder (its report silenced); its seconds."""
+    import contextlib
+    import io
+    import tempfile
+
+    from rigslim.commands.cli import main as cli
+
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="rigslim-warm-") as tmp:
+        said = io.StringIO()
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            code = cli(["lod", str(HUESITOS), "-o", str(Path(tmp) / "lod.glb"), "--ratios", "0.5,0.25"])
+        if code:
+            raise SystemExit(f"warm-numba: rigslim lod {HUESITOS.name} failed (exit {code}):\n{said.getvalue()}")
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    reduce_s = warm_reduce()
+    lod_s = warm_lod()
+    print(f"warm-numba: kernels compiled and cached: the default reduction ({reduce_s:.1f} s), "
+          f"rigslim lod ({lod_s:.1f} s)")
 
 
 if __name__ == "__main__":
