@@ -51,71 +51,6 @@ PAIR_MAX_HANDLES = 256
 
 
 @njit(cache=True)
-def _argsort(a):  # pragma: no cover - numba
-    """``np.argsort(a)`` exactly as numba computes it (its quicksort: median-of-three partitions down to
-    runs of 15, then insertion sort; NaN last), without compiling numba's generic sort for one call."""
-    n = a.shape[0]
-    R = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        R[i] = i
-    if n < 2:
-        return R
-    los = np.empty(100, dtype=np.int64)
-    his = np.empty(100, dtype=np.int64)
-    los[0] = 0
-    his[0] = n - 1
-    ns = 1
-    while ns > 0:
-        ns -= 1
-        low = los[ns]
-        high = his[ns]
-        while high - low >= 15:
-            mid = (low + high) >> 1
-            if a[R[mid]] < a[R[low]] or (np.isnan(a[R[low]]) and not np.isnan(a[R[mid]])):
-                R[low], R[mid] = R[mid], R[low]
-            if a[R[high]] < a[R[mid]] or (np.isnan(a[R[mid]]) and not np.isnan(a[R[high]])):
-                R[high], R[mid] = R[mid], R[high]
-            if a[R[mid]] < a[R[low]] or (np.isnan(a[R[low]]) and not np.isnan(a[R[mid]])):
-                R[low], R[mid] = R[mid], R[low]
-            pivot = a[R[mid]]
-            R[high], R[mid] = R[mid], R[high]
-            i = low
-            j = high - 1
-            while True:
-                while i < high and (a[R[i]] < pivot or (np.isnan(pivot) and not np.isnan(a[R[i]]))):
-                    i += 1
-                while j >= low and (pivot < a[R[j]] or (np.isnan(a[R[j]]) and not np.isnan(pivot))):
-                    j -= 1
-                if i >= j:
-                    break
-                R[i], R[j] = R[j], R[i]
-                i += 1
-                j -= 1
-            R[i], R[high] = R[high], R[i]
-            if high - i > i - low:
-                if high > i:
-                    los[ns] = i + 1
-                    his[ns] = high
-                    ns += 1
-                high = i - 1
-            else:
-                if i > low:
-                    los[ns] = low
-                    his[ns] = i - 1
-                    ns += 1
-                low = i + 1
-        for i in range(low + 1, high + 1):
-            r = R[i]
-            v = a[r]
-            j = i
-            while j > low and (v < a[R[j - 1]] or (np.isnan(a[R[j - 1]]) and not np.isnan(v))):
-                R[j] = R[j - 1]
-                j -= 1
-            R[j] = r
-    return R
-
-
-@njit(cache=True)
 def _gram(v, V, T, cols, Gh, shared, pair):  # pragma: no cover - numba
     """Gram matrix ``G = B B^T`` (n, n) of vertex v's basis rows ``b_j = [T_j^1 [v;1]; ...; T_j^p [v;1]]``."""
     n = cols.shape[0]
@@ -249,11 +184,18 @@ def _eliminate(G, c, yy, x, inset, err, nf, k, tol, ridge, max_outer, F, Fc, K, 
         for i in range(nf):
             xi = x[F[i]]
             bound[i] = xi * xi / max(Kinv[i, i], 1e-300)
-        order = _argsort(bound)
+        # Candidates by increasing bound (lowest position first on ties, NaN last: numba's argsort order for
+        # up to 15 candidates), picked one at a time: no sort to compile. Only the minimum exact increase
+        # matters, so past 15 the order among equal bounds can only pick another candidate of equal error.
+        tried = np.zeros(nf, dtype=np.bool_)
         beste = np.inf
         bestx = x
-        for oi in range(nf):
-            i = order[oi]
+        for _ in range(nf):
+            i = -1
+            for l in range(nf):
+                if not tried[l] and (i < 0 or bound[l] < bound[i] or (bound[i] != bound[i] and bound[l] == bound[l])):
+                    i = l
+            tried[i] = True
             if err + bound[i] >= beste:
                 break
             j = F[i]
