@@ -158,7 +158,10 @@ def run_child(what: str, cache: Path, workdir: Path, pythonpath: Path | None = N
     if p.returncode != 0:
         raise SystemExit(f"compile_time: the {what} child failed (exit {p.returncode}):\n{p.stderr[-3000:]}")
     line = next(ln for ln in p.stdout.splitlines() if ln.startswith("RESULT "))
-    return {**json.loads(line[len("RESULT "):]), "process_wall_seconds": wall}
+    result = json.loads(line[len("RESULT "):])
+    # which rigslim the child imported, checked (the baseline's copy comes first on its PYTHONPATH)
+    result["rigslim"] = "working tree" if Path(result["rigslim"]).is_relative_to(ROOT) else "baseline tree"
+    return {**result, "process_wall_seconds": wall}
 
 
 def run_warm(cache: Path) -> dict:
