@@ -10,7 +10,7 @@ $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PIP) install --quiet --upgrade pip
 	$(PIP) install --quiet -e '.[all]'
-	@# compile the default reduction's numba kernels once into numba's cache (tools/warm-numba.py)
+	@# compile the default reduction's and the LOD chain's numba kernels once into numba's cache (tools/warm-numba.py)
 	$(PY) tools/warm-numba.py
 	touch $@
 
@@ -26,7 +26,7 @@ install-test: $(VENV)/.installed-test
 ## demo: create .venv, install rigslim, reduce the elephant to 4 weights and print the errors
 demo: install
 	$(VENV)/bin/rigslim run examples/elephant-k4.yaml --metrics examples/out/elephant-k4.json
-	@# an LOD chain of a small character: also compiles the decimation kernels once into numba's cache
+	@# an LOD chain of a small character (its kernels were compiled by make install)
 	$(VENV)/bin/rigslim lod examples/data/gltf/huesitos.glb -o examples/out/huesitos-lod.glb --ratios 0.5,0.25
 
 ## test-tools: system tools some tests drive (each tools/setup-*.sh installs one, idempotently)
