@@ -101,7 +101,9 @@ def _fit(V, T, indptr, indices, data, sel, valid, alpha0, eps, out, energy, ener
         K = np.empty((kv + 1, kv + 1))
         z = np.empty(kv + 1)
         allowed = np.ones(kv, dtype=np.bool_)
-        _, e = _lawson_hanson(G, c, yy, allowed, x, F, 1, TOL * scale, 0.0, 3 * kv + 10, K, z, False)
+        # int64 / bool values, not literals: the selection's specialisation of the method (compiled once)
+        _, e = _lawson_hanson(G, c, yy, allowed, x, F, np.int64(1), TOL * scale, 0.0, 3 * kv + 10, K, z,
+                              np.bool_(False))
         e0 = yy
         for i in range(kv):
             out[v, slots[i]] = x[i]
