@@ -95,7 +95,7 @@ class GltfWriterParams(Params):
     or its RMS (on average)."""
     switch_frames: int = Field(12, ge=0)
     """Measured coverage: at most this many test frames, evenly spread (0: every test frame) ..."""
-    switch_samples: int = Field(10000, ge=100)
+    switch_samples: int = Field(5000, ge=100)
     """... and this many surface samples per side and frame."""
     level_skins: bool = True
     """Each level mesh gets a skin of only the joints its vertices use (false: the source skin)."""
