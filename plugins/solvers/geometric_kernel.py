@@ -10,8 +10,11 @@ influence set over the p example poses, ``y_v = sum_i a_{v,i} T_i^j [v; 1]``
 the full deformation and ``eps`` the ridge towards the k-largest weights
 (``ridge`` times the mean of ``|b_{v,l}|^2`` over valid slots, as
 :func:`rigslim.plugins.solvers.problem.build_problem` sets it). This module
-solves them in numba, parallel over vertices, without forming the (m, k, 3p)
-basis: each vertex builds its k x k Gram matrix ``G = B B^T + eps I`` and
+solves them in numba, without forming the (m, k, 3p) basis, in kernels over a
+range of vertices that release the GIL, run on threads over parts of the
+vertices (:func:`rigslim.numerics.row_threads.over_rows`; no ``prange``, whose
+parallel-loop passes cost seconds of compilation on the first call): each
+vertex builds its k x k Gram matrix ``G = B B^T + eps I`` and
 ``c = B y + eps alpha0`` and runs the sum-to-one Lawson & Hanson method of
 :mod:`rigslim.numerics.simplex_nnls` (exact: the QP is strictly convex).
 :func:`rigslim.plugins.solvers.methods.solve_weights` takes this path for
@@ -22,8 +25,9 @@ non-negative geometric fits on numpy; the batched active-set reference
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
+from rigslim.numerics.row_threads import over_rows
 from rigslim.numerics.simplex_nnls import _lawson_hanson
 
 #: Bound multipliers above ``-TOL * max_l G_ll`` count as non-negative (the batched reference uses 1e-12).
@@ -38,13 +42,14 @@ def _basis_row(v, T, h, out):  # pragma: no cover - numba
             out[3 * q + c] = T[q, h, c, 0] * v[0] + T[q, h, c, 1] * v[1] + T[q, h, c, 2] * v[2] + T[q, h, c, 3]
 
 
-@njit(parallel=True, cache=True)
-def _diagonal_sum(V, T, sel, valid):  # pragma: no cover - numba
-    m, k = sel.shape
+@njit(cache=True, nogil=True)
+def _diagonal_rows(start, stop, V, T, sel, valid, sums):  # pragma: no cover - numba
+    """``sums[v] = sum_l |b_{v,l}|^2`` over vertex v's valid slots, for the vertices ``start:stop``
+    (the ridge's scale). Releases the GIL: run over parts of the rows on threads."""
+    k = sel.shape[1]
     D = 3 * T.shape[0]
-    sums = np.zeros(m)
-    for v in prange(m):
-        b = np.empty(D)
+    b = np.empty(D)
+    for v in range(start, stop):
         s = 0.0
         for l in range(k):
             if valid[v, l]:
@@ -52,14 +57,17 @@ def _diagonal_sum(V, T, sel, valid):  # pragma: no cover - numba
                 for d in range(D):
                     s += b[d] * b[d]
         sums[v] = s
-    return sums
 
 
-@njit(parallel=True, cache=True)
-def _fit(V, T, indptr, indices, data, sel, valid, alpha0, eps, out, energy, energy0):  # pragma: no cover - numba
-    m, k = sel.shape
+@njit(cache=True, nogil=True)
+def _fit_rows(start, stop, V, T, indptr, indices, data, sel, valid, alpha0, eps,  # pragma: no cover - numba
+              out, energy, energy0):
+    """The QP of each vertex ``start:stop`` (module docstring): its weights into ``out[v]``, its energy
+    and the energy at ``alpha0[v]`` into ``energy[v]``, ``energy0[v]``. Releases the GIL: run over parts
+    of the rows on threads."""
+    k = sel.shape[1]
     D = 3 * T.shape[0]
-    for v in prange(m):
+    for v in range(start, stop):
         y = np.zeros(D)
         b = np.empty(D)
         for e in range(indptr[v], indptr[v + 1]):
@@ -132,11 +140,14 @@ def geometric_nonnegative(asset, influences, alpha0, ridge: float) -> tuple[np.n
     sel = np.ascontiguousarray(influences.indices, dtype=np.int64)
     valid = np.ascontiguousarray(influences.valid)
     nvalid = int(valid.sum())
-    eps = float(ridge * _diagonal_sum(V, T, sel, valid).sum() / nvalid) if nvalid else 0.0
     m, k = sel.shape
+    sums = np.zeros(m)
+    over_rows(_diagonal_rows, m, V, T, sel, valid, sums)
+    eps = float(ridge * sums.sum() / nvalid) if nvalid else 0.0
     out = np.zeros((m, k))
     energy = np.zeros(m)
     energy0 = np.zeros(m)
-    _fit(V, T, A.indptr.astype(np.int64), A.indices.astype(np.int64), np.ascontiguousarray(A.data, dtype=np.float64),
-         sel, valid, np.ascontiguousarray(alpha0, dtype=np.float64), eps, out, energy, energy0)
+    data = np.ascontiguousarray(A.data, dtype=np.float64)
+    over_rows(_fit_rows, m, V, T, A.indptr.astype(np.int64), A.indices.astype(np.int64), data, sel, valid,
+              np.ascontiguousarray(alpha0, dtype=np.float64), eps, out, energy, energy0)
     return out, {"energy": float(energy.sum()), "energy_start": float(energy0.sum()), "ridge": eps}
