@@ -298,7 +298,12 @@ class PluginHost:
         return self._registry
 
     def _skipped_hint(self) -> str:
-        return f"; skipped at load: {self.problems[0]}" if self.problems else ""
+        """``; skipped at load: ...`` naming the first package skipped, short enough (under 99 characters) to
+        stay in the tail that :func:`rigslim.errors.clip` keeps of a long error line."""
+        if not self.problems:
+            return ""
+        more = f" (+{len(self.problems) - 1}: rigslim plugins)" if len(self.problems) > 1 else ""
+        return f"; skipped at load: {clip(self.problems[0], 50)}{more}"
 
     def info(self, stage: str, name: str) -> PluginInfo:
         """The :class:`PluginInfo` of ``name`` in ``stage``; errors name close names and skipped packages."""
