@@ -14,6 +14,8 @@
 - :mod:`~rigslim.numerics.surface_distance`: the two-sided Metro distance between surfaces;
 - :mod:`~rigslim.numerics.simplex_nnls`: sum-to-one non-negative least squares (the best-fit selector, the
   non-negative geometric solver).
+- :mod:`~rigslim.numerics.row_threads`: a nogil numba row kernel over parts of the rows on threads (the
+  non-negative geometric solver's per-vertex fits, without a ``prange`` loop's compilation).
 
 Numerics that only one plugin package uses live in that package (the quadrics in
 ``rigslim.plugins.decimation``, the colourings and the multilevel solver in ``rigslim.plugins.solvers``,
