@@ -7,8 +7,9 @@ Per problem, with the Gram matrix ``G = B B^T`` and ``c = B y`` of a small basis
 solved by the Lawson & Hanson active-set method (Lawson & Hanson, *Solving Least Squares Problems*,
 1974, ch. 23) adapted to the sum-to-one row: start from the single best variable, add the one whose
 bound multiplier ``mu_j = g_j - g_F`` is most negative, and settle the free set by ``(|F| + 1)``-square
-KKT solves. Numba kernels, called per vertex inside parallel loops: the ``best-fit`` selector's sparse
-fits (:mod:`rigslim.plugins.selection.sparse_fit`) and the non-negative geometric solver
+KKT solves. Numba kernels, called per vertex inside row kernels that run on threads
+(:mod:`rigslim.numerics.row_threads`): the ``best-fit`` selector's sparse fits
+(:mod:`rigslim.plugins.selection.sparse_fit`) and the non-negative geometric solver
 (:mod:`rigslim.plugins.solvers.geometric_kernel`).
 
 Compilation: numba compiles a kernel once per distinct argument *type*, and a constant passed from

@@ -26,7 +26,7 @@ Two selections use it (``by``):
   influences it is already the least-error set.
 
 Implementation: numba kernels over a range of vertices that release the GIL,
-run on threads over parts of the vertices (:func:`_over_rows`); per vertex the
+run on threads over parts of the vertices (:func:`rigslim.numerics.row_threads.over_rows`); per vertex the
 Gram matrix ``G = B_v B_v^T`` of the basis is formed once (for cages, whose
 handle transforms are translations ``[0 | c_j]``, it is the same for every
 vertex and is gathered from one handle Gram matrix), and the free-set systems
@@ -39,6 +39,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from rigslim.numerics.row_threads import over_rows
 from rigslim.numerics.simplex_nnls import _gradient, _inverse, _lawson_hanson
 
 #: Ridge of the free-set Gram matrix, relative to its largest diagonal entry.
@@ -365,25 +366,6 @@ def _exchange_rows(start, stop, V, T, indptr, indices, data, k, swaps, Gh, share
         errors[v] = err
 
 
-def _over_rows(kernel, m: int, *args) -> None:
-    """``kernel(start, stop, *args)`` over the rows ``0:m``: on ``numba.get_num_threads()`` Python threads, in
-    parts of about 1/8 of a thread's share (uneven rows balance), when there are enough rows to pay for it.
-
-    The kernels release the GIL, so the threads run in parallel; a numba ``prange`` loop would do the same
-    but costs seconds of compilation (its parallel-loop passes, and LLVM once more over all it calls)."""
-    import numba
-
-    threads = max(1, min(numba.get_num_threads(), m // 256))
-    if threads == 1:
-        kernel(np.int64(0), np.int64(m), *args)
-        return
-    from concurrent.futures import ThreadPoolExecutor
-
-    bounds = np.linspace(0, m, 8 * threads + 1).astype(np.int64)
-    with ThreadPoolExecutor(threads) as pool:
-        list(pool.map(lambda i: kernel(bounds[i], bounds[i + 1], *args), range(len(bounds) - 1)))
-
-
 def sparse_fit(V, T, A, k: int, by: str = "weight", swaps: int = 0):
     """Sum-to-one NNLS fits of the example poses over each vertex's input influences.
 
@@ -429,9 +411,9 @@ def sparse_fit(V, T, A, k: int, by: str = "weight", swaps: int = 0):
     args = (V, T, A.indptr.astype(np.int64), A.indices.astype(np.int64),
             np.ascontiguousarray(A.data, dtype=np.float64), int(k))
     m = V.shape[0]
-    _over_rows(_fit_rows, m, *args, by == "error", Gh, bool(shared), bool(pair), fit, member, errors, support)
+    over_rows(_fit_rows, m, *args, by == "error", Gh, bool(shared), bool(pair), fit, member, errors, support)
     if by == "error" and swaps > 0:
-        _over_rows(_exchange_rows, m, *args, int(swaps), Gh, bool(shared), bool(pair), fit, member, errors, support)
+        over_rows(_exchange_rows, m, *args, int(swaps), Gh, bool(shared), bool(pair), fit, member, errors, support)
     return fit, member, errors
 
 
