@@ -98,19 +98,17 @@ class DecimationParams(Params):
     backend: Literal["numpy", "numba"] = "numba"
     """``numba``: the compiled collapse loop and per-edge solves; ``numpy``: the batched numpy reference."""
 
-    @model_validator(mode="before")
-    @classmethod
-    def _lock_seams(cls, data):
-        """The earlier spelling ``lock_seams: true|false`` (``seams: lock|free``)."""
-        if isinstance(data, dict) and "lock_seams" in data:
-            data = dict(data)
-            lock = data.pop("lock_seams")
-            if not isinstance(lock, bool):
-                raise ValueError("lock_seams must be true or false (or use seams: move|lock|free)")
-            if "seams" in data:
-                raise ValueError("give seams or lock_seams, not both")
-            data["seams"] = "lock" if lock else "free"
-        return data
+    lock_seams: bool | None = None
+    """The earlier spelling of ``seams``: true is ``seams: lock``, false ``seams: free``."""
+
+    @model_validator(mode="after")
+    def _lock_seams(self):
+        """``lock_seams: true|false`` sets ``seams: lock|free``; giving both is refused."""
+        if self.lock_seams is not None:
+            if "seams" in self.model_fields_set:
+                raise ValueError("give seams or lock_seams (its earlier spelling), not both")
+            object.__setattr__(self, "seams", "lock" if self.lock_seams else "free")
+        return self
 
 
 def target_faces(targets, n_faces: int) -> list[int]:
