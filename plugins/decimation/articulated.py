@@ -183,8 +183,8 @@ def attribute_term(asset, weights: dict[str, float], Q, T, X):
     """
     from rigslim.io.gltf.seams import attribute_quadrics
 
-    source = asset.extras.get("gltf")
-    if source is None or source.mesh is not asset.mesh or not any(w > 0 for w in weights.values()):
+    source = gltf_source(asset)
+    if source is None or not any(w > 0 for w in weights.values()):
         return Q, T, X
     Qa = attribute_quadrics(source, weights)
     if not Qa.any():
@@ -197,57 +197,60 @@ def attribute_term(asset, weights: dict[str, float], Q, T, X):
             np.concatenate([X, asset.mesh.V[None]]))
 
 
-def seam_lock(asset, along: bool = True, mode: str = "lock"):
-    """Seam and material-boundary vertices of a mesh read from glTF, and how they may collapse.
+def given_seams(asset) -> tuple[np.ndarray, np.ndarray] | None:
+    """``asset.extras["seams"] = (locked, charts)`` (any input, e.g. Blender's arrays: one locked flag per
+    vertex, one chart label per face), checked against the mesh; None when not given."""
+    given = asset.extras.get("seams")
+    if given is None:
+        return None
+    locked, charts = np.asarray(given[0], bool), np.asarray(given[1], np.int64)
+    if locked.shape != (asset.mesh.n_vertices,) or charts.shape != (asset.mesh.n_faces,):
+        raise StepError("extras['seams'] does not match the mesh", field="seams",
+                        fix="give (locked, charts) with one flag per vertex and one chart per face")
+    return locked, charts
 
-    ``asset.extras["seams"] = (locked, charts)`` gives them from arrays (any input: one locked flag per
-    vertex, one chart label per face; the along-seam vertices follow from them); else they come from the
+
+def gltf_source(asset):
+    """The glTF skin the asset's mesh was read from, or None (other inputs, or a step replaced the mesh)."""
+    source = asset.extras.get("gltf")
+    return source if source is not None and source.mesh is asset.mesh else None
+
+
+def seam_lock(asset, along: bool = True, mode: str = "lock"):
+    """Seam and material-boundary vertices to lock (``seams: lock``), and how they may collapse.
+
+    They come from :func:`given_seams` (the along-seam vertices follow from the arrays), else from the
     glTF file the mesh was read from.
 
-    Returns ``(locked, seams)``: with ``mode="lock"``, ``locked`` (m,) bool, the seam vertices, and ``seams``
-    ``(along, charts)`` for :func:`rigslim.plugins.decimation.collapse.simplify` (None when ``along`` is
-    false); with ``mode="move"``, only the UV slit vertices (:func:`rigslim.io.gltf.seams.slit_vertices`;
-    none for arrays) and no seams; ``(None, None)`` with ``mode="free"``, for other inputs, or when a step
-    replaced the mesh the glTF reader made.
+    Returns ``(locked, seams)``: ``locked`` (m,) bool, the seam vertices, and ``seams`` ``(along, charts)``
+    for :func:`rigslim.plugins.decimation.collapse.simplify` (None when ``along`` is false); ``(None, None)``
+    for another ``mode`` (``move``: :func:`seam_charts` gives the seam planes instead; ``free``) or input.
     """
     from rigslim.io.gltf.seams import seam_structure, seams_along
 
-    if mode == "free":
+    if mode != "lock":
         return None, None
-    given = asset.extras.get("seams")
-    if given is not None:                  # from arrays (e.g. Blender): (locked (m,) bool, charts (f,) int)
-        locked, charts = np.asarray(given[0], bool), np.asarray(given[1], np.int64)
-        if locked.shape != (asset.mesh.n_vertices,) or charts.shape != (asset.mesh.n_faces,):
-            raise StepError("extras['seams'] does not match the mesh", field="seams",
-                            fix="give (locked, charts) with one flag per vertex and one chart per face")
-        if mode == "move":
-            return None, None
+    given = given_seams(asset)
+    if given is not None:
+        locked, charts = given
         return locked, ((seams_along(asset.mesh.F, charts, locked), charts) if along else None)
-    source = asset.extras.get("gltf")
-    if source is None or source.mesh is not asset.mesh:
-        return None, None
-    if mode == "move":
+    source = gltf_source(asset)
+    if source is None:
         return None, None
     locked, may, charts = seam_structure(source)
     return locked, ((may, charts) if along else None)
 
 
 def seam_charts(asset) -> np.ndarray | None:
-    """(f,) chart of every face (UV/material charts) of a mesh read from glTF or given as
-    ``asset.extras["seams"]``; None for other inputs (see :func:`seam_lock`)."""
+    """(f,) chart of every face (UV/material charts) from :func:`given_seams` or the glTF file the mesh was
+    read from (:func:`rigslim.io.gltf.seams.face_charts`); None for other inputs."""
     from rigslim.io.gltf.seams import face_charts
 
-    given = asset.extras.get("seams")
+    given = given_seams(asset)
     if given is not None:
-        charts = np.asarray(given[1], np.int64)
-        if charts.shape != (asset.mesh.n_faces,):
-            raise StepError("extras['seams'] does not match the mesh", field="seams",
-                            fix="give (locked, charts) with one flag per vertex and one chart per face")
-        return charts
-    source = asset.extras.get("gltf")
-    if source is None or source.mesh is not asset.mesh:
-        return None
-    return face_charts(source)
+        return given[1]
+    source = gltf_source(asset)
+    return face_charts(source) if source is not None else None
 
 
 class ArticulatedDecimator(Decimator):

@@ -121,28 +121,6 @@ def face_charts(skin: GltfSkin, data: list[PrimitiveData] | None = None) -> np.n
     return chart_wedges(skin, data)[0]
 
 
-def slit_vertices(skin: GltfSkin, data: list[PrimitiveData] | None = None) -> np.ndarray:
-    """(m,) welded vertices with two different wedges in one chart: the vertices of UV slits.
-
-    A slit is a seam that ends inside a chart, so that its two sides are one chart (:func:`face_charts`).
-    The glTF level writer gives a vertex made by collapses one attribute value per chart
-    (:func:`rigslim.io.gltf.lod.projected_attributes`), which a slit vertex, with two values in one chart,
-    cannot keep: these vertices stay where they are when the other seams may move.
-    """
-    charts, wedge = chart_wedges(skin, data)
-    F = skin.mesh.F
-    if not len(F):
-        return np.zeros(skin.mesh.n_vertices, bool)
-    C = int(charts.max()) + 1
-    triples = np.unique(np.stack([F.ravel(), np.repeat(charts, 3), wedge.ravel()], 1), axis=0)
-    vc = triples[:, 0] * C + triples[:, 1]
-    _, counts = np.unique(vc, return_counts=True)
-    keys = np.unique(vc)
-    out = np.zeros(skin.mesh.n_vertices, bool)
-    out[keys[counts > 1] // C] = True
-    return out
-
-
 def chart_wedges(skin: GltfSkin, data: list[PrimitiveData] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(f,) face charts (:func:`face_charts`) and the (f, 3) wedge id of every face corner."""
     import scipy.sparse as sp
