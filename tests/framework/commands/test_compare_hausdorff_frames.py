@@ -44,13 +44,16 @@ def reduced(tmp_path_factory):
 
 
 # pymeshlab draws its face samples at random; every vertex is a sample too, so a frame's max (at a vertex here)
-# agrees closely and the RMS within the sampling noise of 4,000 points per direction.
-RMS_REL, MAX_REL = 0.05, 0.02
+# agrees closely and the RMS within the sampling noise of SAMPLES points per direction: the error here sits on a
+# few faces, so the RMS of one frame varies by up to 7.8 % between two runs at 4,000 samples and 6.3 % at 16,000
+# (measured over 4 x 4 frame pairs; a CI run failed at 6.6 % with the 5 % this allowed before).
+SAMPLES = 4000
+RMS_REL, MAX_REL = 0.15, 0.02
 
 
 def test_capped_frames_agree_with_the_exact_path(reduced):
-    exact = compare(TUBE, reduced, samples=4000, hausdorff_frames=0, large_faces=100)
-    fast = compare(TUBE, reduced, samples=4000, large_faces=100)            # 1,536 faces > 100: capped
+    exact = compare(TUBE, reduced, samples=SAMPLES, hausdorff_frames=0, large_faces=100)
+    fast = compare(TUBE, reduced, samples=SAMPLES, large_faces=100)         # 1,536 faces > 100: capped
     assert exact["hausdorff_all_frames"] and not fast["hausdorff_all_frames"]
     n = len(exact["frames"])
     assert fast["hausdorff_frame_cap"] == 3
