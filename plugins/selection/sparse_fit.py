@@ -94,6 +94,22 @@ def _gram(v, V, T, cols, Gh, shared, pair):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
+def _vertex_system(v, V, T, cols, avals, Gh, shared, pair):  # pragma: no cover - numba
+    """Vertex v's least-squares system over its influences ``cols`` with input weights ``avals``: the Gram
+    matrix G (:func:`_gram`), ``c = G a``, ``y^T y = a^T G a``, and the tolerances scaled by G's largest
+    diagonal entry (``MU_TOL``, ``RIDGE``), with the Lawson-Hanson iteration cap ``3 n + 10``."""
+    n = cols.shape[0]
+    G = _gram(v, V, T, cols, Gh, shared, pair)
+    c = G @ avals
+    yy = 0.0
+    scale = 1e-300
+    for a in range(n):
+        yy += avals[a] * c[a]
+        scale = max(scale, G[a, a])
+    return G, c, yy, MU_TOL * scale, RIDGE * scale, 3 * n + 10
+
+
+@njit(cache=True, nogil=True)
 def _fit_rows(start, stop, V, T, indptr, indices, data, k, by_error, Gh, shared, pair,  # pragma: no cover - numba
               fit, member, errors, support):
     """Vertices ``start:stop``: the fit over each one's influences and, ``by_error``, backward elimination
@@ -105,17 +121,7 @@ def _fit_rows(start, stop, V, T, indptr, indices, data, k, by_error, Gh, shared,
         if hi == lo:
             continue
         n = hi - lo
-        G = _gram(v, V, T, indices[lo:hi], Gh, shared, pair)
-        avals = data[lo:hi]
-        c = G @ avals
-        yy = 0.0
-        scale = 1e-300
-        for a in range(n):
-            yy += avals[a] * c[a]
-            scale = max(scale, G[a, a])
-        tol = MU_TOL * scale
-        ridge = RIDGE * scale
-        max_outer = 3 * n + 10
+        G, c, yy, tol, ridge, max_outer = _vertex_system(v, V, T, indices[lo:hi], data[lo:hi], Gh, shared, pair)
         K = np.empty((n + 1, n + 1))
         K2 = np.empty((n + 1, n + 1))
         z = np.empty(n + 1)
@@ -275,17 +281,7 @@ def _exchange_rows(start, stop, V, T, indptr, indices, data, k, swaps, Gh, share
         if hi == lo or support[v] <= k:
             continue  # no elimination ran: the fit's own support is already the least-error set
         n = hi - lo
-        G = _gram(v, V, T, indices[lo:hi], Gh, shared, pair)
-        avals = data[lo:hi]
-        c = G @ avals
-        yy = 0.0
-        scale = 1e-300
-        for a in range(n):
-            yy += avals[a] * c[a]
-            scale = max(scale, G[a, a])
-        tol = MU_TOL * scale
-        ridge = RIDGE * scale
-        max_outer = 3 * n + 10
+        G, c, yy, tol, ridge, max_outer = _vertex_system(v, V, T, indices[lo:hi], data[lo:hi], Gh, shared, pair)
         K = np.empty((n + 1, n + 1))
         K2 = np.empty((n + 1, n + 1))
         z = np.empty(n + 1)
