@@ -323,9 +323,33 @@ def corner_sides(F: np.ndarray, R: np.ndarray, fa: np.ndarray, fb: np.ndarray, m
     return out.reshape(-1, 3), vertex
 
 
+@dataclass(frozen=True)
+class LevelSources:
+    """What every level of one source shares (computed once per write, not per level).
+
+    ``vmap``: :func:`welded_vertex_map`; ``parts``: :func:`welded_faces`; ``fa``, ``fb``: the face pairs
+    joined across seam-free edges (:func:`rigslim.io.gltf.seams.wedge_adjacency`); ``faces``: the welded
+    faces of every primitive, concatenated.
+    """
+
+    vmap: np.ndarray
+    parts: list[tuple[np.ndarray, np.ndarray]]
+    fa: np.ndarray
+    fb: np.ndarray
+    faces: np.ndarray
+
+
+def level_sources(skin: GltfSkin, data: list[PrimitiveData]) -> LevelSources:
+    """The :class:`LevelSources` of ``skin`` and its :func:`primitive_data` ``data``."""
+    parts = welded_faces(skin, data)
+    _, fa, fb = wedge_adjacency(skin, data)
+    faces = np.concatenate([Fw for Fw, _ in parts]) if parts else np.zeros((0, 3), np.int64)
+    return LevelSources(welded_vertex_map(skin), parts, fa, fb, faces)
+
+
 def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | None = None,
-                     attributes: list[np.ndarray] | None = None, transfer: str = "project"
-                     ) -> list[LevelPrimitive]:
+                     attributes: list[np.ndarray] | None = None, transfer: str = "project",
+                     sources: LevelSources | None = None) -> list[LevelPrimitive]:
     """One :class:`LevelPrimitive` per source primitive for a level taken from ``hier``.
 
     Parameters
@@ -336,8 +360,9 @@ def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | No
         Built on ``skin.mesh``.
     level : SimplifiedLevel
         With ``vertex_ids`` into ``hier``.
-    data, attributes :
-        :func:`primitive_data` and :func:`hierarchy_attributes`, when several levels share them.
+    data, attributes, sources :
+        :func:`primitive_data`, :func:`hierarchy_attributes` and :func:`level_sources`, when several levels
+        share them.
     transfer : {"project", "collapse"}
         Attributes of vertices made by collapses: ``project`` (default)
         interpolates the source corners at the closest point of the source
@@ -363,11 +388,9 @@ def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | No
     ids = np.asarray(level.vertex_ids, np.int64)
     rep = level_representatives(hier, ids)
     level_keys = set(map(tuple, np.sort(ids[np.asarray(level.mesh.F)], axis=1).tolist()))
-    vmap = welded_vertex_map(skin)
-    parts = welded_faces(skin, data)
-    _, fa, fb = wedge_adjacency(skin, data)
-    Fall = np.concatenate([Fw for Fw, _ in parts]) if parts else np.zeros((0, 3), np.int64)
-    sides, side_vertex = corner_sides(Fall, rep[Fall], fa, fb, m)
+    src = level_sources(skin, data) if sources is None else sources
+    vmap, parts = src.vmap, src.parts
+    sides, side_vertex = corner_sides(src.faces, rep[src.faces], src.fa, src.fb, m)
     out = []
     offset = 0
     for d, sl, (Fw, Ff), A in zip(data, skin.slices, parts, per_primitive, strict=False):

@@ -33,7 +33,14 @@ if TYPE_CHECKING:
 
 from rigslim.io.gltf.document import CHUNK_BIN, CHUNK_JSON, GLB_MAGIC
 from rigslim.io.gltf.level_skins import level_skin, source_inverse_binds, used_joints
-from rigslim.io.gltf.lod import hierarchy_attributes, level_document, level_primitives, lod_level_count, lod_nodes
+from rigslim.io.gltf.lod import (
+    hierarchy_attributes,
+    level_document,
+    level_primitives,
+    level_sources,
+    lod_level_count,
+    lod_nodes,
+)
 from rigslim.io.gltf.primitives import primitive_data
 from rigslim.io.gltf.skin import GltfSkin, skinning_sets
 
@@ -701,12 +708,13 @@ def _write_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp, lo
 
     data = primitive_data(source)
     attributes = hierarchy_attributes(source, hierarchy, data)
+    shared = level_sources(source, data)
     skinned = _skinned_nodes(js, source)
     node_levels: dict[int, list[int]] = {i: [] for i in skinned}
     summary = []
     ibm = source_inverse_binds(source)
     for _j, level in enumerate(levels):
-        parts = level_primitives(source, hierarchy, level, data, attributes)
+        parts = level_primitives(source, hierarchy, level, data, attributes, sources=shared)
         values = np.asarray(level.weights.values, dtype=np.float64)
         if clamp is not None:
             values, st = clamp_negative_weights(values)
