@@ -159,12 +159,18 @@ class SuiteCharacter:
                 f"{len(self.clips)} clips)")
 
 
+HOLDOUT = DATA / "gltf" / "holdout"
+
+
 def suite(names=None, *, min_joints: int = 0, multi_clip: bool | None = None,
-          textured: bool | None = None) -> list[SuiteCharacter]:
+          textured: bool | None = None, group: str = "suite") -> list[SuiteCharacter]:
     """The suite's characters (index order), optionally filtered.
 
     Parameters
     ----------
+    group : {"suite", "holdout", "all"}
+        The development suite (``suite/suite.json``), the hold-out characters (``holdout/holdout.json``:
+        built after the methods were chosen, never used to tune them), or both.
     names : iterable of str, optional
         Only these (unknown names raise ``KeyError`` listing the known ones).
     min_joints : int
@@ -177,8 +183,11 @@ def suite(names=None, *, min_joints: int = 0, multi_clip: bool | None = None,
     >>> [c.name for c in suite(min_joints=30, multi_clip=True)]   # doctest: +SKIP
     ['wuson', 'frankie', 'snoutx10k', 're_player']
     """
-    index = json.loads((SUITE / "suite.json").read_text())
-    chars = [SuiteCharacter(e) for e in index["characters"]]
+    if group not in ("suite", "holdout", "all"):
+        raise ValueError(f"group {group!r}: use suite, holdout or all")
+    files = {"suite": [SUITE / "suite.json"], "holdout": [HOLDOUT / "holdout.json"]}
+    files["all"] = files["suite"] + files["holdout"]
+    chars = [SuiteCharacter(e) for f in files[group] for e in json.loads(f.read_text())["characters"]]
     if names is not None:
         known = {c.name: c for c in chars}
         missing = [n for n in names if n not in known]

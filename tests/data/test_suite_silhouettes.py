@@ -77,7 +77,7 @@ browser = pytest.mark.skipif(available() is not None, reason=str(available()))
 def _cases():
     out = []
     for bound in ("default", "none"):
-        for c in suite():
+        for c in suite(group="all"):
             marks = [pytest.mark.slow, pytest.mark.browser, browser]
             if bound == "none" and c.name in FAILING:
                 marks.append(pytest.mark.xfail(strict=True, reason=FAILING[c.name]))

@@ -18,6 +18,7 @@ bytes); this script documents and repeats how they were made:
 Usage::
 
     python tools/suite/build.py [--work /tmp/rigslim-suite] [--only NAME ...] [--index-only]
+    python tools/suite/build.py --set holdout     # the hold-out characters (examples/data/gltf/holdout/)
 """
 
 from __future__ import annotations
@@ -70,6 +71,7 @@ class Character:
     test: list = field(default_factory=list)       # [(clip, time s)] posed test renders
     front: float = 0.0                             # camera azimuth (degrees about +y) that sees the character's front
     notes: str = ""
+    group: str = "suite"                           # "suite" (development) or "holdout" (validation only)
 
 
 CHARACTERS = [
@@ -127,6 +129,30 @@ CHARACTERS = [
               notes="in usr/share/games/0ad/mods/public/public.zip; rigid parts (beams, arm, counterweight) "
                     "and rope chains, 1-2 influences; `idle` is a held pose (0.1 s): "
                     "one moving clip, fit on even frames of attack, test on odd ones"),
+]
+
+
+#: Hold-out characters: built after the far-LOD, seam and guard work of issues 22 and 25 was done, to check
+#: that it carries to characters nobody tuned on; never used to choose a method or a constant
+#: (examples/data/gltf/holdout/, their own index holdout.json).
+HOLDOUT = [
+    Character("horse", "quadruped (horse, with tail and mane)", "0ad-data", "art/meshes/skeletal/horse.dae.cached.pmd",
+              "CC-BY-SA-3.0", "Wildfire Games (0 A.D.)", "pmd_horse",
+              fit=["walk", "idle"], holdout=["gallop", "death"], test=[("gallop", 0.3), ("walk", 0.5)], front=180,
+              notes="skeleton art/skeletons/horse.xml; one primitive, no texture (DDS)", group="holdout"),
+    Character("deer", "quadruped (deer, thin legs, ears)", "0ad-data",
+              "art/meshes/skeletal/deer_mesh.dae.cached.pmd", "CC-BY-SA-3.0", "Wildfire Games (0 A.D.)", "pmd_deer",
+              fit=["walk", "idle"], holdout=["run", "death"], test=[("run", 0.3), ("walk", 0.5)], front=180,
+              notes="skeleton art/skeletons/deer.xml; 306 faces", group="holdout"),
+    Character("giraffe", "quadruped (giraffe, long neck and legs)", "0ad-data",
+              "art/meshes/skeletal/giraffe_adult.dae.cached.pmd", "CC-BY-SA-3.0", "Wildfire Games (0 A.D.)",
+              "pmd_giraffe", fit=["walk", "idle"], holdout=["run", "death"], test=[("run", 0.3), ("walk", 0.5)],
+              front=180, notes="skeleton art/skeletons/giraffe.xml; 690 faces", group="holdout"),
+    Character("re_female", "humanoid (female)", "redeclipse-data", f"{RE}/player/female/RE_Player_female.iqm",
+              "CC-BY-SA-3.0", "Red Eclipse Team (redeclipse-data)", "iqm_re_female",
+              fit=["idle", "walk", "jump"], holdout=["run", "dying"], test=[("run", 0.25), ("walk", 0.4)], front=0,
+              notes="the male player's clips (one skeleton) on the female mesh; clip rates from player.cfg",
+              group="holdout"),
 ]
 
 
@@ -197,13 +223,17 @@ def iqm_mrfixit(c: Character, work: Path, out: Path) -> None:
          "--texture", f"Body={d / 'Body.jpg'}", "--texture", f"Head={d / 'Head.jpg'}"])
 
 
-def iqm_re_player(c: Character, work: Path, out: Path) -> None:
+def iqm_re_player(c: Character, work: Path, out: Path, body: str = "male") -> None:
     d = package_root(work, c.package) / RE / "player"
     clips = [("idle", "idle", 10), ("walk", "walk_forward", 30), ("jump", "jump0_forward", 30),
              ("run", "runcycle0", 40), ("dying", "dying", 21)]
-    run([PY, HERE / "iqm2gltf.py", d / "male" / "RE_Player_male.iqm", "-o", out,
+    run([PY, HERE / "iqm2gltf.py", d / body / f"RE_Player_{body}.iqm", "-o", out,
          "--texture", f"RE_Player={d / 'diffuse.png'}",
          *[x for n, f, r in clips for x in ("--anim", f"{n}={d / (f + '.iqm')}@{r}")]])
+
+
+def iqm_re_female(c: Character, work: Path, out: Path) -> None:
+    iqm_re_player(c, work, out, body="female")
 
 
 def md5_drone(c: Character, work: Path, out: Path) -> None:
@@ -269,6 +299,28 @@ def pmd_mangonel(c: Character, work: Path, out: Path) -> None:
          "--name", "han_mangonel", *[x for n, p in psa.items() for x in ("--anim", f"{n}={root / p}")]])
 
 
+def _pmd_quadruped(c: Character, work: Path, out: Path, skeleton: str, clips: list[tuple[str, str]]) -> None:
+    psa = [f"art/animation/quadraped/{f}.dae.cached.psa" for _, f in clips]
+    root = _zero_ad(work, [c.source, f"art/skeletons/{skeleton}.xml", *psa])
+    run([PY, HERE / "pmd2gltf.py", root / c.source, root / f"art/skeletons/{skeleton}.xml", "-o", out,
+         "--name", c.name, *[x for (n, _), p in zip(clips, psa, strict=True) for x in ("--anim", f"{n}={root / p}")]])
+
+
+def pmd_horse(c: Character, work: Path, out: Path) -> None:
+    _pmd_quadruped(c, work, out, "horse", [("walk", "horse_walk"), ("gallop", "horse_gallop"),
+                                           ("idle", "horse_idle_01"), ("death", "horse_death")])
+
+
+def pmd_deer(c: Character, work: Path, out: Path) -> None:
+    _pmd_quadruped(c, work, out, "deer", [("walk", "deer_walk_01"), ("run", "deer_run_01"),
+                                          ("idle", "deer_idle_01"), ("death", "deer_death_01")])
+
+
+def pmd_giraffe(c: Character, work: Path, out: Path) -> None:
+    _pmd_quadruped(c, work, out, "giraffe", [("walk", "giraffe_adult_walk"), ("run", "giraffe_adult_run"),
+                                             ("idle", "giraffe_adult_idle_01"), ("death", "giraffe_adult_death")])
+
+
 def describe(c: Character, path: Path) -> dict:
     """The index entry of one converted file, measured from the file."""
     doc, blob = read_glb(path)
@@ -301,7 +353,7 @@ def describe(c: Character, path: Path) -> dict:
             raise SystemExit(f"{c.name}: clip {clip!r} is not in {path.name} ({names})")
     fit = c.fit or names[:1]
     entry = {
-        "name": c.name, "file": f"suite/{path.name}", "kind": c.kind, "faces": faces, "vertices": vertices,
+        "name": c.name, "file": f"{c.group}/{path.name}", "kind": c.kind, "faces": faces, "vertices": vertices,
         "primitives": prims, "materials": len(doc.get("materials", [])), "textured": bool(textured),
         "joints": max((len(s["joints"]) for s in doc.get("skins", [])), default=0), "max_influences": influences,
         "clips": clips, "fit_clips": fit, "holdout_clips": c.holdout,
@@ -320,13 +372,16 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--work", type=Path, default=Path("/tmp/rigslim-suite"), help="downloads and scratch files")
     ap.add_argument("--only", nargs="*", default=None, help="rebuild only these characters")
-    ap.add_argument("--index-only", action="store_true", help="rewrite suite.json from the committed files")
+    ap.add_argument("--index-only", action="store_true", help="rewrite the index from the committed files")
+    ap.add_argument("--set", choices=("suite", "holdout"), default="suite",
+                    help="the development suite (suite/suite.json) or the hold-out set (holdout/holdout.json)")
     args = ap.parse_args(argv)
     args.work.mkdir(parents=True, exist_ok=True)
-    OUT.mkdir(parents=True, exist_ok=True)
+    out = OUT if args.set == "suite" else OUT.parent / "holdout"
+    out.mkdir(parents=True, exist_ok=True)
     entries = []
-    for c in CHARACTERS:
-        path = OUT / f"{c.name}.glb"
+    for c in CHARACTERS if args.set == "suite" else HOLDOUT:
+        path = out / f"{c.name}.glb"
         if not args.index_only and (args.only is None or c.name in args.only):
             tmp = args.work / f"{c.name}.glb"
             globals()[c.build](c, args.work, tmp)
@@ -335,10 +390,12 @@ def main(argv=None) -> int:
         e = entries[-1]
         print(f"{c.name}: {e['faces']} faces, {e['joints']} joints, {len(e['clips'])} clips, "
               f"textured {e['textured']}, {e['bytes'] / 1e6:.2f} MB")
-    index = {"version": 1, "about": "rigslim's real-character suite; see README.md (provenance) and "
-                                    "tools/suite/build.py (how each file was made)",
+    about = ("rigslim's real-character suite" if args.set == "suite" else
+             "rigslim's hold-out characters (validation only: never used to choose a method or a constant)")
+    index = {"version": 1, "about": f"{about}; see README.md (provenance) and tools/suite/build.py (how each "
+                                    "file was made)",
              "packages": PACKAGES, "characters": entries}
-    (OUT / "suite.json").write_text(json.dumps(index, indent=1) + "\n")
+    (out / f"{args.set}.json").write_text(json.dumps(index, indent=1) + "\n")
     return 0
 
 
