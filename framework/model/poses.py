@@ -1,7 +1,8 @@
-"""Poses: stacks of handle transforms, and the example/test split of frames.
+"""Poses: stacks of handle transforms, and the example/validation/test split of frames.
 
-Example poses describe plausible motion and are used for fitting; test
-poses are other frames, never used in fitting, on which quality is measured.
+Example poses describe plausible motion and are used for fitting; validation
+frames are held out for the solvers' guard; test poses are other frames, never
+used in fitting or validation, on which quality is measured.
 """
 
 from __future__ import annotations
@@ -116,6 +117,43 @@ def parse_frames(spec, count: int, *, source: str | None = None, field_name: str
     if not frames:
         raise bad(f"frame spec {spec!r} selects no frame", "choose at least one frame")
     return sorted(set(frames))
+
+
+#: Example frames per clip at least (a short clip's motion is seen, and its validation frames spread over it).
+MIN_CLIP_EXAMPLES = 3
+
+
+def sample_clip_frames(lengths, count: int) -> list[tuple[list[int], list[int], list[int]]]:
+    """Per clip of ``lengths`` frames, its (examples, validation, test) frames, disjoint.
+
+    ``count`` example frames in all, shared out in proportion to the lengths, at least
+    :data:`MIN_CLIP_EXAMPLES` per clip (where it has the frames). A clip of n frames with e examples
+    gets the step ``s = max(3, ceil(n / e))``: examples at frames ``0, s, 2s, ...``; the other frames,
+    in time order, are dealt alternately to validation and test (``f_1 -> validation, f_2 -> test,
+    f_3 -> validation, ...``), so that every test frame lies between validation or example frames and
+    the two sets are samples of the same motion, equally far from the examples: an error bound that
+    holds on the validation frames (the solvers' guard) holds on the test frames up to the sampling
+    noise. A clip of 2 frames: example 0, test 1.
+
+    (Validation frames were the first half of each gap and test frames the second: on a 16-frame clip
+    that is 9 validation frames, 3 of them in the last gap, against 4 test frames.)
+    """
+    lengths = [int(n) for n in lengths]
+    total = max(sum(lengths), 1)
+    out: list[tuple[list[int], list[int], list[int]]] = []
+    for n in lengths:
+        if n < 1:
+            out.append(([], [], []))
+            continue
+        e = max(MIN_CLIP_EXAMPLES, int(round(count * n / total)))
+        s = max(3, -(-n // e))
+        ex = list(range(0, n, s))
+        rest = [f for f in range(n) if f % s]
+        val, te = rest[0::2], rest[1::2]
+        if n == 2:
+            val, te = [], [1]
+        out.append((ex, val, te))
+    return out
 
 
 @dataclass(frozen=True)

@@ -31,10 +31,10 @@ Several clips (``clips:``, a list or ``all``: every animation of the glTF input)
 The example frames are shared out over the example clips in proportion to
 their lengths (at least :data:`MIN_CLIP_EXAMPLES` each); a clip of n frames with e examples gets
 the step ``s = max(3, ceil(n / e))``: examples at frames ``0, s, 2s, ...``,
-validation frames the first half of each gap (``1 .. floor(s / 2)`` after an
-example; the solvers' guard, :attr:`FrameSplit.validation`) and test frames
-the second half, so the three never meet. A test clip that is not an example clip (a held-out
-clip) is tested on all its frames. ``--clip`` of the commands is
+and the other frames alternately validation frames (the solvers' guard,
+:attr:`FrameSplit.validation`) and test frames
+(:func:`rigslim.model.poses.sample_clip_frames`), so the three never meet. A
+test clip that is not an example clip (a held-out clip) is tested on all its frames. ``--clip`` of the commands is
 ``clips: [NAME]``. :attr:`FrameSplit.segments` records where each clip lies in
 the stack (cross-validation across clips uses it).
 """
@@ -46,7 +46,10 @@ from pathlib import Path
 import numpy as np
 
 from rigslim.errors import InputError
-from rigslim.model.poses import FrameSplit, Poses, parse_frames
+from rigslim.model.poses import MIN_CLIP_EXAMPLES, FrameSplit, Poses, parse_frames, sample_clip_frames
+
+__all__ = ["DEFAULT_EXAMPLE_COUNT", "MIN_CLIP_EXAMPLES", "clip_split", "load_clip", "multi_clip_split",
+           "sample_clip_frames", "uses_clips"]
 
 
 def _clip_of(side) -> tuple[object | None, object]:
@@ -108,34 +111,8 @@ def _clips_of(side):
     return getattr(side, "clips", None)
 
 
-#: Example frames per clip at least (a short clip's motion is seen, and its validation frames spread over it).
-MIN_CLIP_EXAMPLES = 3
 #: Example frames of a ``clips:`` split when ``count`` is not given.
 DEFAULT_EXAMPLE_COUNT = 24
-
-
-def sample_clip_frames(lengths, count: int) -> list[tuple[list[int], list[int], list[int]]]:
-    """Per clip of ``lengths`` frames, its (examples, validation, test) frames (module docstring).
-
-    ``count`` example frames in all, shared out in proportion to the lengths, at least
-    :data:`MIN_CLIP_EXAMPLES` per clip (where it has the frames).
-    """
-    lengths = [int(n) for n in lengths]
-    total = max(sum(lengths), 1)
-    out: list[tuple[list[int], list[int], list[int]]] = []
-    for n in lengths:
-        if n < 1:
-            out.append(([], [], []))
-            continue
-        e = max(MIN_CLIP_EXAMPLES, int(round(count * n / total)))
-        s = max(3, -(-n // e))
-        ex = list(range(0, n, s))
-        val = [f + d for f in ex for d in range(1, s // 2 + 1) if f + d < n]
-        te = [f + d for f in ex for d in range(s // 2 + 1, s) if f + d < n]
-        if n == 2:
-            val, te = [], [1]
-        out.append((ex, val, te))
-    return out
 
 
 def _clip_names(clips, asset, source, where) -> list[object]:

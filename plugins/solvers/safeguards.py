@@ -43,7 +43,12 @@ from rigslim.model.weights import ReducedWeights
 from rigslim.numerics.blend import linear_blend
 from rigslim.numerics.largest_entries import k_largest
 
-__all__ = ["guard_k_largest", "k_largest_weights", "pass_through"]
+__all__ = ["canonical_twins", "clip_bound", "guard_k_largest", "k_largest_weights", "pass_through", "twin_handles"]
+
+#: z of the per-clip bound (:func:`clip_bound`): the clip's mean per-frame excess plus z standard errors.
+MARGIN_Z = 2.0
+#: Handles whose transforms agree within this on every seen pose are twins (:func:`twin_handles`).
+TWIN_TOL = 1e-5
 
 
 def pass_through(A: sp.csr_matrix, reduced: ReducedWeights, sets=None) -> tuple[ReducedWeights, int]:
@@ -106,6 +111,24 @@ def k_largest_weights(A: sp.csr_matrix, k: int) -> ReducedWeights:
     return ReducedWeights.from_influences(sets, vals, A.shape[1])
 
 
+def _frame_excess(asset, reduced: ReducedWeights, base: ReducedWeights, frames):
+    """``(D, e_fit, e_base)``: ``D`` (m, p) float32, the per-frame excess ``e_v^j(reduced) - e_v^j(base)`` of the
+    squared position error against the input weights over ``frames``, and the two errors summed over them."""
+    V = asset.mesh.V
+    T = asset.poses.select(list(frames)).T
+    m = V.shape[0]
+    D = np.empty((m, len(T)), dtype=np.float32)
+    e_fit, e_base = np.zeros(m), np.zeros(m)
+    for j in range(len(T)):
+        full = linear_blend(V, asset.weights, T[j])
+        a, b = linear_blend(V, reduced, T[j]) - full, linear_blend(V, base, T[j]) - full
+        ea, eb = np.einsum("vc,vc->v", a, a), np.einsum("vc,vc->v", b, b)
+        e_fit += ea
+        e_base += eb
+        D[:, j] = ea - eb
+    return D, e_fit, e_base
+
+
 def vertex_errors(asset, reduced: ReducedWeights, frames) -> np.ndarray:
     """(m,) squared position error of ``reduced`` against the input weights, summed over ``frames``."""
     V = asset.mesh.V
@@ -117,59 +140,142 @@ def vertex_errors(asset, reduced: ReducedWeights, frames) -> np.ndarray:
     return e
 
 
-def fallback_set(per_clip, e_fit, e_kl, passes, per_vertex=False) -> np.ndarray:
+def clip_bound(X: np.ndarray, z: float = MARGIN_Z) -> np.ndarray:
+    """The upper confidence bound of a clip's mean per-frame excess, ``mean_j X_j + z s_X / sqrt(p)``
+    (``s_X`` the sample standard deviation over the clip's p validation frames, the last axis of ``X``;
+    p = 1: the mean). A float for one clip's (p,) excess, an array for a stack of them."""
+    X = np.asarray(X, dtype=np.float64)
+    p = X.shape[-1]
+    if p == 0:
+        return np.zeros(X.shape[:-1])
+    se = np.std(X, axis=-1, ddof=1) / np.sqrt(p) if p > 1 else np.zeros(X.shape[:-1])
+    return np.mean(X, axis=-1) + z * se
+
+
+def fallback_set(per_clip, e_fit, e_kl, passes, per_vertex=False, z: float = MARGIN_Z) -> np.ndarray:
     """(m,) bool: the vertices F that take k-largest's weights (module docstring).
 
-    ``per_clip``: ``(frames, e_fit^c, e_kl^c)`` per clip; ``e_fit``, ``e_kl``: their sums; ``passes``: rows kept
-    exactly anyway.
+    ``per_clip``: the (m, p_c) per-frame excess ``e_v^j(fit) - e_v^j(k-largest)`` of each clip's validation
+    frames; ``e_fit``, ``e_kl``: the errors summed over every validation frame; ``passes``: rows kept exactly
+    anyway; ``z``: the margin of :func:`clip_bound` (0: the clip's sum alone).
     """
     if per_vertex:
         worse = np.zeros(len(e_fit), dtype=bool)
-        for _, ef, ek in per_clip:
-            worse |= ef > ek
+        for D in per_clip:
+            worse |= D.sum(axis=1, dtype=np.float64) > 0.0
         return worse & ~passes
     worse = (e_fit > e_kl) & ~passes
+    sums = [D.sum(axis=1, dtype=np.float64) for D in per_clip]
     changed = True
     while changed:
         changed = False
-        for _, ef, ek in per_clip:
-            excess = np.where(worse | passes, 0.0, ef - ek)
-            over = excess.sum()
-            if over <= 0.0:
+        for D, x in zip(per_clip, sums, strict=True):
+            kept = ~(worse | passes)
+            X = D[kept].sum(axis=0, dtype=np.float64)            # the clip's per-frame excess
+            if clip_bound(X, z) <= 0.0:
                 continue
-            order = np.argsort(-excess)
-            cut = int(np.searchsorted(np.cumsum(excess[order]), over, side="left")) + 1
-            add = order[:cut]
-            add = add[excess[add] > 0]
-            if add.size:
-                worse[add] = True
-                changed = True
+            # largest excess on the clip first, then the vertices worse on some of its frames (largest total)
+            pos = np.maximum(D, 0.0).sum(axis=1, dtype=np.float64)
+            first = np.flatnonzero(kept & (x > 0.0))
+            then = np.flatnonzero(kept & (x <= 0.0) & (pos > 0.0))
+            order = np.concatenate([first[np.argsort(-x[first], kind="stable")],
+                                    then[np.argsort(-pos[then], kind="stable")]])
+            if order.size == 0:
+                continue
+            # the bound after falling back each prefix of the order: the shortest prefix that meets it
+            bounds = clip_bound(X[None, :] - np.cumsum(D[order], axis=0, dtype=np.float64), z)
+            met = np.flatnonzero(bounds <= 0.0)
+            worse[order[:met[0] + 1 if met.size else order.size]] = True
+            changed = True
     return worse
 
 
+def twin_handles(T: np.ndarray, diagonal: float, tol: float = TWIN_TOL) -> np.ndarray:
+    """(n,) int: for each handle, the first handle whose transforms equal its own on every pose of ``T``
+    (p, n, 3, 4), within ``tol`` (linear part; translations relative to ``diagonal``): twins share a label."""
+    T = np.array(T, dtype=np.float64)
+    T[..., 3] /= max(float(diagonal), 1e-300)
+    n = T.shape[1]
+    label = np.arange(n)
+    for i in range(n):
+        if label[i] != i:
+            continue
+        same = np.abs(T - T[:, i:i + 1]).max(axis=(0, 2, 3)) <= tol
+        same[:i + 1] = False
+        label[same & (label == np.arange(n))] = i
+    return label
+
+
+def canonical_twins(A: sp.csr_matrix, reduced: ReducedWeights, label: np.ndarray) -> tuple[ReducedWeights, int]:
+    """``reduced`` with each vertex's slots on twin handles (:func:`twin_handles`) moved to the twins of
+    largest input weight at that vertex (the largest fitted value to the largest input weight; ties keep
+    the handle in place); the deformation on the poses that define the twins is unchanged. Returns the
+    weights and the number of slots moved."""
+    n = reduced.n_handles
+    sizes = np.bincount(label, minlength=n)
+    idx, val = reduced.indices.copy(), reduced.values
+    A = sp.csr_matrix(A)
+    moved = 0
+    for c in np.flatnonzero(sizes > 1):
+        members = np.flatnonzero(label == c)
+        on = (label[idx] == c) & (val != 0)                     # the slots to place, per row
+        rows = np.flatnonzero(on.any(axis=1))
+        if rows.size == 0:
+            continue
+        on, cur = on[rows], idx[rows]
+        a = A[rows][:, members].toarray()
+        present = (cur[:, :, None] == members[None, None, :])
+        placed = (present & on[:, :, None]).any(axis=1)         # members on the slots to place
+        taken = (present & ~on[:, :, None]).any(axis=1)         # members on other (zero) slots
+        # members by input weight (largest first), those already placed first among equals, taken ones last
+        score = np.where(taken, -np.inf, a)
+        by_placed = np.argsort(~placed, axis=1, kind="stable")
+        order = np.take_along_axis(by_placed, np.argsort(-np.take_along_axis(score, by_placed, axis=1), axis=1,
+                                                         kind="stable"), axis=1)
+        slots = np.argsort(np.where(on, -val[rows], np.inf), axis=1, kind="stable")   # by fitted value
+        count = on.sum(axis=1)
+        for r in range(min(idx.shape[1], members.size)):      # (a row repeating a handle keeps the repeats)
+            sel = np.flatnonzero(count > r)
+            new = members[order[sel, r]]
+            old = idx[rows[sel], slots[sel, r]]
+            moved += int((new != old).sum())
+            idx[rows[sel], slots[sel, r]] = new
+    if moved == 0:
+        return reduced, 0
+    return ReducedWeights(idx, reduced.values, n), moved
+
+
 def guard_k_largest(asset, reduced: ReducedWeights, per_vertex: bool = False) -> tuple[ReducedWeights, dict]:
-    """Per vertex, k-largest's weights where they beat ``reduced`` on the validation frames (module docstring).
+    """Twins resolved toward the input, then per vertex k-largest's weights where they beat ``reduced`` on the
+    validation frames (module docstring).
 
     ``per_vertex``: the rule of ``guard: k-largest-per-vertex``.
-    Returns the guarded weights and a report: ``guard``, ``validation_frames``, ``fallback_vertices``,
-    and the validation position RMS (% of the diagonal) of the fit, of k-largest and of the result.
-    Without validation frames the weights come back unchanged (``guard: "no validation frames"``).
+    Returns the guarded weights and a report: ``guard``, ``twin_slots``, ``validation_frames``,
+    ``fallback_vertices``, and the validation position RMS (% of the diagonal) of the fit, of k-largest and of
+    the result. Without validation frames only the twins are resolved (``guard: "no validation frames"``).
     """
     split = asset.split
     frames = list(split.validation) if split is not None else []
+    twins = 0
+    if asset.poses is not None and split is not None:
+        seen = sorted(set(split.examples) | set(frames))
+        if seen:
+            label = twin_handles(asset.poses.select(seen).T, asset.mesh.bbox_diagonal)
+            reduced, twins = canonical_twins(asset.weights, reduced, label)
     if not frames or asset.poses is None:
-        return reduced, {"guard": "no validation frames", "fallback_vertices": 0}
+        return reduced, {"guard": "no validation frames", "fallback_vertices": 0, "twin_slots": twins}
     k = reduced.k
     base = k_largest_weights(asset.weights, k)
     m = asset.mesh.n_vertices
-    e_fit, e_kl, worse = np.zeros(m), np.zeros(m), np.zeros(m, dtype=bool)
+    e_fit, e_kl = np.zeros(m), np.zeros(m)
     passes = np.diff(sp.csr_matrix(asset.weights).indptr) <= k   # kept exactly anyway (:func:`pass_through`)
-    per_clip = []
+    per_clip, clip_sums = [], []
     for group in split.clip_groups(frames):
-        ef, ek = vertex_errors(asset, reduced, group), vertex_errors(asset, base, group)
+        D, ef, ek = _frame_excess(asset, reduced, base, group)
         e_fit += ef
         e_kl += ek
-        per_clip.append((group, ef, ek))
+        per_clip.append(D)
+        clip_sums.append((group, ef, ek))
     worse = fallback_set(per_clip, e_fit, e_kl, passes, per_vertex=per_vertex)
     indices = np.where(worse[:, None], base.indices, reduced.indices)
     values = np.where(worse[:, None], base.values, reduced.values)
@@ -181,11 +287,11 @@ def guard_k_largest(asset, reduced: ReducedWeights, per_vertex: bool = False) ->
 
     p = len(frames)
     report = {"guard": "k-largest-per-vertex" if per_vertex else "k-largest", "validation_frames": p,
-              "fallback_vertices": int(worse.sum()),
+              "fallback_vertices": int(worse.sum()), "twin_slots": twins,
               "validation_rms_pct_fit": rms(e_fit, p), "validation_rms_pct_k_largest": rms(e_kl, p),
               "validation_rms_pct": rms(np.where(worse, e_kl, e_fit), p)}
-    if len(per_clip) > 1:
+    if len(clip_sums) > 1:
         report["validation_clips"] = [{"frames": len(g), "rms_pct_fit": rms(ef, len(g)),
                                        "rms_pct_k_largest": rms(ek, len(g)),
-                                       "rms_pct": rms(np.where(worse, ek, ef), len(g))} for g, ef, ek in per_clip]
+                                       "rms_pct": rms(np.where(worse, ek, ef), len(g))} for g, ef, ek in clip_sums]
     return out, report

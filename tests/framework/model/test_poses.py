@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from rigslim.errors import InputError
-from rigslim.model.poses import FrameSplit, Poses, parse_frames
+from rigslim.model.poses import FrameSplit, Poses, parse_frames, sample_clip_frames
 
 
 def test_slice_spec_matches_python():
@@ -36,3 +36,27 @@ def test_poses_select_and_validate():
     T[0, 0, 0, 0] = np.inf
     with pytest.raises(InputError):
         Poses(T)
+
+
+@pytest.mark.parametrize("n", [2, 3, 7, 16, 29, 200])
+def test_clip_sampling_alternates_validation_and_test(n):
+    """The frames between examples go alternately to validation and test: disjoint, all used, balanced, and
+    every test frame has a validation or example frame next to it."""
+    ex, val, test = sample_clip_frames([n, 321], 24)[0]
+    assert sorted(ex + val + test) == list(range(n)) and len(set(ex + val + test)) == n
+    steps = set(np.diff(ex).tolist()) or {3}
+    assert ex[0] == 0 and len(steps) == 1 and min(steps) >= 3
+    if n == 2:
+        assert (ex, val, test) == ([0], [], [1])
+        return
+    assert 0 <= len(val) - len(test) <= 1
+    rest = [f for f in range(n) if f not in set(ex)]
+    assert val == rest[0::2] and test == rest[1::2]
+    near = set(ex) | set(val)
+    assert all(f - 1 in near or f + 1 in near for f in test)
+
+
+def test_short_clip_has_as_many_validation_as_test_frames():
+    # 16 frames, 3 examples (step 6): the first-half rule gave 9 validation and 4 test frames
+    ex, val, test = sample_clip_frames([16, 484], 24)[0]
+    assert ex == [0, 6, 12] and val == [1, 3, 5, 8, 10, 13, 15] and test == [2, 4, 7, 9, 11, 14]

@@ -159,3 +159,31 @@ steps:
         assert result.document["evaluations"][0]["metrics"]["position_rms_pct"]["max"] == 0.0
         select_step = next(s for s in result.document["steps"] if s["stage"] == "select")
         assert "24 handles" in json.dumps(select_step)
+
+
+def test_twins_take_the_input_weights_choice_and_change_nothing_on_the_seen_poses():
+    """Joints 1 and 2 move alike on every seen pose (twins): the fit cannot tell them apart, and the slot goes
+    to the one of larger input weight; on a pose where they part, that is closer to the input."""
+    from rigslim.plugins.solvers.safeguards import canonical_twins, twin_handles
+
+    rng = np.random.default_rng(7)
+    V = rng.normal(size=(6, 3)) + np.array([2.0, 0.0, 0.0])
+    seen = np.tile(np.eye(3, 4), (5, 4, 1, 1))
+    for p, a in enumerate(np.linspace(0.2, 1.0, 5)):
+        seen[p, 1, :, :3] = seen[p, 2, :, :3] = _rotation_z(a)
+        seen[p, 3, :, :3] = _rotation_z(-a)
+    label = twin_handles(seen, 3.0)
+    assert label.tolist() == [0, 1, 1, 3]
+    A = sp.csr_matrix(np.tile([0.4, 0.35, 0.05, 0.2], (6, 1)))
+    # the fit put joint 2 (input weight 0.05) where joint 1 (0.35) moves the same
+    fit = ReducedWeights(np.tile([0, 2, 3], (6, 1)), np.tile([0.4, 0.4, 0.2], (6, 1)), 4)
+    out, moved = canonical_twins(A, fit, label)
+    assert moved == 6 and (out.indices == [0, 1, 3]).all() and (out.values == fit.values).all()
+    for T in seen:
+        np.testing.assert_allclose(linear_blend(V, out, T), linear_blend(V, fit, T), atol=1e-12)
+    parted = seen[-1].copy()
+    parted[2, :, :3] = np.eye(3)
+    full = linear_blend(V, A, parted)
+    assert np.linalg.norm(linear_blend(V, out, parted) - full) < np.linalg.norm(linear_blend(V, fit, parted) - full)
+    # already on the larger: nothing moves
+    assert canonical_twins(A, out, label)[1] == 0
