@@ -52,8 +52,9 @@ class ReductionParams(Params):
     max_iterations: int = Field(500, ge=1, description="upper bound on CG iterations")
     guard: Literal["k-largest", "k-largest-per-vertex", "off"] = Field(
         "k-largest", description="with validation frames (held-out frames of the clips, poses: examples: "
-        "{clips: ...}): vertices fall back to k-largest's weights until no clip's validation error is above "
-        "k-largest's (per-vertex: every vertex worse on any clip falls back)")
+        "{clips: ...}): vertices fall back to k-largest's weights until every clip's validation error is below "
+        "k-largest's by a margin (mean + 2 standard errors of its per-frame excess); per-vertex: every vertex "
+        "worse on any clip falls back. Twin handles (alike on every seen pose) take the input's choice")
 
 
 class LaplacianParams(ReductionParams):
