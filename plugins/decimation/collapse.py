@@ -108,6 +108,35 @@ def _normals(P: np.ndarray) -> np.ndarray:
                      u[..., 0] * w[..., 1] - u[..., 1] * w[..., 0]], axis=-1)
 
 
+def point_triangle_distances2(p: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """Squared distances from points p to triangles (A, B, C), broadcast over leading axes (..., 3): the
+    closest point by Voronoi regions (Ericson 2005, *Real-Time Collision Detection*, sec. 5.1.5), the same
+    arithmetic as :func:`rigslim.plugins.decimation.compiled.point_triangle_distance2`."""
+    p, A, B, C = np.broadcast_arrays(p, A, B, C)
+    ab, ac, ap, bp, cp = B - A, C - A, p - A, p - B, p - C
+
+    def dot(x, y):
+        return x[..., 0] * y[..., 0] + x[..., 1] * y[..., 1] + x[..., 2] * y[..., 2]
+
+    d1, d2, d3, d4, d5, d6 = dot(ab, ap), dot(ac, ap), dot(ab, bp), dot(ac, bp), dot(ab, cp), dot(ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        den = va + vb + vc
+        v, w = vb / den, vc / den
+        t_ab, t_ac = d1 / (d1 - d3), d2 / (d2 - d6)
+        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        face = ap - v[..., None] * ab - w[..., None] * ac
+        on_ab = ap - t_ab[..., None] * ab
+        on_ac = ap - t_ac[..., None] * ac
+        on_bc = bp - t_bc[..., None] * (C - B)
+    corner = np.minimum(dot(ap, ap), np.minimum(dot(bp, bp), dot(cp, cp)))
+    conds = [(d1 <= 0.0) & (d2 <= 0.0), (d3 >= 0.0) & (d4 <= d3), (vc <= 0.0) & (d1 >= 0.0) & (d3 <= 0.0),
+             (d6 >= 0.0) & (d5 <= d6), (vb <= 0.0) & (d2 >= 0.0) & (d6 <= 0.0),
+             (va <= 0.0) & ((d4 - d3) >= 0.0) & ((d5 - d6) >= 0.0), den == 0.0]
+    values = [dot(ap, ap), dot(bp, bp), dot(on_ab, on_ab), dot(cp, cp), dot(on_ac, on_ac), dot(on_bc, on_bc), corner]
+    return np.select(conds, values, dot(face, face))
+
+
 def batched(n: int, size: int) -> Iterator[slice]:
     for s in range(0, n, size):
         yield slice(s, min(n, s + size))
@@ -126,6 +155,7 @@ class _EdgeTable:
         self.w = np.zeros((cap, self.n))
         self.stamp = np.zeros(cap, np.int64)
         self.state = np.full(cap, DEAD, np.int8)
+        self.src = np.zeros(cap)           # the source-side error already in the cost
         self.key: dict[tuple[int, int], int] = {}
         self.free: list[int] = []
         self.size = 0
@@ -140,6 +170,7 @@ class _EdgeTable:
 
         self.a, self.b, self.cost, self.v = grown(self.a), grown(self.b), grown(self.cost), grown(self.v)
         self.w, self.stamp, self.state = grown(self.w), grown(self.stamp), grown(self.state, DEAD)
+        self.src = grown(self.src)
 
     def add(self, a: int, b: int) -> int:
         if self.free:
@@ -175,7 +206,8 @@ def loop_stats(hier: ProgressiveHierarchy) -> dict[str, float] | None:
 def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_boundary: bool = True,
              min_normal_cos: float = 0.0, progress=None, method: str = "", params: dict | None = None,
              batch: int = 2048, backend: str = "numpy", locked=None, seams=None,
-             border_collapses: bool = True, normalised: bool = False) -> ProgressiveHierarchy:
+             border_collapses: bool = True, normalised: bool = False,
+             source_distance: bool = False) -> ProgressiveHierarchy:
     """Greedy edge collapses down to ``min_faces``, recorded as a progressive hierarchy.
 
     Parameters
@@ -201,6 +233,12 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         (:func:`rigslim.plugins.decimation.edge_costs.quadric_weight`): a mean squared distance, as
         meshoptimizer does, so that small parts (a tail, the feet, fingers) cost as much per unit of
         displacement as large ones; false: [S09]'s area-weighted error ``E``.
+    source_distance : bool
+        With ``normalised``: add the source-side error ``S`` of a collapse
+        (:func:`rigslim.plugins.decimation.compiled.source_error`: the area-weighted mean squared distance of
+        the original vertices that a and b stand for from the faces around the new vertex, over the example
+        poses) to its cost. ``S`` is computed when the edge reaches the top of the queue and passes the
+        guards; if it is not yet in the cost, it is added and the edge queued again.
     min_normal_cos : float
         A collapse is refused if a surviving face's normal turns by more than
         ``arccos(min_normal_cos)`` in the rest pose or any example pose.
@@ -233,14 +271,15 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         return _simplify_compiled(V, F, W, T, X, model, min_faces=min_faces, keep_boundary=keep_boundary,
                                   border_collapses=border_collapses, normalised=normalised,
                                   min_normal_cos=min_normal_cos, progress=progress, method=method, params=params,
-                                  locked=locked, seams=seams)
+                                  locked=locked, seams=seams, source_distance=source_distance)
     if backend != "numpy":
         raise ValueError(f"unknown backend {backend!r}")
     st = SimplifyState(V, F, W, T, X)
     setup = collapsible_edges(st.F, st.m, keep_boundary=keep_boundary, locked=locked, seams=seams,
                               border_collapses=border_collapses)
     loop = _CollapseLoop(st, model, setup, zero=zero_cost(V, st.F, len(T), normalised), normalised=normalised,
-                         batch=batch, min_normal_cos=min_normal_cos, tiny=degenerate_area(V))
+                         batch=batch, min_normal_cos=min_normal_cos, tiny=degenerate_area(V),
+                         source=source_distance and normalised)
     loop.run(min_faces, progress, method)
     return _hierarchy(st.V, st.W, F, loop.collapses, loop.errors, loop.nfaces, method, params)
 
@@ -254,8 +293,14 @@ class _CollapseLoop:
     """
 
     def __init__(self, st: SimplifyState, model: EdgeCostModel, setup: EdgeSetup, *, zero: float,
-                 normalised: bool, batch: int, min_normal_cos: float, tiny: float):
+                 normalised: bool, batch: int, min_normal_cos: float, tiny: float, source: bool = False):
         self.st, self.model, self.normalised, self.batch = st, model, normalised, batch
+        self.source = source
+        # the original vertices each vertex stands for, a linked list (compiled.LoopMembers)
+        self.head = np.full(2 * st.m, -1, np.int64)
+        self.head[:st.m] = np.arange(st.m)
+        self.tail = self.head.copy()
+        self.nxt = np.full(st.m, -1, np.int64)
         self.zero, self.min_normal_cos, self.tiny = zero, min_normal_cos, tiny
         self.m, self.Fm = st.m, st.F
         self.vf: list[set[int]] = [set() for _ in range(2 * st.m)]   # faces of each vertex (emptied once merged)
@@ -265,6 +310,7 @@ class _CollapseLoop:
             self.vf[z].add(i)
         self.boundary, self.along, self.charts = setup.boundary, setup.along, setup.charts
         self.Qw = model.compiled_spec()[1] if normalised else None
+        self.Qp = model.compiled_spec()[1] if source else None
         self.table = _EdgeTable(st.W.shape[1], max(16, 2 * len(setup.edges)))
         ids = np.array([self.table.add(int(a), int(b)) for a, b in setup.edges], dtype=np.int64)
         self.evaluate(ids)
@@ -320,6 +366,7 @@ class _CollapseLoop:
                 w = self.weight(ea) + self.weight(eb)
                 table.cost[e] = np.where(w > 0, table.cost[e] / np.where(w > 0, w, 1.0), table.cost[e])
             table.cost[e] = np.where(table.cost[e] < zero, 0.0, table.cost[e])
+            table.src[e] = 0.0
             table.state[e] = CLEAN
             table.stamp[e] += 1
 
@@ -362,10 +409,43 @@ class _CollapseLoop:
         tiny = self.tiny
         return bool(((lo > tiny) & ((ln <= tiny) | (dot < self.min_normal_cos * lo * ln))).any())
 
+    def members(self, x: int) -> list[int]:
+        """The original vertices x stands for, in list order."""
+        out, p = [], int(self.head[x])
+        while p >= 0:
+            out.append(p)
+            p = int(self.nxt[p])
+        return out
+
+    def source_error(self, a: int, b: int, rem: list[int], pc: np.ndarray) -> float:
+        """:func:`rigslim.plugins.decimation.compiled.source_error`: the area-weighted mean squared distance of
+        the originals of a and b from the surviving faces ``rem`` with a and b at ``pc``, over the example poses."""
+        assert self.Qp is not None
+        P = self.st.pos.shape[1] - 1
+        pts = np.array(self.members(a) + self.members(b), dtype=np.int64)
+        C = self.Fm[rem]
+        corners = self.st.pos[C][:, :, 1:P + 1]                  # (L, 3, P, 3)
+        corners[(C == a) | (C == b)] = pc[1:P + 1]
+        X = self.st.pos[pts][:, 1:P + 1]                          # (M, P, 3)
+        d = point_triangle_distances2(X[:, :, None], corners[None, :, 0].transpose(0, 2, 1, 3),
+                                      corners[None, :, 1].transpose(0, 2, 1, 3),
+                                      corners[None, :, 2].transpose(0, 2, 1, 3)).min(axis=2)   # (M, P)
+        w = np.einsum("mpii->mp", self.Qp[pts][..., :3, :3])
+        if w.shape[1] != P:                 # one rest-frame quadric (DeCoro): the same weight in every pose
+            w = np.repeat(w[:, :1], P, axis=1)
+        sw = sd = 0.0
+        for wi, di in zip(w.ravel().tolist(), d.ravel().tolist(), strict=True):    # the compiled loop's order
+            sw += wi
+            sd += wi * di
+        return sd / sw if sw > 0 else 0.0
+
     def _merge(self, a: int, b: int, c: int, fab: set[int], rem: list[int]) -> None:
         """Vertex c replaces a and b: its curve class, the faces around, the face count."""
         boundary, along = self.boundary, self.along
         self.model.merge(self.st, a, b, c)
+        self.head[c] = self.head[a]            # c stands for the originals of a, then those of b
+        self.nxt[self.tail[a]] = self.head[b]
+        self.tail[c] = self.tail[b]
         # along its curve c stays on it; onto a corner or a fixed end it takes that end's class
         if boundary[a] and boundary[b]:
             along[c] = along[a] if along[a] == along[b] else 0
@@ -413,8 +493,9 @@ class _CollapseLoop:
                     table.state[eb_] = CLEAN
                     heapq.heappush(self.heap, (float(table.cost[eb_]), int(table.stamp[eb_]), eb_))
 
-    def try_collapse(self, e: int) -> bool:
-        """Collapse edge e if the guards allow it, recording it."""
+    def try_collapse(self, e: int) -> bool | None:
+        """Collapse edge e if the guards allow it, recording it (True); False if a guard refuses it; None if
+        its source-side error is not yet (or only in part) in its cost: it is added and the edge queued again."""
         table = self.table
         a, b = int(table.a[e]), int(table.b[e])
         fa, fb = self.vf[a], self.vf[b]
@@ -427,6 +508,15 @@ class _CollapseLoop:
         pc = self._pose_positions(v, w)
         if self._folds(rem, a, b, pc):
             return False
+        if self.source:
+            h = self.source_error(a, b, rem, pc)
+            h = 0.0 if h < self.zero else h
+            if h > table.src[e]:           # not yet in its cost: add it and queue the edge again
+                table.cost[e] += h - table.src[e]
+                table.src[e] = h
+                table.stamp[e] += 1
+                heapq.heappush(self.heap, (float(table.cost[e]), int(table.stamp[e]), e))
+                return None
         c = self.m + len(self.collapses)
         st = self.st
         st.V[c], st.W[c], st.pos[c] = v, w, pc
@@ -455,8 +545,11 @@ class _CollapseLoop:
                 for d in todo.tolist():
                     heapq.heappush(heap, (float(table.cost[d]), int(table.stamp[d]), d))
                 continue
-            if self.try_collapse(e):
+            done = self.try_collapse(e)
+            if done:
                 return True
+            if done is None:
+                continue
             table.state[e] = BLOCKED
             self.blocked_at.setdefault(int(table.a[e]), set()).add(e)
             self.blocked_at.setdefault(int(table.b[e]), set()).add(e)
@@ -494,13 +587,14 @@ def _hierarchy(Vall, Wall, F, collapses, errors, nfaces, method, params) -> Prog
 
 def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_normal_cos, progress, method,
                        params, locked=None, seams=None, border_collapses=True,
-                       normalised=False) -> ProgressiveHierarchy:
+                       normalised=False, source_distance=False) -> ProgressiveHierarchy:
     """:func:`simplify` with the compiled loop (:func:`rigslim.plugins.decimation.compiled.collapse_chunk`)."""
     from rigslim.plugins.decimation import compiled as cc
     from rigslim.plugins.decimation import edge_queue as eq
 
     kind, Qv, ip, fp = model.compiled_spec()
-    fp = np.append(fp, [zero_cost(V, np.asarray(F, np.int64), len(T), normalised), float(normalised)])
+    fp = np.append(fp, [zero_cost(V, np.asarray(F, np.int64), len(T), normalised), float(normalised),
+                        float(source_distance and normalised)])
     st = SimplifyState(V, F, W, T, X)
     m, Fm = st.m, st.F
     f = len(Fm)
@@ -517,7 +611,7 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     record = cc.LoopRecord(cnt, np.zeros((m, 2), np.int64), np.zeros(m), np.zeros(m, np.int64))
     cost_model = cc.CostModel(kind, ip, fp, st.T)
     loop_args = (float(min_normal_cos), degenerate_area(V), cost_model, mesh, verts, edges, queue, record,
-                 cc.new_scratch(len(T)))
+                 cc.new_scratch(len(T)), cc.new_members(m))
     t0 = time.perf_counter()           # the kernels' first call (compiling or loading them) is not loop work
     cc.collapse_chunk(0, min_faces, *loop_args)
     kernels += time.perf_counter() - t0
@@ -564,7 +658,7 @@ def _compiled_edges(edges: np.ndarray, N: int, n: int, cap: int):
     hk, hv = np.full(hsize, -1, np.int64), np.zeros(hsize, np.int64)
     eq.init_table(edges, N, ea, eb, estamp, hk, hv)
     free, in_dirty, dirty = np.zeros(cap, np.int64), np.zeros(cap, bool), np.zeros(2 * cap, np.int64)
-    return cc.LoopEdges(ea, eb, ecost, ev, ew, estamp, estate, free, in_dirty, dirty, hk, hv)
+    return cc.LoopEdges(ea, eb, ecost, ev, ew, estamp, estate, free, in_dirty, dirty, hk, hv, np.zeros(cap))
 
 
 def _first_costs(table, setup: EdgeSetup, kind, st: SimplifyState, Qv, ip, fp) -> tuple[float, float]:

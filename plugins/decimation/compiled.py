@@ -64,8 +64,9 @@ from rigslim.plugins.decimation.setup import (
     SEAM,
 )
 
-__all__ = ["CostModel", "LoopEdges", "LoopMesh", "LoopQueue", "LoopRecord", "LoopVertices", "Scratch",
-           "apply_collapse", "collapse_chunk", "evaluate_dirty", "folds", "link_ok", "new_scratch", "requeue"]
+__all__ = ["CostModel", "LoopEdges", "LoopMembers", "LoopMesh", "LoopQueue", "LoopRecord", "LoopVertices", "Scratch",
+           "apply_collapse", "collapse_chunk", "evaluate_dirty", "folds", "link_ok", "new_members", "new_scratch",
+           "point_triangle_distance2", "requeue", "source_error"]
 
 #: The mesh as the loop edits it: faces (vertices renamed as they merge), vertex-face lists (``pool`` slices
 #: ``vf_start[x]:vf_start[x] + vf_cnt[x]``), fixed and seam vertices, face charts, and a marker array.
@@ -73,16 +74,19 @@ LoopMesh = namedtuple("LoopMesh", ["F", "vf_start", "vf_cnt", "pool", "boundary"
 #: Per-vertex tables (2m rows: the originals, then one per collapse): rest position, weights, quadrics,
 #: positions in the rest pose and every example pose.
 LoopVertices = namedtuple("LoopVertices", ["V", "W", "Qv", "pos"])
-#: Edge slots (ends, cost, the new vertex and weights, stamp, state), the free list, the dirty list and the
-#: key hash.
+#: Edge slots (ends, cost, the new vertex and weights, stamp, state), the free list, the dirty list, the
+#: key hash and the source-side error already in each edge's cost (:func:`source_error`).
 LoopEdges = namedtuple("LoopEdges", ["ea", "eb", "ecost", "ev", "ew", "estamp", "estate", "free", "in_dirty", "dirty",
-                                     "hk", "hv"])
+                                     "hk", "hv", "esrc"])
 #: The heap of ``(cost, stamp, edge)`` entries.
 LoopQueue = namedtuple("LoopQueue", ["hc", "hs", "he"])
 #: Counters (:mod:`rigslim.plugins.decimation.edge_queue`) and the recorded collapses, errors and face counts.
 LoopRecord = namedtuple("LoopRecord", ["cnt", "col", "errs", "nfaces"])
 #: The edge cost model (:func:`rigslim.plugins.decimation.edge_costs.edge_cost`) and the example poses.
 CostModel = namedtuple("CostModel", ["method", "ip", "fp", "T"])
+#: The original vertices each vertex stands for (the merge tree's leaves), as linked lists: ``head[x]`` the first,
+#: ``nxt[p]`` the one after original p (-1: the last), ``tail[x]`` the last.
+LoopMembers = namedtuple("LoopMembers", ["head", "nxt", "tail"])
 #: Work arrays of one collapse attempt: neighbours of a and b, the union, the surviving and the removed
 #: faces, the new vertex in every pose, and 3x4 / 3x3 temporaries.
 Scratch = namedtuple("Scratch", ["Na", "Nb", "nbr", "uni", "rem", "fab", "pc", "Xw", "q", "o"])
@@ -93,6 +97,95 @@ def new_scratch(n_poses: int) -> Scratch:
     return Scratch(np.empty(4096, np.int64), np.empty(4096, np.int64), np.empty(4096, np.int64),
                    np.empty(8192, np.int64), np.empty(8192, np.int64), np.empty(2, np.int64),
                    np.empty((n_poses + 1, 3)), np.empty((3, 4)), np.empty((3, 3)), np.empty((3, 3)))
+
+
+def new_members(m: int) -> LoopMembers:
+    """Every original vertex stands for itself; rows m.. are the merged vertices' lists."""
+    head = np.full(2 * m, -1, np.int64)
+    head[:m] = np.arange(m)
+    return LoopMembers(head, np.full(m, -1, np.int64), head.copy())
+
+
+@njit(cache=True)
+def point_triangle_distance2(p0, p1, p2, a0, a1, a2, b0, b1, b2, c0, c1, c2):
+    """Squared distance from point p to triangle (a, b, c): the closest point by Voronoi regions
+    (Ericson 2005, *Real-Time Collision Detection*, sec. 5.1.5)."""
+    ab0, ab1, ab2 = b0 - a0, b1 - a1, b2 - a2
+    ac0, ac1, ac2 = c0 - a0, c1 - a1, c2 - a2
+    ap0, ap1, ap2 = p0 - a0, p1 - a1, p2 - a2
+    d1 = ab0 * ap0 + ab1 * ap1 + ab2 * ap2
+    d2 = ac0 * ap0 + ac1 * ap1 + ac2 * ap2
+    if d1 <= 0.0 and d2 <= 0.0:
+        return ap0 * ap0 + ap1 * ap1 + ap2 * ap2
+    bp0, bp1, bp2 = p0 - b0, p1 - b1, p2 - b2
+    d3 = ab0 * bp0 + ab1 * bp1 + ab2 * bp2
+    d4 = ac0 * bp0 + ac1 * bp1 + ac2 * bp2
+    if d3 >= 0.0 and d4 <= d3:
+        return bp0 * bp0 + bp1 * bp1 + bp2 * bp2
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        t = d1 / (d1 - d3)
+        q0, q1, q2 = ap0 - t * ab0, ap1 - t * ab1, ap2 - t * ab2
+        return q0 * q0 + q1 * q1 + q2 * q2
+    cp0, cp1, cp2 = p0 - c0, p1 - c1, p2 - c2
+    d5 = ab0 * cp0 + ab1 * cp1 + ab2 * cp2
+    d6 = ac0 * cp0 + ac1 * cp1 + ac2 * cp2
+    if d6 >= 0.0 and d5 <= d6:
+        return cp0 * cp0 + cp1 * cp1 + cp2 * cp2
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        t = d2 / (d2 - d6)
+        q0, q1, q2 = ap0 - t * ac0, ap1 - t * ac1, ap2 - t * ac2
+        return q0 * q0 + q1 * q1 + q2 * q2
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        q0, q1, q2 = bp0 - t * (c0 - b0), bp1 - t * (c1 - b1), bp2 - t * (c2 - b2)
+        return q0 * q0 + q1 * q1 + q2 * q2
+    den = va + vb + vc
+    if den == 0.0:                   # a degenerate triangle: the nearest of its corners
+        return min(ap0 * ap0 + ap1 * ap1 + ap2 * ap2, min(bp0 * bp0 + bp1 * bp1 + bp2 * bp2,
+                                                         cp0 * cp0 + cp1 * cp1 + cp2 * cp2))
+    v = vb / den
+    w = vc / den
+    q0, q1, q2 = ap0 - v * ab0 - w * ac0, ap1 - v * ab1 - w * ac1, ap2 - v * ab2 - w * ac2
+    return q0 * q0 + q1 * q1 + q2 * q2
+
+
+@njit(cache=True)
+def source_error(a, b, nrem, mesh, vx, mem, s):
+    """The source-side error of collapsing (a, b): the mean squared distance, weighted by their planes' areas,
+    of the original vertices that a and b stand for from the new faces around the merged vertex.
+
+    ``S = sum_p sum_j w_p^j d_pj^2 / sum_p sum_j w_p^j`` over the originals p of a and b (``mem``) and the
+    example poses j, ``w_p^j = tr Q_p^j[:3, :3]`` (the area of p's planes in pose j; DeCoro's one rest-frame
+    quadric weighs every pose alike), ``d_pj`` the distance
+    from p in pose j to the nearest face of ``s.rem`` with a and b at the new vertex (``s.pc``).
+    """
+    F, pos, pc, rem, Qv = mesh.F, vx.pos, s.pc, s.rem, vx.Qv
+    sw = 0.0
+    sd = 0.0
+    for start in (mem.head[a], mem.head[b]):
+        p = start
+        while p >= 0:
+            for j in range(pos.shape[1] - 1):
+                jq = j if Qv.shape[1] > 1 else 0        # one rest-frame quadric (DeCoro): the same weight
+                q0, q1, q2 = pos[p, j + 1, 0], pos[p, j + 1, 1], pos[p, j + 1, 2]
+                best = np.inf
+                for i in range(nrem):
+                    f = rem[i]
+                    x, y, z = F[f, 0], F[f, 1], F[f, 2]
+                    X = pc[j + 1] if (x == a or x == b) else pos[x, j + 1]
+                    Y = pc[j + 1] if (y == a or y == b) else pos[y, j + 1]
+                    Z = pc[j + 1] if (z == a or z == b) else pos[z, j + 1]
+                    d = point_triangle_distance2(q0, q1, q2, X[0], X[1], X[2], Y[0], Y[1], Y[2], Z[0], Z[1], Z[2])
+                    if d < best:
+                        best = d
+                w = Qv[p, jq, 0, 0] + Qv[p, jq, 1, 1] + Qv[p, jq, 2, 2]
+                sw += w
+                sd += w * best
+            p = mem.nxt[p]
+    return sd / sw if sw > 0 else 0.0
 
 
 @njit(cache=True)
@@ -204,6 +297,7 @@ def evaluate_dirty(cm, vx, ed, qu, cnt, fixed, along):
                                     along[ed.ea[d]], along[ed.eb[d]]), vx.V, vx.W, vx.Qv, cm.T, cm.ip, cm.fp,
                                     ed.ev[d], ed.ew[d])
         ed.estate[d] = CLEAN
+        ed.esrc[d] = 0.0
         ed.estamp[d] += 1
         push(qu.hc, qu.hs, qu.he, cnt, ed.ecost[d], ed.estamp[d], d, ed.estamp, ed.estate)
 
@@ -307,7 +401,7 @@ def folds(a, b, v, w, nrem, mesh, vx, cm, s, tiny, min_normal_cos):
 
 
 @njit(cache=True)
-def apply_collapse(e, a, b, nrem, nfab, mesh, vx, ed, cnt, s):
+def apply_collapse(e, a, b, nrem, nfab, mesh, vx, ed, cnt, s, mem):
     """Collapse edge e = (a, b) into a new vertex c; returns ``(c, cost of e)``.
 
     The new vertex takes the edge's position, weights and poses (``s.pc``) and the sum of the quadrics;
@@ -324,6 +418,9 @@ def apply_collapse(e, a, b, nrem, nfab, mesh, vx, ed, cnt, s):
     vx.W[c] = ed.ew[e]
     vx.pos[c] = s.pc
     vx.Qv[c] = vx.Qv[a] + vx.Qv[b]
+    mem.head[c] = mem.head[a]             # c stands for the originals of a, then those of b
+    mem.nxt[mem.tail[a]] = mem.head[b]
+    mem.tail[c] = mem.tail[b]
     # along its curve c stays on it; onto a corner or a fixed end it takes that end's class
     if boundary[a] and boundary[b]:
         along[c] = along[a] if along[a] == along[b] else 0
@@ -434,7 +531,7 @@ def requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s, Qv, normalised):
 
 
 @njit(cache=True)
-def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, cm, mesh, vx, ed, qu, rec, s):
+def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, cm, mesh, vx, ed, qu, rec, s, mem):
     """Run up to ``max_steps`` greedy collapses; returns True when the simplification has finished.
 
     Every array is the loop's state and is updated in place (see
@@ -465,7 +562,17 @@ def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, cm, mesh, vx, ed,
             if not ok:
                 ed.estate[e] = BLOCKED
                 continue
-            c, cost_ab = apply_collapse(e, a, b, nrem, nfab, mesh, vx, ed, cnt, s)
+            if cm.fp[4] != 0.0:              # the source-side error S, added to the quadric cost when first seen
+                h = source_error(a, b, nrem, mesh, vx, mem, s)
+                if h < cm.fp[2]:
+                    h = 0.0
+                if h > ed.esrc[e]:           # not yet in its cost: add it and queue the edge again
+                    ed.ecost[e] += h - ed.esrc[e]
+                    ed.esrc[e] = h
+                    ed.estamp[e] += 1
+                    push(qu.hc, qu.hs, qu.he, cnt, ed.ecost[e], ed.estamp[e], e, ed.estamp, ed.estate)
+                    continue
+            c, cost_ab = apply_collapse(e, a, b, nrem, nfab, mesh, vx, ed, cnt, s, mem)
             requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s, vx.Qv, cm.fp[3] != 0.0)
             i = cnt[C_COLLAPSES]
             rec.col[i, 0], rec.col[i, 1] = a, b
