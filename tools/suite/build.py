@@ -284,12 +284,8 @@ def _zero_ad(work: Path, members: list[str]) -> Path:
 
 
 def pmd_wolf(c: Character, work: Path, out: Path) -> None:
-    clips = [("walk", "wolf_walk"), ("run", "wolf_run"), ("attack", "wolf_attack_01"), ("idle", "wolf_idle_01"),
-             ("death", "wolf_death_01")]
-    psa = [f"art/animation/quadraped/{f}.dae.cached.psa" for _, f in clips]
-    root = _zero_ad(work, [c.source, "art/skeletons/wolf.xml", *psa])
-    run([PY, HERE / "pmd2gltf.py", root / c.source, root / "art/skeletons/wolf.xml", "-o", out, "--name", "wolf",
-         *[x for (n, _), p in zip(clips, psa, strict=True) for x in ("--anim", f"{n}={root / p}")]])
+    _pmd_quadruped(c, work, out, "wolf", [("walk", "wolf_walk"), ("run", "wolf_run"), ("attack", "wolf_attack_01"),
+                                          ("idle", "wolf_idle_01"), ("death", "wolf_death_01")])
 
 
 def pmd_mangonel(c: Character, work: Path, out: Path) -> None:
