@@ -38,14 +38,20 @@ def k_largest(A: sp.spmatrix, k: int, key: Callable[[np.ndarray], np.ndarray] | 
     Notes
     -----
     Vectorised over rows: entries are sorted by (row, -value, column) once,
-    then each row's first k entries are kept.
+    then each row's first k entries are kept. Where the rows hold about as
+    many entries each (skinning and cage weights: the padded table is at most
+    four times the stored entries), each row is sorted in a padded table
+    instead, which is several times faster and gives the same sets.
     """
     A = sp.csr_matrix(A)
     A.sort_indices()
     m = A.shape[0]
     counts = np.diff(A.indptr)
-    rows = np.repeat(np.arange(m), counts)
     vals = A.data if key is None else key(A.data)
+    width = int(counts.max()) if m else 0
+    if 0 < m * width <= 4 * A.nnz and not np.isnan(vals).any():
+        return _k_largest_padded(A, vals, counts, width, k)
+    rows = np.repeat(np.arange(m), counts)
     order = np.lexsort((A.indices, -vals, rows))
     rank = np.arange(len(order)) - np.repeat(A.indptr[:-1], counts)
     keep = rank < k
@@ -55,6 +61,23 @@ def k_largest(A: sp.spmatrix, k: int, key: Callable[[np.ndarray], np.ndarray] | 
     valid = np.zeros((m, k), dtype=bool)
     indices[rows[sel], slot] = A.indices[sel]
     valid[rows[sel], slot] = True
+    return InfluenceSets(indices, valid)
+
+
+def _k_largest_padded(A: sp.csr_matrix, vals: np.ndarray, counts: np.ndarray, width: int, k: int) -> InfluenceSets:
+    """:func:`k_largest` by a stable sort of each row of an (m, width) table of ``-vals`` padded with +inf:
+    the row's entries are in column order, so equal values keep the lower handle index first."""
+    m = A.shape[0]
+    start = A.indptr[:-1]
+    pos = np.arange(A.nnz) - np.repeat(start, counts)
+    table = np.full((m, width), np.inf)
+    table[np.repeat(np.arange(m), counts), pos] = -vals
+    order = np.argsort(table, axis=1, kind="stable")[:, :k]
+    valid = np.zeros((m, k), dtype=bool)
+    valid[:, :order.shape[1]] = np.arange(order.shape[1]) < counts[:, None]
+    indices = np.zeros((m, k), dtype=np.int32)
+    at = (start[:, None] + order)[valid[:, :order.shape[1]]]
+    indices[valid] = A.indices[at]
     return InfluenceSets(indices, valid)
 
 
