@@ -63,8 +63,8 @@ class DecimationParams(Params):
     """With ``normalised_error``: add to each collapse's cost the source-side error, the area-weighted mean
     squared distance of the original vertices it removes from its new faces over the example poses
     (:func:`rigslim.plugins.decimation.compiled.source_error`), so that thin protrusions, whose planes hardly
-    see the collapse, are not removed early. Off by default: on the suite it met 26 of 30 levels (22 off)
-    but raised wolf's 50 % RMS by 7.7 % (docs/simplification.md)."""
+    see the collapse, are not removed early. On for ``quartic`` (off for the baselines):
+    on the suite it met 26 of 30 levels against 22 without (docs/simplification.md)."""
     attribute_weights: dict[str, float] = Field(default_factory=lambda: dict(ATTRIBUTE_WEIGHTS))
     """For a mesh read from glTF: weight of each vertex attribute's displacement term in the error, by name
     (``TEXCOORD_0``) or family (``TEXCOORD``, ``COLOR``, ``NORMAL``, ``TANGENT``); see :func:`attribute_term`."""
@@ -395,6 +395,9 @@ class QuarticParams(DecimationParams):
     nonnegative: bool | None = None
     """Weight steps keep every weight >= 0 (glTF and engines require it). Default: on when the
     input weights have no negative entry; ``false`` is [S09]'s unconstrained step."""
+    source_distance: bool = True
+    """As for every decimator (:class:`DecimationParams`), but on by default: thin protrusions (horns, elbow
+    flaps, tails, fins) survive the far levels; ``false`` ranks by the quadrics alone."""
 
 
 class Quartic(ArticulatedDecimator):
