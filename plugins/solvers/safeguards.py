@@ -144,7 +144,15 @@ def k_largest_weights(A: sp.csr_matrix, k: int) -> ReducedWeights:
 
 def _frame_excess(asset, reduced: ReducedWeights, base: ReducedWeights, frames):
     """``(D, e_fit, e_base)``: ``D`` (m, p) float32, the per-frame excess ``e_v^j(reduced) - e_v^j(base)`` of the
-    squared position error against the input weights over ``frames``, and the two errors summed over them."""
+    squared position error against the input weights over ``frames``, and the two errors summed over them
+    (compiled: :func:`rigslim.plugins.solvers.guard_kernel.frame_errors`)."""
+    from rigslim.plugins.solvers.guard_kernel import frame_errors
+
+    return frame_errors(asset.mesh.V, asset.weights, asset.poses.select(list(frames)).T, reduced, base)
+
+
+def _frame_excess_reference(asset, reduced: ReducedWeights, base: ReducedWeights, frames):
+    """The numpy reference of :func:`_frame_excess`: three :func:`linear_blend` calls per frame."""
     V = asset.mesh.V
     T = asset.poses.select(list(frames)).T
     m = V.shape[0]
