@@ -25,39 +25,30 @@ __all__ = ["frame_errors"]
 
 
 @njit(cache=True, nogil=True)
+def _blend(T, j, x, y, z, handles, weights):  # pragma: no cover - numba
+    """``sum_s weights_s T_{handles_s}^j [x; y; z; 1]``, the three coordinates."""
+    p0 = 0.0
+    p1 = 0.0
+    p2 = 0.0
+    for s in range(handles.shape[0]):
+        i, w = handles[s], weights[s]
+        p0 += w * (T[j, i, 0, 0] * x + T[j, i, 0, 1] * y + T[j, i, 0, 2] * z + T[j, i, 0, 3])
+        p1 += w * (T[j, i, 1, 0] * x + T[j, i, 1, 1] * y + T[j, i, 1, 2] * z + T[j, i, 1, 3])
+        p2 += w * (T[j, i, 2, 0] * x + T[j, i, 2, 1] * y + T[j, i, 2, 2] * z + T[j, i, 2, 3])
+    return p0, p1, p2
+
+
+@njit(cache=True, nogil=True)
 def _frame_rows(start, stop, V, T, indptr, cols, vals, ia, wa, ib, wb, D, ea, eb):  # pragma: no cover - numba
-    p = T.shape[0]
-    k_a = ia.shape[1]
-    k_b = ib.shape[1]
     for v in range(start, stop):
         x, y, z = V[v, 0], V[v, 1], V[v, 2]
-        for j in range(p):
-            f0 = 0.0
-            f1 = 0.0
-            f2 = 0.0
-            for e in range(indptr[v], indptr[v + 1]):
-                i, w = cols[e], vals[e]
-                f0 += w * (T[j, i, 0, 0] * x + T[j, i, 0, 1] * y + T[j, i, 0, 2] * z + T[j, i, 0, 3])
-                f1 += w * (T[j, i, 1, 0] * x + T[j, i, 1, 1] * y + T[j, i, 1, 2] * z + T[j, i, 1, 3])
-                f2 += w * (T[j, i, 2, 0] * x + T[j, i, 2, 1] * y + T[j, i, 2, 2] * z + T[j, i, 2, 3])
-            a0 = -f0
-            a1 = -f1
-            a2 = -f2
-            for s in range(k_a):
-                i, w = ia[v, s], wa[v, s]
-                a0 += w * (T[j, i, 0, 0] * x + T[j, i, 0, 1] * y + T[j, i, 0, 2] * z + T[j, i, 0, 3])
-                a1 += w * (T[j, i, 1, 0] * x + T[j, i, 1, 1] * y + T[j, i, 1, 2] * z + T[j, i, 1, 3])
-                a2 += w * (T[j, i, 2, 0] * x + T[j, i, 2, 1] * y + T[j, i, 2, 2] * z + T[j, i, 2, 3])
-            b0 = -f0
-            b1 = -f1
-            b2 = -f2
-            for s in range(k_b):
-                i, w = ib[v, s], wb[v, s]
-                b0 += w * (T[j, i, 0, 0] * x + T[j, i, 0, 1] * y + T[j, i, 0, 2] * z + T[j, i, 0, 3])
-                b1 += w * (T[j, i, 1, 0] * x + T[j, i, 1, 1] * y + T[j, i, 1, 2] * z + T[j, i, 1, 3])
-                b2 += w * (T[j, i, 2, 0] * x + T[j, i, 2, 1] * y + T[j, i, 2, 2] * z + T[j, i, 2, 3])
-            da = a0 * a0 + a1 * a1 + a2 * a2
-            db = b0 * b0 + b1 * b1 + b2 * b2
+        lo, hi = indptr[v], indptr[v + 1]
+        for j in range(T.shape[0]):
+            f0, f1, f2 = _blend(T, j, x, y, z, cols[lo:hi], vals[lo:hi])
+            a0, a1, a2 = _blend(T, j, x, y, z, ia[v], wa[v])
+            b0, b1, b2 = _blend(T, j, x, y, z, ib[v], wb[v])
+            da = (a0 - f0) ** 2 + (a1 - f1) ** 2 + (a2 - f2) ** 2
+            db = (b0 - f0) ** 2 + (b1 - f1) ** 2 + (b2 - f2) ** 2
             D[v, j] = da - db
             ea[v] += da
             eb[v] += db
