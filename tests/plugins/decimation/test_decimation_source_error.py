@@ -48,13 +48,17 @@ def rigid_asset(V, F, n_poses: int = 6, seed: int = 0) -> Asset:
     return Asset(mesh=Mesh(V, F), weights=sp.csr_matrix(np.ones((len(V), 1))), poses=Poses(T), split=split)
 
 
-def fin_level(backend: str, source_distance: bool, target: float = 0.25, jitter: float = 0.0):
+def fin_level(backend: str, source_distance: bool | None, target: float = 0.25, jitter: float = 0.0,
+              method: str = "quartic"):
+    """The finned ring simplified to ``target``; ``source_distance=None`` leaves the parameter to the default."""
     V, F, crest = finned_ring()
     V = V + jitter * np.random.default_rng(1).normal(size=V.shape)     # no ties between rotated copies
     asset = rigid_asset(V, F)
-    plugin = get_host().get("articulated-decimation", "quartic")
-    plugin.apply(asset, plugin.parse_params({"targets": [target], "backend": backend,
-                                             "source_distance": source_distance}), StepContext())
+    plugin = get_host().get("articulated-decimation", method)
+    params = {"targets": [target], "backend": backend}
+    if source_distance is not None:
+        params["source_distance"] = source_distance
+    plugin.apply(asset, plugin.parse_params(params), StepContext())
     return V, crest, asset.hierarchy, asset.levels[0]
 
 
@@ -76,6 +80,16 @@ def test_a_thin_fin_survives_the_level(backend):
     V, crest, _, lv = fin_level(backend, False)
     flattened = surface_distance(V[crest], lv.mesh.V, np.asarray(lv.mesh.F))
     assert flattened.min() > 0.9 * FIN_HEIGHT
+
+
+def test_quartic_keeps_the_fin_by_default_and_the_baselines_do_not_add_the_term():
+    """``quartic`` (and so ``rigslim lod``) adds the source-side error unless told not to; the baselines keep
+    their quadric costs: the same hierarchy as with ``source_distance: false``."""
+    V, crest, _, lv = fin_level("numba", None)
+    assert surface_distance(V[crest], lv.mesh.V, np.asarray(lv.mesh.F)).max() < 1e-3 * FIN_HEIGHT
+    _, _, by_default, _ = fin_level("numba", None, method="mohr-gleicher")
+    _, _, off, _ = fin_level("numba", False, method="mohr-gleicher")
+    np.testing.assert_array_equal(by_default.collapses, off.collapses)
 
 
 def test_both_backends_make_the_same_collapses_with_the_source_error():
