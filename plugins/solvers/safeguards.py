@@ -168,17 +168,6 @@ def _frame_excess_reference(asset, reduced: ReducedWeights, base: ReducedWeights
     return D, e_fit, e_base
 
 
-def vertex_errors(asset, reduced: ReducedWeights, frames) -> np.ndarray:
-    """(m,) squared position error of ``reduced`` against the input weights, summed over ``frames``."""
-    V = asset.mesh.V
-    T = asset.poses.select(list(frames)).T
-    e = np.zeros(V.shape[0])
-    for j in range(len(T)):
-        d = linear_blend(V, reduced, T[j]) - linear_blend(V, asset.weights, T[j])
-        e += np.einsum("vc,vc->v", d, d)
-    return e
-
-
 def clip_bound(X: np.ndarray, z: float = MARGIN_Z) -> np.ndarray:
     """The upper confidence bound of a clip's mean per-frame excess, ``mean_j X_j + z s_X / sqrt(p)``
     (``s_X`` the sample standard deviation over the clip's p validation frames, the last axis of ``X``;
