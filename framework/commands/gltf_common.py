@@ -123,7 +123,7 @@ def _renamed(e: RigslimError, option: str) -> RigslimError:
 
 
 def _json_only(path: Path):
-    """The document's JSON without its buffers or pygltflib's typed parse (0.5 s on a 12k-face file), when
+    """The document's JSON without its buffers or its schema check, when
     every animation sampler's input accessor has its ``max``; else None (the caller loads it fully; the
     pipeline's reader checks the whole file anyway)."""
     from rigslim.io.gltf.document import GltfDocument, parse_glb

@@ -88,6 +88,15 @@ def test_json_scalar_members(project, capfd):
     assert "nodes" in _bad(project, capfd, doc)
 
 
+@pytest.mark.parametrize("key, value", [("materials", "materials"), ("textures", [1]), ("samplers", {"a": 1}),
+                                        ("cameras", 3), ("extensionsUsed", [2]), ("extensions", [])])
+def test_copied_members_of_the_wrong_type(project, capfd, key, value):
+    """Top-level arrays no reader uses, but which every output copies, are type-checked too."""
+    doc = _doc()
+    doc[key] = value
+    assert key in _bad(project, capfd, doc)
+
+
 def test_node_cycle_refused_without_hanging(project, capfd):
     doc = _doc()
     doc["nodes"][2]["children"] = [1]  # 1 -> 2 -> 1

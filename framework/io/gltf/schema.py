@@ -187,6 +187,14 @@ class Document(_Model):
     bufferViews: list[BufferView] = []
     buffers: list[Buffer] = []
     images: list[Image] = []
+    # read by no reader but copied into outputs: at least an array of objects, as the glTF schema says
+    materials: list[dict] = []
+    textures: list[dict] = []
+    samplers: list[dict] = []
+    cameras: list[dict] = []
+    extensionsUsed: list[str] = []
+    extensionsRequired: list[str] = []
+    extensions: dict = {}
 
 
 def json_path(loc) -> str:
