@@ -50,6 +50,9 @@ def parameters(info: PluginInfo) -> list[dict[str, Any]]:
     description."""
     from pydantic_core import PydanticUndefined, to_jsonable_python
 
+    from rigslim.plugin.contract import field_descriptions
+
+    described = field_descriptions(info.plugin.Params)
     rows = []
     for name, field in info.plugin.Params.model_fields.items():
         if field.default_factory is not None:
@@ -60,7 +63,7 @@ def parameters(info: PluginInfo) -> list[dict[str, Any]]:
             default = to_jsonable_python(field.default, fallback=repr)
         rows.append({"name": name, "type": type_name(field.annotation), "required": field.is_required(),
                      "default": default, "constraints": _constraints(field),
-                     "description": " ".join((field.description or "").split())})
+                     "description": " ".join(described[name].split())})
     return rows
 
 

@@ -76,7 +76,7 @@ PLUGIN_API_VERSION = "1.0"
 __all__ = [
     "PLUGIN_API_VERSION", "Params", "StepContext", "Plugin", "Reader", "Writer", "WeightGenerator", "InfluenceSelector",
     "WeightSolver", "Decimation", "Decimator", "Deformer", "NormalEstimator", "Metric", "STAGES",
-    "STEP_STAGES", "STAGE_HOOKS", "MetricValue", "aggregate",
+    "STEP_STAGES", "STAGE_HOOKS", "MetricValue", "aggregate", "field_descriptions",
 ]
 
 
@@ -85,7 +85,9 @@ class Params(BaseModel):
     is not a number (pydantic would read ``k: true`` as ``k = 1``). A string literal under a field
     is its description (``rigslim plugins NAME`` prints it)."""
 
-    model_config = ConfigDict(extra="forbid", arbitrary_types_allowed=True, use_attribute_docstrings=True)
+    # Attribute docstrings are read on demand (field_descriptions), not by pydantic at class creation: that
+    # reads and tokenises the source of every plugin's Params on every start (0.15 s of each command).
+    model_config = ConfigDict(extra="forbid", arbitrary_types_allowed=True)
 
     @field_validator("*", mode="before")
     @classmethod
@@ -93,6 +95,34 @@ class Params(BaseModel):
         if isinstance(value, bool) and not _takes_bool(cls.model_fields[info.field_name].annotation):
             raise PydanticCustomError("bool_not_number", "a yes/no value is not valid here; give a number or name")
         return value
+
+
+def field_descriptions(model: type[BaseModel]) -> dict[str, str]:
+    """Each field's description: ``Field(description=...)``, else the string literal under the field in the
+    class body (its attribute docstring; the nearest class of the MRO that has one), else ``""``.
+
+    Read from the source with :mod:`ast` when asked (``rigslim plugins``, :meth:`PluginInfo.params_schema`);
+    a class whose source cannot be read (built at run time, a frozen module) gives no attribute docstrings.
+    """
+    import ast
+    import inspect
+    import textwrap
+
+    found: dict[str, str] = {}
+    for cls in reversed(model.__mro__):
+        if not (isinstance(cls, type) and issubclass(cls, BaseModel)) or cls is BaseModel:
+            continue
+        try:
+            tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
+        except (OSError, TypeError, SyntaxError):
+            continue
+        body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
+        for node, after in zip(body, body[1:], strict=False):
+            if (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
+                    and isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
+                    and isinstance(after.value.value, str)):
+                found[node.target.id] = inspect.cleandoc(after.value.value)
+    return {name: field.description or found.get(name, "") for name, field in model.model_fields.items()}
 
 
 P = TypeVar("P", bound=Params)

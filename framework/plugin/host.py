@@ -75,8 +75,16 @@ class PluginInfo:
 
     @property
     def params_schema(self) -> dict[str, Any]:
-        """JSON schema of the plugin's ``Params`` (names, types, defaults, descriptions)."""
-        return self.plugin.Params.model_json_schema()
+        """JSON schema of the plugin's ``Params`` (names, types, defaults, descriptions: the attribute
+        docstrings too, :func:`~rigslim.plugin.contract.field_descriptions`)."""
+        from rigslim.plugin.contract import field_descriptions
+
+        schema = self.plugin.Params.model_json_schema()
+        for name, text in field_descriptions(self.plugin.Params).items():
+            prop = schema.get("properties", {}).get(name)
+            if text and isinstance(prop, dict):
+                prop.setdefault("description", text)
+        return schema
 
     @property
     def origin(self) -> str:
