@@ -42,7 +42,8 @@ RIGSLIM = [sys.executable, "-m", "rigslim.cli"]
 
 def rigslim_level(path: Path, tmp: Path, ratio: float) -> Path:
     """``rigslim lod IN -o OUT --ratios R --split``: the level's file (one run per ratio, so that a level that
-    stops short of its target, or merges with another, still gives the file that command writes)."""
+    stops short of its target, or merges with another, still gives the file that command writes; where it writes
+    no level at all, the source, which is what the user then shows)."""
     out = tmp / f"{path.stem}-rigslim-{ratio:g}.glb"
     done = sorted(tmp.glob(f"{out.stem}-*.glb"), key=count_faces)
     if done:
@@ -52,7 +53,8 @@ def rigslim_level(path: Path, tmp: Path, ratio: float) -> Path:
     if p.returncode != 0:
         raise RuntimeError(f"rigslim lod {path.name} --ratios {ratio:g}: {p.stderr.strip()[-400:]}")
     sys.stderr.write("".join(f"  {line}\n" for line in p.stderr.strip().splitlines()))
-    return sorted(tmp.glob(f"{out.stem}-*.glb"), key=count_faces)[0]
+    written = sorted(tmp.glob(f"{out.stem}-*.glb"), key=count_faces)
+    return written[0] if written else path      # no level (the bound before the first collapse): the source
 
 
 def _rigslim() -> list[str]:

@@ -130,8 +130,13 @@ def cmd_lod(args) -> int:
                           header=_header("lod"))
         _emit_report(args, doc)
     faces = ", ".join(f"{r['faces']}" for r in rows)
-    print(f"wrote {', '.join(str(p) for p in outputs)}: {len(rows)} levels ({faces} faces of "
-          f"{doc['input_faces']}), at most {args.max_bones} bones per vertex, {seconds:.2f} s")
+    if rows:
+        print(f"wrote {', '.join(str(p) for p in outputs)}: {len(rows)} levels ({faces} faces of "
+              f"{doc['input_faces']}), at most {args.max_bones} bones per vertex, {seconds:.2f} s")
+    else:
+        wrote = doc.get("sidecar") if args.split else out
+        print(f"wrote {wrote}: no level (every target ends at the source's {doc['input_faces']} faces), "
+              f"{seconds:.2f} s")
     print_levels(rows)
     for t in targets:
         _say_where_it_stopped(t, max_error, doc["locked_seam_vertices"])
@@ -175,12 +180,23 @@ def _say_where_it_stopped(t: dict, max_error: str | None, seam_vertices) -> None
     if "faces" not in t or t["faces"] <= 1.03 * t["target_faces"]:
         return
     where = f"target {t['target']:g} ({t['target_faces']} faces)"
-    if t["same_as"] is not None:
+    if t["same_as"] == "source":          # the decimation's levels.SOURCE: ended before the first collapse
+        why = (f"the first collapse already exceeds --max-error {max_error} (--max-error none goes on)"
+               if t["stopped"] == "max_error" else "no collapse was valid")
+        print(f"rigslim lod: {where} not reached: {why}; the source's {t['faces']} faces are no level",
+              file=sys.stderr)
+    elif t["same_as"] is not None:
         print(f"rigslim lod: {where} not reached: it ends at the {t['faces']} faces of level {t['same_as']}, "
               f"so it has no level of its own", file=sys.stderr)
     elif t["stopped"] == "max_error":
         print(f"rigslim lod: level {t['label']} stopped at {t['faces']} faces, {where}: the next collapse exceeds "
               f"--max-error {max_error} (--max-error none goes on)", file=sys.stderr)
     else:
+        held = []
+        if t.get("parts"):
+            held.append(f"{t['minimal_parts']} of its {t['parts']} parts are at 4 faces or fewer and stay whole")
+        if seam_vertices:
+            held.append(f"{seam_vertices} locked seam vertices stay")
+        why = "; ".join(held) or "every remaining collapse would break a guard (docs/simplification.md)"
         print(f"rigslim lod: level {t['label']} stopped at {t['faces']} faces, {where}: no valid collapse was left "
-              f"(seam corners and parts' borders stay; {seam_vertices} seam vertices)", file=sys.stderr)
+              f"({why})", file=sys.stderr)

@@ -18,7 +18,7 @@ from pydantic import Field, model_validator
 from rigslim.errors import StepError
 from rigslim.model.asset import Asset
 from rigslim.plugin import Decimation, Decimator, Params, StepContext
-from rigslim.plugins.decimation.levels import choose_levels, collapse_distances, parse_max_error, target_name
+from rigslim.plugins.decimation.levels import SOURCE, choose_levels, collapse_distances, parse_max_error, target_name
 
 
 class AdaptiveTarget(Params):
@@ -147,10 +147,36 @@ def error_bound(asset, max_error) -> float | None:
     return value / 100.0 * float(np.linalg.norm(X.max(axis=0) - X.min(axis=0)))
 
 
-def target_record(c, bound: float | None) -> dict:
-    """The report's record of one face target: what was asked, what was reached, and why it stopped."""
-    return {"target": c.target, "target_faces": c.target_faces, "faces": c.faces, "label": c.label,
-            "error": c.error, "max_error": bound, "stopped": c.stopped, "same_as": c.same_as}
+def target_record(c, bound: float | None, hier=None) -> dict:
+    """The report's record of one face target: what was asked, what was reached, and why it stopped.
+
+    A target that stopped with no valid collapse left also gets ``parts`` (connected parts of the level's
+    faces) and ``minimal_parts`` (those with at most 4 faces: a closed part at a tetrahedron, which no collapse
+    may shrink further without removing the part) when ``hier`` is given.
+    """
+    out = {"target": c.target, "target_faces": c.target_faces, "faces": c.faces, "label": c.label,
+           "error": c.error, "max_error": bound, "stopped": c.stopped, "same_as": c.same_as}
+    if hier is not None and c.stopped == "no collapse" and c.same_as is None:
+        out["parts"], out["minimal_parts"] = part_sizes(hier.prefix(c.collapses).mesh.F)
+    return out
+
+
+def part_sizes(F: np.ndarray) -> tuple[int, int]:
+    """``(parts, minimal)``: connected parts of the faces ``F`` (sharing a vertex), and how many of them have
+    at most 4 faces."""
+    from scipy.sparse.csgraph import connected_components
+
+    F = np.asarray(F, np.int64).reshape(-1, 3)
+    if not len(F):
+        return 0, 0
+    used, Fc = np.unique(F, return_inverse=True)
+    Fc = Fc.reshape(-1, 3)
+    rows = np.concatenate([Fc[:, 0], Fc[:, 1]])
+    cols = np.concatenate([Fc[:, 1], Fc[:, 2]])
+    n, label = connected_components(sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(used),) * 2),
+                                    directed=False)
+    faces = np.bincount(label[Fc[:, 0]], minlength=n)
+    return int(n), int((faces <= 4).sum())
 
 
 def limited_weights(A, max_bones: int | None) -> np.ndarray:
@@ -342,7 +368,7 @@ class ArticulatedDecimator(Decimator):
         if locked is not None:
             ctx.report["locked_seam_vertices"] = int(locked.sum())
             ctx.report["seam_vertices_collapsing_along"] = int(seams[0].sum()) if seams is not None else 0
-        ctx.report["targets"] = [target_record(c, bound) for c in choices]
+        ctx.report["targets"] = [target_record(c, bound, hier) for c in choices]
         from rigslim.plugins.decimation.collapse import loop_stats
 
         stats = loop_stats(hier)
@@ -352,6 +378,11 @@ class ArticulatedDecimator(Decimator):
             if c.stopped == "max_error" and c.same_as is None:
                 ctx.log(f"level {c.label} stopped at {c.faces} faces (target {c.target_faces}): the next collapse "
                         f"exceeds max_error {params.max_error}")
+            elif c.same_as == SOURCE:
+                why = f"the first collapse exceeds max_error {params.max_error}" if c.stopped == "max_error" \
+                    else "no collapse was valid"
+                ctx.log(f"target {c.target:g} ({c.target_faces} faces) ends at the source's {c.faces} faces ({why}): "
+                        f"no level")
             elif c.same_as is not None:
                 ctx.log(f"target {c.target:g} ({c.target_faces} faces) ends at the same {c.faces} faces as "
                         f"level {c.same_as}: no level of its own")

@@ -66,6 +66,10 @@ def collapse_distances(hier, Q: np.ndarray) -> np.ndarray:
     return np.sqrt(np.maximum(hier.errors, 0.0) / np.where(wc > 0, wc, 1.0))
 
 
+#: ``LevelChoice.same_as`` of a target that ends before the first collapse (the bound, or nothing valid).
+SOURCE = "source"
+
+
 @dataclass
 class LevelChoice:
     """Where one face target ends: the prefix, its faces and error, and why it stopped there."""
@@ -80,7 +84,8 @@ class LevelChoice:
     """``None`` (reached), ``"max_error"`` (the bound), ``"no collapse"`` (nothing valid was left)."""
     label: str
     same_as: str | None = None
-    """The finer level this target ended at (no level of its own), if any."""
+    """The finer level this target ended at (no level of its own), if any; :data:`SOURCE` when it ends before
+    the first collapse (a copy of the source is no level)."""
 
 
 def choose_levels(hier, targets: list[float], target_faces: list[int], distances: np.ndarray,
@@ -109,7 +114,9 @@ def choose_levels(hier, targets: list[float], target_faces: list[int], distances
             stopped = "no collapse"
         levels = [c for c in out if c.same_as is None]
         same = levels[-1].label if levels and k <= levels[-1].collapses else None
-        if same is not None:
+        if k == 0 and f < len(hier.F):
+            same = SOURCE                              # not one collapse: the source itself, no level
+        if same is not None and same != SOURCE:
             k = levels[-1].collapses                   # the same prefix as a finer level: one level
         faces = hier.faces_after(k)
         error = float(running[k - 1]) if k else 0.0

@@ -8,7 +8,7 @@ import pytest
 from rigslim.errors import StepError
 from rigslim.plugin.contract import StepContext
 from rigslim.plugin.host import get_host
-from rigslim.plugins.decimation.levels import choose_levels, collapse_distances, parse_max_error
+from rigslim.plugins.decimation.levels import SOURCE, choose_levels, collapse_distances, parse_max_error
 from tests.plugins.decimation.test_decimation_collapse import decimate, tube
 
 
@@ -43,6 +43,18 @@ def test_unreachable_targets_share_one_level_and_are_named_by_their_faces():
     assert out[2].same_as == "quartic-50pct-90f"          # no level of its own: faces strictly decrease
     levels = [c for c in out if c.same_as is None]
     assert all(a.faces > b.faces for a, b in zip(levels, levels[1:], strict=False))
+
+
+def test_a_target_that_ends_before_the_first_collapse_is_no_level():
+    """The bound below the first collapse (minetest at 1 %), or nothing to collapse: the targets end at the
+    source itself, which is no level (once a level with the source's faces was written)."""
+    h = FakeHierarchy([98, 96], 100)
+    out = choose_levels(h, [0.5, 0.25], [50, 25], np.array([0.5, 0.6]), 0.1, "quartic")
+    assert [c.same_as for c in out] == [SOURCE, SOURCE] and [c.faces for c in out] == [100, 100]
+    assert [c.collapses for c in out] == [0, 0] and out[0].stopped == "max_error"
+    none = choose_levels(FakeHierarchy([], 100), [0.5], [50], np.zeros(0), None, "quartic")
+    assert none[0].same_as == SOURCE and none[0].stopped == "no collapse"
+    assert choose_levels(h, [1.0], [100], np.array([0.5, 0.6]), None, "quartic")[0].same_as is None
 
 
 def test_the_bound_stops_a_level_before_its_target():
@@ -87,3 +99,13 @@ def test_seams_from_arrays_lock_and_collapse_along():
     asset.extras["seams"] = (locked[:-1], charts)
     with pytest.raises(StepError, match="seams"):
         plugin.apply(asset, plugin.parse_params({"targets": [0.25], "seams": "lock"}), StepContext())
+
+
+def test_part_sizes_counts_parts_and_those_at_four_faces():
+    from rigslim.plugins.decimation.articulated import part_sizes
+
+    tetra = np.array([[0, 1, 2], [0, 3, 1], [1, 3, 2], [2, 3, 0]])
+    strip = np.array([[0, 1, 2], [1, 3, 2], [2, 3, 4], [3, 5, 4], [4, 5, 6]])       # 5 faces: not minimal
+    F = np.concatenate([tetra + 10, strip + 20, tetra + 40, [[60, 61, 62]]])   # vertex ids with gaps
+    assert part_sizes(F) == (4, 3)
+    assert part_sizes(np.zeros((0, 3), int)) == (0, 0)
