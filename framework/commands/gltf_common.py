@@ -79,6 +79,29 @@ def write_step(out: Path, **params) -> dict:
     return {"write": str(out), **usd}
 
 
+def unnormalised_note(command: str, name: str, doc) -> str | None:
+    """The stderr line for an input whose skin weights do not sum to 1 (assimp's FBX conversions: 0.82 to
+    1.38): they are read normalised, so every output, level 0 included, deforms as the normalised skin does.
+    The commands print it after a successful run, so that an error stays the only line."""
+    if doc is None:                    # USD: its reader says so itself
+        return None
+    from rigslim.io.gltf.skin import unnormalised_weights
+
+    off = unnormalised_weights(doc)
+    if not off:
+        return None
+    return (f"rigslim {command}: {name}: the skin weights of {off['vertices']} vertices do not sum to 1 "
+            f"({off['min']:.4g} to {off['max']:.4g}); they are read normalised (glTF requires it), so the output "
+            f"deforms as the normalised skin does")
+
+
+def no_motion(name: str, clip: str | None, duration: float) -> str:
+    """Why a file gives fewer than 2 frames: no animation at all, or a clip of one pose (an SMD's 0 s clip)."""
+    if clip is None:
+        return f"{name} has no animation"
+    return f"{name}'s clip '{clip}' holds one pose only ({duration:g} s long)"
+
+
 def clip_frames(path: Path, clip, fps: float, doc=None) -> tuple[int, str | None, float]:
     """Frame count of a clip sampled at ``fps`` (1 without animation), its name and its duration.
 

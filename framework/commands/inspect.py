@@ -14,10 +14,10 @@ def inspect(path: Path) -> dict:
     """Skins, joints, clips, meshes, primitives, attributes, influences and weight-sum defects of a file."""
     if Path(path).suffix.lower() in (".usd", ".usda", ".usdc", ".usdz"):
         return inspect_usd(path)
-    from rigslim.io.gltf.document import load_gltf, read_accessor
+    from rigslim.io.gltf.document import load_gltf
     from rigslim.io.gltf.lod import lod_nodes
     from rigslim.io.gltf.scene import animation_duration
-    from rigslim.io.gltf.skin import skinning_sets
+    from rigslim.io.gltf.skin import skinning_sets, weight_sums
 
     doc = load_gltf(path)
     js = doc.json
@@ -41,14 +41,8 @@ def inspect(path: Path) -> dict:
                     "targets": len(prim.get("targets", []))}
             if "indices" in prim:
                 info["triangles"] = js["accessors"][prim["indices"]]["count"] // 3
-            sets = skinning_sets(attrs)
-            if sets and "POSITION" in attrs:
-                count = js["accessors"][attrs["POSITION"]]["count"]
-                total, nz = np.zeros(count), np.zeros(count, np.int64)
-                for s in sets:
-                    W = np.asarray(read_accessor(doc, attrs[f"WEIGHTS_{s}"]), float).reshape(count, -1)
-                    total += W.sum(axis=1)
-                    nz += (W != 0).sum(axis=1)
+            if skinning_sets(attrs) and "POSITION" in attrs:
+                total, nz = weight_sums(doc, attrs)
                 dev = np.abs(total - 1.0)
                 info["influences_histogram"] = np.bincount(nz).tolist()
                 info["weight_sums"] = {"min": float(total.min(initial=1.0)), "max": float(total.max(initial=1.0)),

@@ -19,6 +19,8 @@ from rigslim.commands.gltf_common import (
     command_session,
     input_section,
     is_usd,
+    no_motion,
+    unnormalised_note,
     write_step,
 )
 from rigslim.commands.lod_levels import (
@@ -105,8 +107,10 @@ def cmd_lod(args) -> int:
         {"--split (sidecar)": sidecar_path(out)}
     with command_session(args, [src], named) as (source,), scratch_folder("rigslim-lod-") as tmp:
         frames, clip, duration = clip_frames(src, args.clip, args.fps, source)
+        unnormalised = unnormalised_note("lod", src.name, source)
         if frames < 2:
-            print(f"rigslim lod: {src.name} has no animation: simplifying for the rest pose only", file=sys.stderr)
+            print(f"rigslim lod: {no_motion(src.name, clip, duration)}: simplifying for the rest pose only",
+                  file=sys.stderr)
         console = _console(args)
         target = tmp / f"lod{out.suffix}" if args.split else out
         runs = _chain(src, target, lambda i, o, s: lod_pipeline(
@@ -140,6 +144,8 @@ def cmd_lod(args) -> int:
     print_levels(rows)
     for t in targets:
         _say_where_it_stopped(t, max_error, doc["locked_seam_vertices"])
+    if unnormalised:
+        print(unnormalised, file=sys.stderr)
     return 0
 
 
@@ -177,14 +183,20 @@ def _lod_document(args, src, outputs, runs, result, targets, kept, step, clip, d
 
 def _say_where_it_stopped(t: dict, max_error: str | None, seam_vertices) -> None:
     """One stderr line for a target the level did not reach: the bound, no collapse left, or a finer level."""
-    if "faces" not in t or t["faces"] <= 1.03 * t["target_faces"]:
+    if "faces" not in t:
         return
     where = f"target {t['target']:g} ({t['target_faces']} faces)"
     if t["same_as"] == "source":          # the decimation's levels.SOURCE: ended before the first collapse
+        if t["stopped"] is None or t["faces"] <= 1.03 * t["target_faces"]:
+            print(f"rigslim lod: {where}: the source's own {t['faces']} faces meet it, so it has no level",
+                  file=sys.stderr)
+            return
         why = (f"the first collapse already exceeds --max-error {max_error} (--max-error none goes on)"
                if t["stopped"] == "max_error" else "no collapse was valid")
         print(f"rigslim lod: {where} not reached: {why}; the source's {t['faces']} faces are no level",
               file=sys.stderr)
+    elif t["faces"] <= 1.03 * t["target_faces"]:
+        return
     elif t["same_as"] is not None:
         print(f"rigslim lod: {where} not reached: it ends at the {t['faces']} faces of level {t['same_as']}, "
               f"so it has no level of its own", file=sys.stderr)

@@ -24,6 +24,8 @@ from rigslim.commands.gltf_common import (
     command_session,
     input_section,
     is_usd,
+    no_motion,
+    unnormalised_note,
     write_step,
 )
 from rigslim.errors import InputError
@@ -103,6 +105,7 @@ def cmd_reduce(args) -> int:
     _check_fps(args.fps)
     with command_session(args, [src], {"-o": out}) as (source,):
         frames, clip, duration = clip_frames(src, args.clip, args.fps, source)
+        unnormalised = unnormalised_note("reduce", src.name, source)
         console = _console(args)
         select, solve = args.select, args.solve
         joints = _joint_count(src, source)
@@ -111,7 +114,8 @@ def cmd_reduce(args) -> int:
                   f"writing the weights normalised", file=sys.stderr)
             select = solve = None
         elif frames < 2:
-            print(f"rigslim reduce: {src.name} has no animation: falling back to k-largest weights", file=sys.stderr)
+            print(f"rigslim reduce: {no_motion(src.name, clip, duration)}: falling back to k-largest weights",
+                  file=sys.stderr)
             select, solve = "k-largest", "k-largest"
         with scratch_folder("rigslim-reduce-") as tmp:
             runs = _chain(src, out, lambda i, o, s: reduce_pipeline(
@@ -147,4 +151,6 @@ def cmd_reduce(args) -> int:
     if frames >= 2 and select is not None and solve not in ("k-largest", None):
         line += f"; {fallback} vertices fell back to k-largest on held-out frames"
     print(line)
+    if unnormalised:
+        print(unnormalised, file=sys.stderr)
     return 0

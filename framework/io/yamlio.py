@@ -123,7 +123,7 @@ def load_yaml_text(text: str, source) -> object:
         try:
             return loader.construct_document(node)
         except _DuplicateKey as e:
-            raise PipelineError(f"key '{brief(e.key)}' is given twice (first on line {e.first.line + 1})",
+            raise PipelineError(f"key {brief(e.key)} is given twice (first on line {e.first.line + 1})",
                                 source=source, field=f"line {e.mark.line + 1}",
                                 fix="remove or rename one of them (the second would silently replace the first)"
                                 ) from None

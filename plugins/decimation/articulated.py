@@ -379,8 +379,8 @@ class ArticulatedDecimator(Decimator):
                 ctx.log(f"level {c.label} stopped at {c.faces} faces (target {c.target_faces}): the next collapse "
                         f"exceeds max_error {params.max_error}")
             elif c.same_as == SOURCE:
-                why = f"the first collapse exceeds max_error {params.max_error}" if c.stopped == "max_error" \
-                    else "no collapse was valid"
+                why = {"max_error": f"the first collapse exceeds max_error {params.max_error}",
+                       "no collapse": "no collapse was valid"}.get(c.stopped or "", "the source's faces meet it")
                 ctx.log(f"target {c.target:g} ({c.target_faces} faces) ends at the source's {c.faces} faces ({why}): "
                         f"no level")
             elif c.same_as is not None:

@@ -85,7 +85,8 @@ class LevelChoice:
     label: str
     same_as: str | None = None
     """The finer level this target ended at (no level of its own), if any; :data:`SOURCE` when it ends before
-    the first collapse (a copy of the source is no level)."""
+    the first collapse (the bound, no valid collapse, or a target the source's face count already meets: a copy
+    of the source is no level)."""
 
 
 def choose_levels(hier, targets: list[float], target_faces: list[int], distances: np.ndarray,
@@ -114,7 +115,7 @@ def choose_levels(hier, targets: list[float], target_faces: list[int], distances
             stopped = "no collapse"
         levels = [c for c in out if c.same_as is None]
         same = levels[-1].label if levels and k <= levels[-1].collapses else None
-        if k == 0 and f < len(hier.F):
+        if k == 0:
             same = SOURCE                              # not one collapse: the source itself, no level
         if same is not None and same != SOURCE:
             k = levels[-1].collapses                   # the same prefix as a finer level: one level

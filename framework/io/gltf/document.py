@@ -45,7 +45,8 @@ MAX_FRAMES = 100_000
 MAX_FRAME_NODES = 4_000_000
 
 
-_SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*:")
+#: A URI with a scheme (``data:``, ``http:``...), not a path relative to the glTF file.
+URI_SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*:")
 
 
 @dataclass
@@ -112,31 +113,31 @@ class GltfDocument:
             except (binascii.Error, ValueError) as e:
                 raise InputError(f"the data URI is not valid base64 ({e})", source=self.path, field=field_name,
                                  fix="re-export the file") from None
-        if _SCHEME.match(uri):
-            raise InputError(f"URI '{brief(uri)}' has a scheme rigslim does not read", source=self.path,
+        if URI_SCHEME.match(uri):
+            raise InputError(f"URI {brief(uri)} has a scheme rigslim does not read", source=self.path,
                              field=field_name, fix="give a data: URI or a path relative to the .gltf")
         folder = self.path.parent.resolve()
         file = (self.path.parent / unquote(uri)).resolve()
         if not external_uris_allowed(self.allow_external_uris) and not file.is_relative_to(folder):
-            raise InputError(f"'{brief(uri)}' leads outside the glTF's folder ({file})", source=self.path,
+            raise InputError(f"{brief(uri)} leads outside the glTF's folder ({file})", source=self.path,
                              field=field_name, fix="move the file next to the .gltf, or, if you trust this "
                              "file, set 'allow_external_uris: true' on the gltf input (or --allow-external-uris)")
         try:
             st = os.stat(file)
         except OSError as e:
-            raise InputError(f"refers to '{brief(uri)}', which cannot be read ({e.strerror})", source=self.path,
+            raise InputError(f"refers to {brief(uri)}, which cannot be read ({e.strerror})", source=self.path,
                              field=field_name, fix="keep the .bin/.png files next to the .gltf") from None
         if not stat.S_ISREG(st.st_mode):
-            raise InputError(f"'{brief(uri)}' is not a regular file", source=self.path, field=field_name,
+            raise InputError(f"{brief(uri)} is not a regular file", source=self.path, field=field_name,
                              fix="give the .bin/.png file itself")
         if length is not None and st.st_size < length:
-            raise InputError(f"'{brief(uri)}' holds {st.st_size} bytes, byteLength says {length}", source=self.path,
+            raise InputError(f"{brief(uri)} holds {st.st_size} bytes, byteLength says {length}", source=self.path,
                              field=f"{what}.byteLength", fix="re-export the file")
         try:
             with open(file, "rb") as f:
                 return f.read() if length is None else f.read(length)
         except OSError as e:
-            raise InputError(f"refers to '{brief(uri)}', which cannot be read ({e.strerror})", source=self.path,
+            raise InputError(f"refers to {brief(uri)}, which cannot be read ({e.strerror})", source=self.path,
                              field=field_name, fix="keep the .bin/.png files next to the .gltf") from None
 
 

@@ -224,7 +224,7 @@ def check_document(js, path) -> Document:
         _fail(path, "top level", f"the glTF JSON is a {type(js).__name__}, not an object", "give a glTF 2.0 file")
     version = js.get("asset", {}).get("version") if isinstance(js.get("asset"), dict) else None
     if isinstance(version, str) and not version.startswith("2."):
-        _fail(path, "asset.version", f"glTF version '{brief(version)}' is not 2.x",
+        _fail(path, "asset.version", f"glTF version {brief(version)} is not 2.x",
               "convert the file to glTF 2.0 (e.g. with Blender or assimp)")
     try:
         doc = Document.model_validate(js)

@@ -170,6 +170,36 @@ def primitive_triangles(mode: int, idx: np.ndarray) -> np.ndarray:
     return np.zeros((0, 3), np.int64)
 
 
+def weight_sums(doc: GltfDocument, attributes: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Per vertex of a primitive, the sum of its decoded weights over every ``WEIGHTS_n`` set and its count of
+    non-zero weights (empty arrays without skinning attributes)."""
+    sets = skinning_sets(attributes)
+    if not sets or "POSITION" not in attributes:
+        return np.zeros(0), np.zeros(0, np.int64)
+    count = doc.json["accessors"][attributes["POSITION"]]["count"]
+    total, nz = np.zeros(count), np.zeros(count, np.int64)
+    for s in sets:
+        W = np.asarray(read_accessor(doc, attributes[f"WEIGHTS_{s}"]), float).reshape(count, -1)
+        total += W.sum(axis=1)
+        nz += (W != 0).sum(axis=1)
+    return total, nz
+
+
+def unnormalised_weights(doc: GltfDocument, tolerance: float = 1e-3) -> dict | None:
+    """Where a file's skin weights do not sum to 1: ``{"vertices", "min", "max"}`` over every skinned primitive
+    (vertices whose sum is off by more than ``tolerance``), or None. rigslim reads such weights normalised (glTF
+    requires sums of 1), which moves those vertices against a viewer that draws the raw sums."""
+    lo, hi, off = np.inf, -np.inf, 0
+    for mesh in doc.json.get("meshes", []):
+        for prim in mesh.get("primitives", []):
+            total, _ = weight_sums(doc, prim.get("attributes", {}))
+            bad = np.abs(total - 1.0) > tolerance
+            if bad.any():
+                off += int(bad.sum())
+                lo, hi = min(lo, float(total.min())), max(hi, float(total.max()))
+    return {"vertices": off, "min": lo, "max": hi} if off else None
+
+
 def skinning_sets(attributes: dict) -> list[int]:
     """Set numbers n for which a primitive has both ``JOINTS_n`` and ``WEIGHTS_n``."""
     sets = sorted(int(k.split("_")[1]) for k in attributes if k.startswith("JOINTS_") and k.split("_")[1].isdigit())

@@ -31,7 +31,7 @@ from rigslim.io.transforms import matrix_quaternion, rigid_parts
 if TYPE_CHECKING:
     from rigslim.model.weights import ReducedWeights
 
-from rigslim.io.gltf.document import CHUNK_BIN, CHUNK_JSON, GLB_MAGIC
+from rigslim.io.gltf.document import CHUNK_BIN, CHUNK_JSON, GLB_MAGIC, URI_SCHEME
 from rigslim.io.gltf.level_skins import level_skin, source_inverse_binds, used_joints
 from rigslim.io.gltf.lod import (
     hierarchy_attributes,
@@ -592,14 +592,47 @@ def _repacked(path: Path, js: dict, source: GltfSkin, reduced) -> _Blob:
     same_folder = path.parent.resolve() == doc.path.parent.resolve()
     for i, img in enumerate(js.get("images", [])):
         uri = img.get("uri")
-        if uri is None or uri.startswith("data:") or same_folder:
+        if uri is None or uri.startswith("data:") or same_folder or URI_SCHEME.match(uri):
             continue
-        data = doc.uri_bytes(uri, f"images[{i}]")
+        data = _image_bytes(doc, uri, i)
+        mime = _mime(data, uri) if data is not None else None
+        if data is None or mime not in EMBEDDED_IMAGE_TYPES:   # missing, or a type glTF cannot embed: a link
+            img["uri"] = relinked_uri(uri, doc.path.parent, path.parent)
+            continue
         js.setdefault("bufferViews", []).append(blob.add_view(data))
         img.pop("uri")
         img["bufferView"] = len(js["bufferViews"]) - 1
-        img.setdefault("mimeType", _mime(data, uri))
+        img.setdefault("mimeType", mime)
     return blob
+
+
+#: Image types an output embeds (``images[].bufferView`` + ``mimeType``): the core PNG and JPEG and the types
+#: of EXT_texture_webp and KHR_texture_basisu. Any other image stays a file the output links to.
+EMBEDDED_IMAGE_TYPES = ("image/png", "image/jpeg", "image/webp", "image/ktx2")
+
+
+def _image_bytes(doc, uri: str, i: int) -> bytes | None:
+    """The bytes of an image file, or None when it cannot be read: the output then links to where the source
+    does (it was no better there), rather than failing after all the work."""
+    from urllib.parse import unquote
+
+    if not (doc.path.parent / unquote(uri)).is_file():
+        return None
+    return doc.uri_bytes(uri, f"images[{i}]")          # its checks: the folder policy, readable bytes
+
+
+def relinked_uri(uri: str, source_folder: Path, output_folder: Path) -> str:
+    """A relative URI of the source's file ``uri`` as seen from ``output_folder`` (glTF URIs: ``/``-separated,
+    percent-encoded)."""
+    import os
+    from urllib.parse import quote, unquote
+
+    target = (source_folder / unquote(uri)).resolve()
+    try:
+        rel = os.path.relpath(target, output_folder.resolve())
+    except ValueError:                 # another drive (Windows): only an absolute path reaches it
+        return target.as_uri()
+    return quote(rel.replace(os.sep, "/"))
 
 
 def _put_reduced(js: dict, blob: _Blob, source: GltfSkin, reduced, quantize: str, sets: int | None) -> dict:

@@ -238,7 +238,7 @@ def _choose_binding(bindings, skeleton, mesh, path: Path):
     if skeleton is not None:
         hits = [i for i, s in enumerate(skels) if s == str(skeleton) or s.rsplit("/", 1)[-1] == str(skeleton)]
         if not hits:
-            raise InputError(f"no skeleton '{brief(skeleton)}' has skinned meshes", source=path, field="skeleton",
+            raise InputError(f"no skeleton {brief(skeleton)} has skinned meshes", source=path, field="skeleton",
                              fix=closest(str(skeleton), skels))
         return bindings[hits[0]]
     if mesh is not None:
@@ -246,7 +246,7 @@ def _choose_binding(bindings, skeleton, mesh, path: Path):
             if any(_matches(q.GetPrim(), mesh) for q in b.GetSkinningTargets()):
                 return b
         names = [str(q.GetPrim().GetPath()) for b in bindings for q in b.GetSkinningTargets()]
-        raise InputError(f"no skinned mesh '{brief(mesh)}'", source=path, field="mesh", fix=closest(str(mesh), names))
+        raise InputError(f"no skinned mesh {brief(mesh)}", source=path, field="mesh", fix=closest(str(mesh), names))
     if len(set(skels)) > 1:
         raise InputError(f"{len(set(skels))} skeletons have skinned meshes", source=path, field="skeleton",
                          fix="choose one with 'skeleton: " + skels[0] + "' (or a mesh with 'mesh:')")
@@ -270,7 +270,7 @@ def check_joints(skel, path: Path, where: str) -> list[str]:
                          fix="author the Skeleton's joints (token[] of joint paths)")
     if len(set(joints)) != len(joints):
         dup = next(j for j in joints if joints.count(j) > 1)
-        raise InputError(f"joint '{brief(dup)}' is listed twice", source=path, field=f"{where}.joints",
+        raise InputError(f"joint {brief(dup)} is listed twice", source=path, field=f"{where}.joints",
                          fix="give every joint once")
     ok, why = UsdSkel.Topology(joints).Validate()
     if not ok:
@@ -309,20 +309,20 @@ def _check_matrices(M: np.ndarray, path: Path, where: str, joints: list[str]) ->
     finite = np.isfinite(M).all(axis=(1, 2))
     if not finite.all():
         j = int(np.argmin(finite))
-        raise InputError(f"the matrix of joint '{brief(joints[j])}' contains NaN or inf", source=path,
+        raise InputError(f"the matrix of joint {brief(joints[j])} contains NaN or inf", source=path,
                          field=f"{where}[{j}]", fix="re-export the skeleton")
     scale = np.maximum(np.abs(M[:, :3, :3]).max(axis=(1, 2)), 1e-300)
     affine = np.abs(M[:, 3, :] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) <= 1e-6 * np.maximum(scale, 1.0)
     if not affine.all():
         j = int(np.argmin(affine))
-        raise InputError(f"the matrix of joint '{brief(joints[j])}' is not affine (last column "
+        raise InputError(f"the matrix of joint {brief(joints[j])} is not affine (last column "
                          f"{np.round(M[j, 3], 6).tolist()})", source=path, field=f"{where}[{j}]",
                          fix="re-export the skeleton")
     det = np.abs(np.linalg.det(M[:, :3, :3]))
     singular = ~(det > 1e-12 * scale ** 3)
     if singular.any():
         j = int(np.argmax(singular))
-        raise InputError(f"the matrix of joint '{brief(joints[j])}' is singular", source=path,
+        raise InputError(f"the matrix of joint {brief(joints[j])} is singular", source=path,
                          field=f"{where}[{j}]", fix="re-export the skeleton with invertible bind matrices")
 
 
@@ -455,7 +455,7 @@ def _influences(query, prim, m: int, joint_index: dict[str, int], skel_joints: l
         order = _tokens(authored, path, f"{where}.skel:joints")
         unknown = [j for j in order if j not in joint_index]
         if unknown:
-            raise InputError(f"skel:joints names {len(unknown)} joints the skeleton lacks ('{brief(unknown[0])}')",
+            raise InputError(f"skel:joints names {len(unknown)} joints the skeleton lacks ({brief(unknown[0])})",
                              source=path, field=f"{where}.skel:joints",
                              fix=closest(unknown[0], skel_joints) if skel_joints else "list the skeleton's joints")
         mapping = np.array([joint_index[j] for j in order], np.int64)
@@ -488,7 +488,7 @@ def _animation_query(cache, skel_query, animation, stage, path: Path):
     anims = [p for p in stage.Traverse() if p.IsA(UsdSkel.Animation)]
     hits = [p for p in anims if str(p.GetPath()) == str(animation) or p.GetName() == str(animation)]
     if not hits:
-        raise InputError(f"no SkelAnimation '{brief(animation)}'", source=path, field="animation",
+        raise InputError(f"no SkelAnimation {brief(animation)}", source=path, field="animation",
                          fix=closest(str(animation), [str(p.GetPath()) for p in anims]) if anims
                          else "the file has no SkelAnimation; leave 'animation' out for the rest pose")
     q = cache.GetAnimQuery(hits[0])

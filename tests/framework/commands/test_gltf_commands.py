@@ -276,6 +276,35 @@ def test_lod_writes_no_level_where_the_first_collapse_exceeds_the_bound(tmp_path
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.glb", "m.json", "s.lod.json"]
 
 
+def test_lod_target_the_source_already_meets_is_no_level(tmp_path, capsys):
+    """simple_skin's 8 faces at 0.95 (the target rounds to 8): once a "level" with the source's faces."""
+    out, rep = tmp_path / "s.glb", tmp_path / "s.json"
+    assert main(["lod", str(GLTF / "simple_skin.gltf"), "-o", str(out), "--ratios", "0.95", "--max-error", "none",
+                 "--report", str(rep)]) == 0
+    t = json.loads(rep.read_text())["targets"][0]
+    assert t["same_as"] == "source" and t["stopped"] is None and t["faces"] == t["target_faces"] == 8
+    assert "target 0.95 (8 faces): the source's own 8 faces meet it, so it has no level" in capsys.readouterr().err
+
+
+def test_weights_that_do_not_sum_to_one_are_noted(tmp_path, capsys):
+    """assimp's FBX conversion (sums 0.82..1.38) gets one stderr line from lod and reduce; bcn_epileptic, whose
+    sums are 1 +- 1e-6 (a validator error, no visible change), gets none."""
+    src = GLTF / "animation_with_skeleton.glb"
+    assert main(["reduce", str(src), "-o", str(tmp_path / "r.glb"), "-k", "2"]) == 0
+    err = capsys.readouterr().err
+    assert "animation_with_skeleton.glb: the skin weights of 2462 vertices do not sum to 1 (0.8244 to 1.377)" in err
+    assert main(["lod", str(GLTF / "suite" / "bcn_epileptic.glb"), "-o", str(tmp_path / "b.glb"),
+                 "--ratios", "0.5"]) == 0
+    assert "do not sum to 1" not in capsys.readouterr().err
+
+
+def test_no_motion_says_which():
+    from rigslim.commands.gltf_common import no_motion
+
+    assert no_motion("a.glb", None, 0.0) == "a.glb has no animation"
+    assert no_motion("t.glb", "anim", 0.0) == "t.glb's clip 'anim' holds one pose only (0 s long)"
+
+
 def test_inspect_json(capsys):
     assert main(["inspect", str(GLTF / "animation_with_skeleton.glb"), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)

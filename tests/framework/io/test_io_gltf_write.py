@@ -356,6 +356,31 @@ def test_external_image_is_embedded_when_written_elsewhere(tmp_path, valid):
     assert _canonical(back, True) == _canonical(src.document, True)
 
 
+def test_images_glTF_cannot_embed_or_that_are_missing_stay_links(tmp_path):
+    """A .tga (no glTF MIME type) is linked from the output's folder instead of being embedded as
+    application/octet-stream (TEXTURE_INVALID_IMAGE_MIME_TYPE); a missing image is linked where the source
+    linked it instead of failing after the whole run; a URL stays as it is; a PNG is still embedded."""
+    doc = load_gltf(GLTF / "huesitos.glb")
+    js = json.loads(json.dumps(doc.json))
+    js["images"] = [{"uri": "skin.tga"}, {"uri": "gone%20away.png"}, {"uri": "https://example.org/t.png"},
+                    {"uri": "tex/ok.png"}]
+    src_dir = tmp_path / "src"
+    (src_dir / "tex").mkdir(parents=True)
+    (src_dir / "skin.tga").write_bytes(b"\x00\x00\x02" + bytes(15))
+    (src_dir / "tex" / "ok.png").write_bytes(_png_1x1())
+    from rigslim.io.gltf.write import _write_document
+
+    _write_document(src_dir / "textured.glb", js, doc.buffers[0])
+    src = read_gltf_skin(src_dir / "textured.glb")
+    out = tmp_path / "out" / "deeper" / "textured.glb"
+    write_gltf(out, src, _k_largest(src.weights, 3), quantize="ushort")
+    imgs = load_gltf(out).json["images"]
+    assert imgs[0] == {"uri": "../../src/skin.tga"} and (out.parent / imgs[0]["uri"]).resolve().is_file()
+    assert imgs[1] == {"uri": "../../src/gone%20away.png"}
+    assert imgs[2] == {"uri": "https://example.org/t.png"}
+    assert "uri" not in imgs[3] and imgs[3]["mimeType"] == "image/png"
+
+
 def test_welded_reduction_is_written_on_every_file_vertex(tmp_path, valid):
     src = read_gltf_skin(GLTF / "animation_with_skeleton.glb", weld=True)
     reduced = _k_largest(src.weights, 3)

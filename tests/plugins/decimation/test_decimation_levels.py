@@ -54,7 +54,9 @@ def test_a_target_that_ends_before_the_first_collapse_is_no_level():
     assert [c.collapses for c in out] == [0, 0] and out[0].stopped == "max_error"
     none = choose_levels(FakeHierarchy([], 100), [0.5], [50], np.zeros(0), None, "quartic")
     assert none[0].same_as == SOURCE and none[0].stopped == "no collapse"
-    assert choose_levels(h, [1.0], [100], np.array([0.5, 0.6]), None, "quartic")[0].same_as is None
+    met = choose_levels(h, [0.995, 0.5], [100, 50], np.array([0.5, 0.6]), None, "quartic")   # 0.995 rounds to 100
+    assert met[0].same_as == SOURCE and met[0].stopped is None and met[0].collapses == 0
+    assert met[1].same_as is None and met[1].faces == 96
 
 
 def test_the_bound_stops_a_level_before_its_target():
