@@ -24,6 +24,8 @@ from rigslim.commands.run import _cmd_run
 from rigslim.errors import RigslimError
 
 EXIT_USER_ERROR = 2
+#: A defect of rigslim (an exception no check turned into a one-line error).
+EXIT_BUG = 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -126,6 +128,16 @@ def main(argv=None) -> int:
         print(f"rigslim: error: {where}{e.strerror or e} (fix: check the path, its permissions and the free space)",
               file=sys.stderr)
         return EXIT_USER_ERROR
+    except Exception as e:  # noqa: BLE001 - a defect of rigslim's own: one line, the traceback on request
+        from rigslim.errors import clip
+
+        print(f"rigslim: error: {type(e).__name__}: {clip(str(e), 160)} (fix: a bug in rigslim: please report it; "
+              f"RIGSLIM_TRACEBACK=1 prints the traceback)", file=sys.stderr)
+        if os.environ.get("RIGSLIM_TRACEBACK"):
+            import traceback
+
+            traceback.print_exception(e)
+        return EXIT_BUG
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
@@ -146,8 +158,9 @@ def add_commands(sub) -> None:
     p.add_argument("input", metavar="IN.glb")
     p.add_argument("-o", "--output", required=True, metavar="OUT.glb")
     p.add_argument("-k", type=int, default=4, help="influences per vertex (1..8; default 4)")
-    p.add_argument("--select", default="best-fit:error", metavar="NAME[:BY]",
-                   help="influence selection: best-fit:error (default), best-fit:weight, k-largest (the baseline)")
+    p.add_argument("--select", default=None, metavar="NAME[:BY]",
+                   help="influence selection: best-fit:error (default; best-fit alone means it too), best-fit:weight, "
+                   "k-largest (the baseline)")
     p.add_argument("--by", choices=["error", "weight"], help="best-fit: keep the set of least example-pose error "
                    "or the largest fitted weights (same as --select best-fit:BY)")
     p.add_argument("--solve", default="geometric", help="weight solver (geometric, poisson, smooth, k-largest)")
@@ -161,7 +174,8 @@ def add_commands(sub) -> None:
     p.add_argument("-o", "--output", required=True, metavar="OUT.glb")
     p.add_argument("--ratios", default="0.5,0.25", help="fractions of the faces, decreasing (default 0.5,0.25)")
     p.add_argument("--max-bones", type=int, default=4, help="influences per vertex at every level (default 4)")
-    p.add_argument("--method", default="quartic", help="decimator (quartic, mohr-gleicher, decoro-rusinkiewicz)")
+    p.add_argument("--method", default="quartic", help="decimator (quartic, mohr-gleicher, decoro-rusinkiewicz, "
+                   "static-qslim: no error bound)")
     p.add_argument("--quantize", choices=["ubyte", "ushort", "float"], default="ubyte")
     p.add_argument("--max-error", default="1%", metavar="E",
                    help="stop a level where the error would pass E: %% of the world diagonal (1, 1%%), metres "

@@ -197,7 +197,8 @@ def vertex_errors(Pr: np.ndarray, Pc: np.ndarray, F: np.ndarray, diag: float) ->
 
     ``position_rms_m = sqrt(mean_{j,v} |c_v^j - r_v^j|^2)``, ``position_max_m = max_{j,v} |c_v^j - r_v^j|``,
     ``position_rms_pct`` (of ``diag``) and ``normal_rms_rad``, the RMS angle between the area-weighted vertex
-    normals (:func:`rigslim.numerics.blend.per_vertex_normals`) where both are finite; one frame at a time.
+    normals (:func:`rigslim.numerics.blend.per_vertex_normals`) where both are defined (finite and of unit
+    length: a vertex no face of non-zero area touches has a zero normal, left out); one frame at a time.
     """
     from rigslim.numerics.blend import per_vertex_normals
 
@@ -209,12 +210,17 @@ def vertex_errors(Pr: np.ndarray, Pc: np.ndarray, F: np.ndarray, diag: float) ->
         d2 = np.einsum("vi,vi->v", d, d)
         sq[j], far[j] = d2.sum(), np.sqrt(d2.max())
         nr, nc = per_vertex_normals(Pr[j], F), per_vertex_normals(Pc[j], F)
-        ok = np.isfinite(nr).all(axis=1) & np.isfinite(nc).all(axis=1)
+        ok = _defined(nr) & _defined(nc)
         ang.append(np.arccos(np.clip((nr[ok] * nc[ok]).sum(axis=1), -1, 1)))
     a = np.concatenate(ang)
     rms = float(np.sqrt(sq.sum() / (n * Pr.shape[1])))
     return ({"position_rms_m": rms, "position_max_m": float(far.max()), "position_rms_pct": 100 * rms / diag,
              "normal_rms_rad": float(np.sqrt((a * a).mean())) if a.size else 0.0}, int(np.argmax(far)))
+
+
+def _defined(N: np.ndarray) -> np.ndarray:
+    """Rows of ``N`` that are unit normals: finite and not the zero vector of a vertex without area."""
+    return np.isfinite(N).all(axis=1) & (np.einsum("vi,vi->v", N, N) > 0.25)
 
 
 def cmd_compare(args) -> int:

@@ -7,6 +7,7 @@ import argparse
 import contextlib
 import copy
 import json
+import math
 import re
 import time
 from pathlib import Path
@@ -47,7 +48,7 @@ def _check_input(path, what: str = "input") -> Path:
 
 
 def _check_fps(fps: float) -> None:
-    if not fps > 0:
+    if not (fps > 0 and math.isfinite(fps)):
         raise InputError(f"--fps {fps:g} is not a positive frame rate", field="--fps", fix="give e.g. --fps 30")
 
 

@@ -69,6 +69,18 @@ def parse_max_error_option(text: str) -> str | None:
     return None if parsed is None else f"{parsed[0]:g}{parsed[1]}"
 
 
+def bounded(method: str) -> bool:
+    """Whether the decimation ``method`` takes ``max_error`` (static QSlim, pymeshlab's, does not); an unknown
+    name counts as bounded, so that the pipeline names it with the valid ones."""
+    from rigslim.errors import PluginNotFoundError
+    from rigslim.plugin.host import get_host
+
+    try:
+        return "max_error" in get_host().get("articulated-decimation", method).Params.model_fields
+    except PluginNotFoundError:
+        return True
+
+
 def lod_pipeline(src: Path, out: Path, *, ratios, max_bones: int, clip, fps: float, frames: int, quantize: str,
                  method: str = "quartic", measure: bool = False, skin: int | None = None,
                  max_error: str | None = DEFAULT_MAX_ERROR, joints: dict | None = None,
@@ -76,7 +88,8 @@ def lod_pipeline(src: Path, out: Path, *, ratios, max_bones: int, clip, fps: flo
     """The pipeline ``rigslim lod`` runs: a decimation step with a bone limit (and ``joints``: the joint budget,
     :func:`rigslim.commands.lod_levels.decimate_params`), then the LOD writer (``coverage``: its switch camera)."""
     steps = [{"decimate": method, "targets": list(ratios), "max_bones": max_bones,
-              "max_error": "none" if max_error is None else max_error, **(joints or {})}]
+              **({"max_error": "none" if max_error is None else max_error} if bounded(method) else {}),
+              **(joints or {})}]
     if measure:
         steps.append({"evaluate": ["metro", "max-influences"]})
     write = write_step(out, quantize=quantize, lod=True, clamp_negative=True)
@@ -101,6 +114,11 @@ def cmd_lod(args) -> int:
                          field="--max-bones", fix="give 1..8 (4 for three.js and most engines)")
     _check_fps(args.fps)
     max_error = parse_max_error_option(args.max_error)
+    if not bounded(args.method):
+        if max_error is not None and args.max_error != DEFAULT_MAX_ERROR:
+            raise InputError(f"--method {args.method} has no error bound", field="--max-error",
+                             fix="leave --max-error out (or give none), or use --method quartic")
+        max_error = None
     joints, coverage = decimate_params(args, len(ratios)), write_params(args)
     named = {"-o": out} if not args.split else \
         {f"--split (level {r:g})": p for r, p in zip(ratios, split_names(out, ratios), strict=True)} | \

@@ -55,8 +55,9 @@ def parse_max_joints(text: str | None, n_levels: int) -> float | list[float] | N
     bad = not values or any(not v > 0 or (v >= 1 and v != int(v)) for v in values)
     if bad or len(values) not in (1, n_levels):
         raise InputError(f"--max-joints '{text}' is not one joint count (or fraction) per level of {n_levels}",
-                         field="--max-joints", fix=f"give one count for all levels (24) or {n_levels} counts "
-                         "(e.g. 40,24,12), or fractions of the skin's joints (0.5)")
+                         field="--max-joints", fix="give one count for all levels (24)"
+                         + (f" or {n_levels} counts (e.g. {','.join(str(40 >> i) for i in range(n_levels))})"
+                            if n_levels > 1 else "") + ", or fractions of the skin's joints (0.5)")
     values = [int(v) if v >= 1 else v for v in values]
     return values[0] if len(values) == 1 else values
 

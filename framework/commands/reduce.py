@@ -34,6 +34,17 @@ from rigslim.errors import InputError
 DEFAULT_SELECT = "best-fit:error"
 
 
+def resolved_select(select: str | None, by: str | None) -> str:
+    """``--select NAME[:BY]`` with ``--by BY`` as one ``NAME[:BY]``: best-fit without a criterion is best-fit by
+    error (the command's default, not the plugin's); a ``--by`` that contradicts ``:BY`` is an error."""
+    name, _, by_in_name = (select or DEFAULT_SELECT.partition(":")[0]).partition(":")
+    if by and by_in_name and by != by_in_name:
+        raise InputError(f"--select {select} and --by {by} name two criteria", field="--by",
+                         fix=f"give one: --select {name}:{by}, or --by {by} alone")
+    chosen = by or by_in_name or ("error" if name == "best-fit" else "")
+    return f"{name}:{chosen}" if chosen else name
+
+
 def select_step(select: str, by: str | None, k: int) -> dict:
     """The ``select`` step of ``--select NAME[:BY]`` and ``--by BY`` (``by`` of best-fit)."""
     name, _, by_in_name = select.partition(":")
@@ -43,8 +54,8 @@ def select_step(select: str, by: str | None, k: int) -> dict:
     return step
 
 
-def reduce_pipeline(src: Path, out: Path, *, k: int, select: str, solve: str, clip, fps: float, frames: int,
-                    quantize: str, skin: int | None = None, by: str | None = None) -> dict:
+def reduce_pipeline(src: Path, out: Path, *, k: int, select: str | None, solve: str | None, clip, fps: float,
+                    frames: int, quantize: str, skin: int | None = None, by: str | None = None) -> dict:
     """The pipeline ``rigslim reduce`` runs (without animation: k-largest, no evaluation; select None: rewrite only).
 
     Animated: example poses from every clip (``--clip``: that one), held-out frames of each for the
@@ -107,7 +118,8 @@ def cmd_reduce(args) -> int:
         frames, clip, duration = clip_frames(src, args.clip, args.fps, source)
         unnormalised = unnormalised_note("reduce", src.name, source)
         console = _console(args)
-        select, solve = args.select, args.solve
+        select: str | None = resolved_select(args.select, args.by)
+        solve = args.solve
         joints = _joint_count(src, source)
         if args.k >= joints:
             print(f"rigslim reduce: the skin has {joints} joints, so every vertex already has at most k = {args.k}: "
@@ -119,8 +131,8 @@ def cmd_reduce(args) -> int:
             select, solve = "k-largest", "k-largest"
         with scratch_folder("rigslim-reduce-") as tmp:
             runs = _chain(src, out, lambda i, o, s: reduce_pipeline(
-                i, o, k=args.k, select=select, solve=solve, clip=args.clip, fps=args.fps, frames=frames,
-                quantize=args.quantize, skin=s, by=args.by if select == args.select else None),
+                i, o, k=args.k, select=select, solve=solve, clip=clip if args.clip is not None else None,
+                fps=args.fps, frames=frames, quantize=args.quantize, skin=s),
                 args, console, tmp, source)
         pipeline, result, _ = runs[-1]
         seconds = sum(r[2] for r in runs)

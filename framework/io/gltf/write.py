@@ -1129,6 +1129,11 @@ def write_pruned(path, doc, js: dict) -> None:
     js["buffers"] = [{"byteLength": len(data)}] if data else []
     if not data:
         js.pop("buffers")
+    if path.parent.resolve() != doc.path.parent.resolve():    # images kept as links: from the new folder
+        for img in js.get("images", []):
+            uri = img.get("uri")
+            if uri is not None and not URI_SCHEME.match(uri):
+                img["uri"] = relinked_uri(uri, doc.path.parent, path.parent)
     _write_document(path, js, data)
 
 

@@ -298,6 +298,55 @@ def test_weights_that_do_not_sum_to_one_are_noted(tmp_path, capsys):
     assert "do not sum to 1" not in capsys.readouterr().err
 
 
+def test_reduce_select_by_and_clip_index(tmp_path, capsys):
+    """--by weight is what the line and the report say (it once said best-fit:error); a contradicting pair is
+    refused; --clip 0 is the first clip, as for lod and compare (it was looked up as a name)."""
+    src = GLTF / "huesitos.glb"
+    rep = tmp_path / "r.json"
+    assert main(["reduce", str(src), "-o", str(tmp_path / "w.glb"), "-k", "2", "--by", "weight",
+                 "--report", str(rep)]) == 0
+    assert "best-fit:weight/geometric" in capsys.readouterr().out
+    doc = json.loads(rep.read_text())
+    assert doc["select"] == "best-fit:weight"
+    assert next(s for s in doc["pipeline"]["steps"] if "select" in s)["by"] == "weight"
+    assert main(["reduce", str(src), "-o", str(tmp_path / "x.glb"), "-k", "2", "--select", "best-fit:error",
+                 "--by", "weight"]) == 2
+    assert "name two criteria" in capsys.readouterr().err and not (tmp_path / "x.glb").exists()
+    assert main(["reduce", str(src), "-o", str(tmp_path / "c.glb"), "-k", "2", "--select", "best-fit",
+                 "--clip", "0"]) == 0
+    assert "best-fit:error/geometric" in capsys.readouterr().out
+
+
+def test_lod_static_qslim_has_no_error_bound(tmp_path, capsys):
+    src = GLTF / "huesitos.glb"
+    assert main(["lod", str(src), "-o", str(tmp_path / "s.glb"), "--ratios", "0.5", "--method", "static-qslim"]) == 0
+    assert "static-qslim-50pct" in capsys.readouterr().out
+    assert main(["lod", str(src), "-o", str(tmp_path / "t.glb"), "--ratios", "0.5", "--method", "static-qslim",
+                 "--max-error", "2"]) == 2
+    assert "--method static-qslim has no error bound" in capsys.readouterr().err
+
+
+def test_split_levels_link_images_from_their_own_folder(tmp_path):
+    """--split writes each level from the scratch folder's full file: a .tga link was once left relative to
+    that folder (IO_ERROR in the validator); it must lead to the source's image from the level's folder."""
+    from rigslim.io.gltf.write import _write_document
+
+    doc = load_gltf(GLTF / "huesitos.glb")
+    js = json.loads(json.dumps(doc.json))
+    js["images"] = [{"uri": "skin.tga"}]
+    js["textures"] = [{"source": 0}]
+    src_dir = tmp_path / "src"
+    src_dir.mkdir()
+    (src_dir / "skin.tga").write_bytes(b"\x00\x00\x02" + bytes(15))
+    _write_document(src_dir / "textured.glb", js, doc.buffers[0])
+    for out in (tmp_path / "out" / "deep" / "t.glb", tmp_path / "out" / "t.gltf"):
+        assert main(["lod", str(src_dir / "textured.glb"), "-o", str(out), "--ratios", "0.5", "--split",
+                     "--max-error", "none"]) == 0
+        level = out.with_name(f"{out.stem}-50{out.suffix}")
+        uri = load_gltf(level).json["images"][0]["uri"]
+        assert (level.parent / uri).resolve() == (src_dir / "skin.tga").resolve(), uri
+
+
 def test_no_motion_says_which():
     from rigslim.commands.gltf_common import no_motion
 
