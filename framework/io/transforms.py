@@ -155,8 +155,7 @@ def rigid_parts(T: np.ndarray, *, tolerance: float = 1e-5, source=None) -> tuple
     if err.size and (err.max() > tolerance or det.min() <= 0):
         bad = np.unravel_index(int(np.argmax(err + (det <= 0))), err.shape)
         raise InputError(f"bone transform {tuple(int(x) for x in bad)} is not a rotation plus translation "
-                         f"(|R^T R - I| = {err[bad]:.2g}, det = {det[bad]:.3g}; it scales or shears)",
+                         f"(it scales: |R^T R - I| = {err[bad]:.2g}, det = {det[bad]:.3g})",
                          source=source, field="animation",
-                         fix="rigslim writes glTF joint animation as rotation and translation only: start from "
-                             "the glTF source, or write USD, which keeps any joint matrix")
+                         fix="start from the glTF source, or write USD (glTF export: rotation + translation)")
     return R, t
