@@ -26,7 +26,7 @@ import scipy.sparse as sp
 
 from rigslim.errors import StepError
 from rigslim.io.atomic import atomic_path, output_transaction
-from rigslim.io.transforms import matrix_quaternion, rigid_parts
+from rigslim.io.transforms import matrix_quaternion
 
 if TYPE_CHECKING:
     from rigslim.model.weights import ReducedWeights
@@ -916,8 +916,8 @@ def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.
         Rows sum to one; all non-zeros are written (``ceil(max per row / 4)`` sets).
     poses : Poses, optional
         Per-bone 3x4 transforms relative to the rest pose (libigl's stacked
-        LBS convention); written as one animation with LINEAR translation
-        and rotation channels, frame f at ``f / fps`` seconds.
+        LBS convention); written as one animation with LINEAR translation, rotation
+        and (where a joint scales) scale channels, frame f at ``f / fps`` seconds.
     fps : float
     quantize : {"float", "ushort", "ubyte"}
     name, animation_name : str
@@ -937,7 +937,8 @@ def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.
     [R_b | R_b s_b + t_b]`` and its inverse bind matrix ``Trans(-s_b)``, so
     ``G_b @ IBM_b = T_b``: the glTF skin reproduces the libigl deformation.
     Local transforms are ``G_parent^{-1} G_b`` (rotation ``R_p^T R_b``,
-    translation ``R_p^T (x_b - x_p)``), which needs rigid ``T_b``.
+    translation ``R_p^T (x_b - x_p)``); a joint that scales gets a scale channel too (:func:`local_trs`),
+    and only a local shear cannot be written.
     """
     path = Path(path)
     if handles is None or handles.kind != "skeleton" or handles.bones is None:
@@ -1049,20 +1050,13 @@ def _put_export_levels(js: dict, blob: _Blob, levels: list, n: int, quantize: st
 
 def _put_export_animation(js: dict, blob: _Blob, poses, n: int, start: np.ndarray, parents: np.ndarray,
                           fps: float, animation_name: str) -> None:
-    """The poses as one animation: LINEAR translation and rotation channels of every joint node, local
-    transforms ``G_parent^{-1} G_b`` (the Notes of :func:`export_skinned`), frame f at ``f / fps`` s."""
+    """The poses as one animation: LINEAR translation, rotation and (where a joint scales) scale channels of
+    every joint node, local transforms ``G_parent^{-1} G_b`` (the Notes of :func:`export_skinned`), frame f
+    at ``f / fps`` s."""
     if poses.n_handles != n:
         raise StepError(f"poses have {poses.n_handles} handles, the skeleton {n} bones", field="poses",
                         fix="use the animation of this skeleton")
-    R, t = rigid_parts(poses.T, source=poses.source)            # (p, n, 3, 3), (p, n, 3)
-    x = np.einsum("pnij,nj->pni", R, start) + t                # joint world positions
-    Rl = R.copy()
-    xl = x.copy()
-    for b in range(n):
-        p = parents[b]
-        if p >= 0:
-            Rl[:, b] = np.einsum("pji,pjk->pik", R[:, p], R[:, b])
-            xl[:, b] = np.einsum("pji,pj->pi", R[:, p], x[:, b] - x[:, p])
+    Rl, Sl, xl = local_trs(poses.T, start, parents, source=poses.source)
     q = matrix_quaternion(Rl)                                   # (p, n, 4)
     for j in range(1, len(q)):                                  # shortest arcs between frames
         flip = np.sum(q[j] * q[j - 1], axis=1) < 0
@@ -1071,11 +1065,64 @@ def _put_export_animation(js: dict, blob: _Blob, poses, n: int, start: np.ndarra
     tacc = blob.new_accessor(times, 5126, "SCALAR", target=None, minmax=True)
     samplers, channels = [], []
     for b in range(n):
-        for path_name, values, type_ in (("translation", xl[:, b], "VEC3"), ("rotation", q[:, b], "VEC4")):
+        paths = [("translation", xl[:, b], "VEC3"), ("rotation", q[:, b], "VEC4")]
+        if np.abs(Sl[:, b] - 1.0).max() > 1e-7:
+            paths.append(("scale", Sl[:, b], "VEC3"))
+        for path_name, values, type_ in paths:
             out = blob.new_accessor(values.astype(np.float32), 5126, type_, target=None)
             samplers.append({"input": tacc, "output": out, "interpolation": "LINEAR"})
             channels.append({"sampler": len(samplers) - 1, "target": {"node": b + 1, "path": path_name}})
     js["animations"] = [{"name": animation_name, "samplers": samplers, "channels": channels}]
+
+
+def local_trs(T: np.ndarray, start: np.ndarray, parents: np.ndarray, *, tolerance: float = 1e-5,
+              source=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The glTF node transforms (rotation, scale, translation) of the joints of per-bone pose transforms.
+
+    Parameters
+    ----------
+    T : (p, n, 3, 4)
+        ``T_b = [A_b | t_b]``, the libigl pose transforms of :func:`export_skinned`.
+    start : (n, 3)
+        Each bone's start (its joint node's rest position).
+    parents : (n,)
+        Parent bone, -1 for a root.
+
+    Returns
+    -------
+    R : (p, n, 3, 3), S : (p, n, 3), x : (p, n, 3)
+        With the joint's global transform ``G_b = [A_b | x_b]``, ``x_b = A_b s_b + t_b``, the local one is
+        ``L_b = A_p^{-1} A_b`` (a root: ``A_b``) and ``x_b' = A_p^{-1} (x_b - x_p)``; glTF's node matrix is
+        ``T R S``, so ``S`` is the column norms of ``L_b`` and ``R = L_b S^{-1}``, which must be a rotation: a
+        rigid or uniformly scaled rig always decomposes, a local shear does not (one line,
+        :class:`~rigslim.errors.InputError`).
+    """
+    from rigslim.errors import InputError
+
+    T = np.asarray(T, dtype=np.float64)
+    A, t = T[..., :3], T[..., 3]
+    det = np.linalg.det(A)
+    if det.size and not (det > 0).all():
+        bad = np.unravel_index(int(np.argmin(det)), det.shape)
+        raise InputError(f"bone transform {tuple(int(x) for x in bad)} mirrors or flattens (det = {det[bad]:.3g})",
+                         source=source, field="animation", fix="give transforms with positive determinant")
+    x = np.einsum("pnij,nj->pni", A, start) + t                # joint world positions
+    L, xl = A.copy(), x.copy()
+    for b in range(len(parents)):
+        p = parents[b]
+        if p >= 0:
+            inv = np.linalg.inv(A[:, p])
+            L[:, b] = inv @ A[:, b]
+            xl[:, b] = np.einsum("pij,pj->pi", inv, x[:, b] - x[:, p])
+    S = np.linalg.norm(L, axis=-2)                             # (p, n, 3): column norms
+    R = L / S[..., None, :]
+    err = np.abs(np.einsum("...ji,...jk->...ik", R, R) - np.eye(3)).max(axis=(-1, -2))
+    if err.size and err.max() > tolerance:
+        bad = np.unravel_index(int(np.argmax(err)), err.shape)
+        raise InputError(f"bone transform {tuple(int(x) for x in bad)} is not a rotation plus translation and "
+                         f"scale (it shears: |R^T R - I| = {err[bad]:.2g})", source=source, field="animation",
+                         fix="start from the glTF source, or write USD, which keeps any joint matrix")
+    return R, S, xl
 
 
 # --------------------------------------------------------------------------- pruned copies (one file per level)

@@ -310,11 +310,35 @@ def test_export_elephant_reproduces_libigl_skinning(tmp_path, valid, elephant_sm
         assert np.abs(X1 - X0).max() < 1e-6 * scale
 
 
-def test_export_rejects_non_rigid_bones(tmp_path, elephant_small):
+def test_export_writes_scaled_joints_as_scale_channels(tmp_path, valid, elephant_small):
+    """A rig scaled uniformly (assimp's x100 armatures, written to USD and back) or one joint scaled along its
+    own axes (a leaf: a parent's non-uniform scale would shear its children, which TRS cannot hold): translation,
+    rotation and scale channels reproduce the deformation (once refused as non-rigid)."""
+    mesh, handles, W, P = elephant_small
+    T = P.T[:3].copy()
+    T[1] *= 2.0                                                 # the whole rig at twice the size in frame 1
+    T[2, 5, :, :3] = T[2, 5, :, :3] @ np.diag([1.0, 1.5, 1.0])  # leaf bone 5 stretched along its local y
+    out = tmp_path / "scaled.glb"
+    export_skinned(out, mesh, handles, W, Poses(T), fps=10)
+    valid(out)
+    paths = {c["target"]["path"] for c in load_gltf(out).json["animations"][0]["channels"]}
+    assert paths == {"translation", "rotation", "scale"}
+    back = read_gltf_skin(out, fps=10)
+    scale = mesh.bbox_diagonal
+    for f in range(3):
+        X0 = linear_blend(mesh.V, W, T[f])
+        X1 = linear_blend(back.mesh.V, back.weights, back.poses.T[f])
+        assert np.abs(X1 - X0).max() < 1e-5 * scale, f
+
+
+def test_export_rejects_sheared_or_mirrored_bones(tmp_path, elephant_small):
     mesh, handles, W, P = elephant_small
     T = P.T[:2].copy()
-    T[1, 3, :, :3] *= 1.1                                       # a scaled bone
-    with pytest.raises(InputError, match="not a rotation"):
+    T[1, 3, :, :3] = T[1, 3, :, :3] @ np.array([[1.0, 0.4, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])   # a shear
+    with pytest.raises(InputError, match="it shears"):
+        export_skinned(tmp_path / "bad.glb", mesh, handles, W, Poses(T))
+    T[1, 3, :, :3] = np.diag([-1.0, 1.0, 1.0])                                                     # a mirror
+    with pytest.raises(InputError, match="mirrors"):
         export_skinned(tmp_path / "bad.glb", mesh, handles, W, Poses(T))
     assert not (tmp_path / "bad.glb").exists()
 
