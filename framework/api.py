@@ -29,7 +29,7 @@ from rigslim.model.weights import ReducedWeights, validate_weights
 from rigslim.plugin.contract import Decimation, Decimator, StepContext
 from rigslim.plugin.host import PluginHost, PluginInfo, get_host
 from rigslim.runtime.clips import DEFAULT_EXAMPLE_COUNT, sample_clip_frames
-from rigslim.runtime.document import PipelineDoc, Step, load_pipeline
+from rigslim.runtime.document import PipelineDoc, Step, check_params, load_pipeline
 from rigslim.runtime.run import RunResult, run_pipeline
 
 __all__ = ["Pipeline", "reduce_weights", "registry", "simplify"]
@@ -121,7 +121,15 @@ class Pipeline:
 
 def _as_poses(poses, n: int, field: str) -> Poses:
     if not isinstance(poses, Poses):
-        poses = Poses(np.asarray(poses, dtype=np.float64), source=field)
+        try:
+            arr = np.asarray(poses, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError(f"{field} are not numbers", field=field,
+                             fix="give (p, n, 3, 4) transforms, one per handle") from None
+        poses = Poses(arr, source=field)
+    if not len(poses):
+        raise InputError(f"{field} hold no pose", field=field,
+                         fix="give at least one (n, 3, 4) pose, or poses=None for the methods that need none")
     if poses.n_handles != n:
         raise InputError(f"{field} have {poses.n_handles} handles, the weights {n}", field=field,
                          fix="give (p, n, 3, 4) transforms, one per handle")
@@ -242,10 +250,10 @@ def reduce_weights(mesh: Mesh | tuple[np.ndarray, np.ndarray], weights: Any, pos
     name, sparams = _selector(select or (DEFAULT_SELECT if poses is not None else "k-largest"), select_params)
     selector = host.get("influence-selection", name)
     sctx = StepContext()
-    selector.apply(asset, selector.parse_params({"k": k, **sparams}), sctx)
+    selector.apply(asset, check_params(selector, {"k": k, **sparams}, None, "reduce_weights"), sctx)
     solver = host.get("weight-solver", solve)
     ctx = StepContext()
-    solver.apply(asset, solver.parse_params(params), ctx)
+    solver.apply(asset, check_params(solver, params, None, "reduce_weights"), ctx)
     if report is not None:
         report.update(ctx.report)
         report.update(select=name, select_params=sparams, solve=solve, select_report=dict(sctx.report))
@@ -285,7 +293,10 @@ def simplify(mesh: Mesh | tuple[np.ndarray, np.ndarray], weights: Any, poses: Po
     decimator = host.get("articulated-decimation", method)
     assert isinstance(decimator, Decimator)
     ctx = StepContext()
-    result = decimator.decimate(asset, decimator.parse_params({"targets": list(targets), **params}), ctx)
+    if isinstance(targets, (int, float)):
+        targets = [targets]
+    result = decimator.decimate(asset, check_params(decimator, {"targets": list(targets), **params}, None,
+                                                    "simplify"), ctx)
     if report is not None:
         report.update(ctx.report)
     return result

@@ -10,6 +10,7 @@ user can cause print one line and exit with status 2.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from rigslim.commands.compare import cmd_compare
@@ -26,6 +27,11 @@ from rigslim.errors import RigslimError
 EXIT_USER_ERROR = 2
 #: A defect of rigslim (an exception no check turned into a one-line error).
 EXIT_BUG = 1
+
+
+def _traceback_wanted() -> bool:
+    """``RIGSLIM_TRACEBACK`` set to anything but ``""``, ``0``, ``false``, ``no`` or ``off``."""
+    return os.environ.get("RIGSLIM_TRACEBACK", "").strip().lower() not in ("", "0", "false", "no", "off")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -115,7 +121,7 @@ def main(argv=None) -> int:
         return code
     except RigslimError as e:
         print(f"rigslim: error: {e.one_line()}", file=sys.stderr)
-        if os.environ.get("RIGSLIM_TRACEBACK"):  # a plugin's failure (PluginError) chains the original
+        if _traceback_wanted():  # a plugin's failure (PluginError) chains the original
             import traceback
 
             traceback.print_exception(e)
@@ -133,7 +139,7 @@ def main(argv=None) -> int:
 
         print(f"rigslim: error: {type(e).__name__}: {clip(str(e), 160)} (fix: a bug in rigslim: please report it; "
               f"RIGSLIM_TRACEBACK=1 prints the traceback)", file=sys.stderr)
-        if os.environ.get("RIGSLIM_TRACEBACK"):
+        if _traceback_wanted():
             import traceback
 
             traceback.print_exception(e)

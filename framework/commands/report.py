@@ -4,6 +4,13 @@ from __future__ import annotations
 
 
 def _cmd_report(args) -> int:
+    from pathlib import Path
+
+    if Path(args.output).suffix.lower() not in (".html", ".htm"):   # never a page over a .glb or a .json
+        from rigslim.errors import InputError
+
+        raise InputError(f"-o {args.output}: the report is an HTML page", field="-o",
+                         fix=f"write to {Path(args.output).with_suffix('.html').name}")
     if any(str(p).lower().endswith(".csv") for p in args.metrics):  # a batch's summary.csv: the batch view
         from rigslim.report.batch import cmd_report_batch
 

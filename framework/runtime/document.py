@@ -162,7 +162,7 @@ def _parse_step(index: int, raw: dict, path: Path, host: PluginHost) -> Step:
         plugin_obj = host.get(stage, value)
     except PluginNotFound as e:
         raise PipelineError(e.problem, source=path, field=f"steps[{index}].{key}", fix=e.fix) from None
-    _check_params(plugin_obj, params, path, f"steps[{index}]")
+    check_params(plugin_obj, params, path, f"steps[{index}]")
     return Step(index, key, stage, params, str(raw.get("name") or value), plugin=value)
 
 
@@ -196,11 +196,11 @@ def _parse_metrics(value, index, path, host) -> list[tuple[str, dict]]:
             metric = host.get("metric", n)
         except PluginNotFound as e:
             raise PipelineError(e.problem, source=path, field=f"steps[{index}].evaluate", fix=e.fix) from None
-        _check_params(metric, p, path, f"steps[{index}].evaluate.{n}")
+        check_params(metric, p, path, f"steps[{index}].evaluate.{n}")
     return items
 
 
-def _check_params(plugin, params: dict, path, where: str):
+def check_params(plugin, params: dict, path, where: str):
     try:
         return plugin.parse_params(params)
     except ValidationError as err:
@@ -248,6 +248,10 @@ def _apply_override(item: str, steps: list[Step], path: Path, host: PluginHost) 
                                     if what == "a plugin name" else f"write e.g. --set {target}=out/file")
             if step.key in ("write", "report"):
                 step.output = parsed
+                fitting = host.by_suffix("writer", Path(parsed).suffix) if step.key == "write" and \
+                    "writer" not in step.params else []
+                if fitting:     # another format: the parameters its writer does not take are dropped
+                    step.params = {k: v for k, v in step.params.items() if k in fitting[0].Params.model_fields}
                 continue
             if step.name == step.plugin:
                 step.name = parsed  # a default name (the plugin's) follows the plugin
@@ -258,8 +262,8 @@ def _apply_override(item: str, steps: list[Step], path: Path, host: PluginHost) 
                 raise PipelineError(e.problem, source=path, field="--set", fix=e.fix) from None
             # Parameters of the old plugin that the new one does not take are dropped.
             step.params = {k: v for k, v in step.params.items() if k in plugin.Params.model_fields}
-            _check_params(plugin, step.params, path, f"steps[{step.index}]")
+            check_params(plugin, step.params, path, f"steps[{step.index}]")
             continue
         step.params[param] = parsed
         if step.plugin is not None:
-            _check_params(host.get(step.stage, step.plugin), step.params, path, f"steps[{step.index}]")
+            check_params(host.get(step.stage, step.plugin), step.params, path, f"steps[{step.index}]")

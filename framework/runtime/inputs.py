@@ -12,7 +12,7 @@ from rigslim.model.poses import FrameSplit
 from rigslim.plugin.contract import StepContext
 from rigslim.plugin.host import PluginHost
 from rigslim.runtime.clips import clip_split, uses_clips
-from rigslim.runtime.document import PipelineDoc, _check_params
+from rigslim.runtime.document import PipelineDoc, check_params
 
 #: Order in which input roles are read (others follow, in file order).
 ROLE_ORDER = ["gltf", "mesh", "skeleton", "cage", "weights", "animation"]
@@ -83,7 +83,7 @@ def read_inputs(doc: PipelineDoc, base: Path, host: PluginHost, ctx: StepContext
         if not file.exists():
             raise PipelineError("input file not found", source=file, field=f"inputs.{role}",
                                 fix="check the path (relative paths are relative to the pipeline file)")
-        params = _check_params(reader, spec, source, f"inputs.{role}")
+        params = check_params(reader, spec, source, f"inputs.{role}")
         with host.calling("reader", reader.name, f"inputs.{role}"):
             reader.read(file, asset, params, ctx)
         asset.provenance.setdefault("inputs", {})[role] = str(file)

@@ -17,7 +17,7 @@ from rigslim.model.weights import influence_counts
 from rigslim.plugin.contract import StepContext, returned
 from rigslim.plugin.evaluation import Evaluation
 from rigslim.plugin.host import PluginHost, get_host
-from rigslim.runtime.document import Step, _check_params, load_pipeline
+from rigslim.runtime.document import Step, check_params, load_pipeline
 from rigslim.runtime.inputs import read_inputs
 from rigslim.runtime.metrics_document import SCHEMA_VERSION, UNITS, merge_levels
 
@@ -219,7 +219,7 @@ def _run_write(step: Step, asset: Asset, host: PluginHost, ctx: StepContext, bas
         writer = fitting[0]
     else:
         writer = host.writer(name)
-    checked = _check_params(writer, params, source, f"steps[{step.index}]")
+    checked = check_params(writer, params, source, f"steps[{step.index}]")
     with host.calling("writer", writer.name, f"steps[{step.index}].{step.key}"):
         writer.write(out, asset, checked, ctx)
     entry.update({"plugin": writer.name, "path": str(out)})

@@ -9,7 +9,7 @@ are returned as a :class:`rigslim.plugin.Decimation` (``asset.hierarchy`` and ``
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 import scipy.sparse as sp
@@ -35,16 +35,22 @@ class AdaptiveTarget(Params):
         return np.where(inside, self.error_inside, self.error_outside)
 
 
+#: A face target: a fraction of the faces (below 1) or a face count, finite and positive.
+FaceTarget = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+#: A non-negative finite number (an error threshold, an attribute weight).
+NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+
+
 class DecimationParams(Params):
     """Parameters every articulated decimator shares."""
 
-    targets: list[float] = Field(default_factory=list)
+    targets: list[FaceTarget] = Field(default_factory=list)
     """Levels to extract: a number below 1 is a fraction of the input faces, else a face count."""
-    error_targets: list[float] = Field(default_factory=list)
+    error_targets: list[NonNegative] = Field(default_factory=list)
     """Levels to extract by collapse error: the longest prefix of collapses with errors at most this."""
     adaptive_targets: list[AdaptiveTarget] = Field(default_factory=list)
     """Levels by region: per-vertex error budgets (``hierarchy.adaptive``) from a ball around a point."""
-    min_faces: int | None = None
+    min_faces: int | None = Field(default=None, ge=1)
     """Build the hierarchy down to this many faces (default: the smallest target, or 70)."""
     max_bones: int | None = Field(default=None, ge=1)
     """At most this many non-zero weights per vertex at every level."""
@@ -65,7 +71,7 @@ class DecimationParams(Params):
     (:func:`rigslim.plugins.decimation.compiled.source_error`), so that thin protrusions, whose planes hardly
     see the collapse, are not removed early. On for ``quartic`` (off for the baselines):
     on the suite it met 26 of 30 levels against 22 without (docs/simplification.md)."""
-    attribute_weights: dict[str, float] = Field(default_factory=lambda: dict(ATTRIBUTE_WEIGHTS))
+    attribute_weights: dict[str, NonNegative] = Field(default_factory=lambda: dict(ATTRIBUTE_WEIGHTS))
     """For a mesh read from glTF: weight of each vertex attribute's displacement term in the error, by name
     (``TEXCOORD_0``) or family (``TEXCOORD``, ``COLOR``, ``NORMAL``, ``TANGENT``); see :func:`attribute_term`."""
     seams: Literal["move", "lock", "free"] = "move"

@@ -19,7 +19,7 @@ from rigslim.errors import StepError
 from rigslim.model.hierarchy import SimplifiedLevel
 from rigslim.model.weights import ReducedWeights
 from rigslim.plugin import Decimation, Decimator, Params
-from rigslim.plugins.decimation.articulated import limited_weights, target_faces, target_label
+from rigslim.plugins.decimation.articulated import FaceTarget, limited_weights, target_faces, target_label
 
 if TYPE_CHECKING:
     from rigslim.model.asset import Asset
@@ -39,7 +39,7 @@ def nearest_vertex_weights(V_orig: np.ndarray, W: np.ndarray, V_new: np.ndarray)
 
 
 class StaticQSlimParams(Params):
-    targets: list[float] = Field(default_factory=list)
+    targets: list[FaceTarget] = Field(default_factory=list)
     """Fractions (< 1) of the input faces or face counts."""
     max_bones: int | None = Field(default=None, ge=1)
     """At most this many non-zero weights per vertex at every level."""

@@ -185,6 +185,12 @@ def _projected_local(prob, adjacency, equality_optimum, sweep_args: dict, solver
     report.update(path=f"{solver}: {eq}, projection, local", **rep,
                   equality_optimum=grep["energy"], equality_seconds=grep["seconds"],
                   equality_iterations=grep.get("iterations"), factorisation=grep.get("factorisation"),
-                  gap_above_equality_optimum=(rep["energy"] - grep["energy"]) / abs(grep["energy"]),
+                  gap_above_equality_optimum=relative_gap(rep["energy"], grep["energy"]),
                   kkt_residual=kkt_residual(prob, alpha) / k0 if k0 > 0 else 0.0)
     return alpha
+
+
+def relative_gap(energy: float, optimum: float) -> float:
+    """``(E - E*) / |E*|``; where the optimum is exactly 0 (every vertex keeps its one influence: a rigid rig)
+    the absolute gap ``E - E*`` instead."""
+    return (energy - optimum) / abs(optimum) if optimum != 0 else energy - optimum

@@ -35,6 +35,7 @@ def test_an_unexpected_exception_is_one_line_naming_a_bug(monkeypatch, capsys):
         raise OverflowError("cannot convert float infinity to integer")
 
     monkeypatch.setattr(cli, "cmd_reduce", broken)          # build_parser binds the name when main() runs
+    monkeypatch.setenv("RIGSLIM_TRACEBACK", "0")             # off, as unset (it once printed the traceback)
     assert main(["reduce", "x.glb", "-o", "y.glb"]) == cli.EXIT_BUG
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "OverflowError" in err and "a bug in rigslim" in err

@@ -67,3 +67,32 @@ def test_python_md_examples_run(tmp_path, monkeypatch):
     for key, texts in printed.items():
         if key not in quoted:
             assert "False" not in texts, key
+
+
+def test_bad_arguments_are_one_line_rigslim_errors():
+    """The API checks parameters as pipelines do: a bad k, a misspelt option or a NaN target is a RigslimError
+    naming the argument (they were raw pydantic ValidationErrors); no example pose is refused (it gave a
+    one-influence-per-vertex result in silence)."""
+    import numpy as np
+
+    import rigslim
+    from rigslim.errors import RigslimError
+
+    V = np.random.default_rng(0).random((10, 3))
+    F = np.array([[0, 1, 2], [2, 3, 4], [4, 5, 6]])
+    W = np.zeros((10, 3))
+    W[:, :2] = 0.5
+    T = np.tile(np.eye(3, 4), (2, 3, 1, 1))
+    cases = [(rigslim.reduce_weights, {"k": 0}, "reduce_weights.k"),
+             (rigslim.reduce_weights, {"k": 2, "nonnegativ": True}, "did you mean 'nonnegative'"),
+             (rigslim.reduce_weights, {"k": 2, "select_params": {"swapz": 1}}, "did you mean 'swaps'"),
+             (rigslim.simplify, {"targets": [float("nan")]}, "simplify.targets.0"),
+             (rigslim.simplify, {"max_bones": 0}, "simplify.max_bones")]
+    for call, kwargs, words in cases:
+        with pytest.raises(RigslimError, match=re.escape(words)):
+            call((V, F), W, T, **kwargs)
+    with pytest.raises(RigslimError, match="hold no pose"):
+        rigslim.reduce_weights((V, F), W, T[:0], k=2)
+    rep: dict = {}
+    rigslim.simplify((V, F), W, T, targets=0.5, report=rep)             # one target needs no list
+    assert [t["target"] for t in rep["targets"]] == [0.5]

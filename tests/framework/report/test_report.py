@@ -406,3 +406,14 @@ def test_report_step_compares_with_earlier_runs(run, tmp_path):
     with pytest.raises(InputError):
         writer.write(tmp_path / "x.html", result.asset,
                      writer.parse_params({"compare": ["missing.json"], "render": False}), ctx)
+
+
+def test_report_writes_only_an_html_page(tmp_path, capsys):
+    """`rigslim report m.json -o x.glb` once wrote a page over a character file that was no input of it."""
+    from rigslim.commands.cli import main
+
+    victim = tmp_path / "x.glb"
+    victim.write_bytes(b"glTF")
+    assert main(["report", str(tmp_path / "m.json"), "-o", str(victim)]) == 2
+    assert "the report is an HTML page (fix: write to x.html)" in capsys.readouterr().err
+    assert victim.read_bytes() == b"glTF"

@@ -77,3 +77,12 @@ def test_run_with_replaced_plugins(write_pipeline, capsys):
     code = main(["run", "-q", str(path), "--set", "select=best-fit", "--set", "solve=geometric"])
     out, _ = capsys.readouterr()
     assert code == 0 and "position_rms_pct" in out
+
+
+def test_another_output_format_drops_what_its_writer_does_not_take(write_pipeline):
+    """--set write=x.usda on a glTF write step with quantize: 'unknown parameter quantize for writer usd' once;
+    the usd writer takes no quantize, so it is dropped like a replaced plugin's parameters."""
+    path = write_pipeline(PIPELINE.replace("  - write: out/w.npz", "  - write: out/w.glb\n    quantize: ubyte"))
+    assert steps_of(path)["write"].params == {"quantize": "ubyte"}
+    s = steps_of(path, "write=out/w.usda")
+    assert str(s["write"].output) == "out/w.usda" and "quantize" not in s["write"].params

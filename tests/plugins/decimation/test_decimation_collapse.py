@@ -256,9 +256,11 @@ def test_missing_inputs_are_step_errors():
     plugin = get_host().get("articulated-decimation", "quartic")
     with pytest.raises(StepError):
         plugin.apply(a, plugin.parse_params({"targets": [0.5]}), StepContext())
-    b = tube(n_along=4)
-    with pytest.raises(StepError):
-        plugin.apply(b, plugin.parse_params({"targets": [-1]}), StepContext())
+    from pydantic import ValidationError
+
+    for bad in ([-1], [0], [float("nan")], [float("inf")]):         # refused with the parameters, before any work
+        with pytest.raises(ValidationError, match="targets"):
+            plugin.parse_params({"targets": bad})
 
 
 def test_endpoint_candidates_never_cost_more_than_mohr_gleicher(asset):

@@ -173,3 +173,21 @@ def test_auto_nonnegative_above_limit_reports_kkt():
     assert rep["energy"] >= rep["equality_optimum"] * (1 - 1e-9)
     assert 0 <= rep["kkt_residual"] < 1e-5
     _check_invariants(red, 2, True)
+
+
+@pytest.mark.parametrize("solve", ["smooth", "poisson"])
+def test_a_rigid_rig_whose_equality_optimum_is_zero(solve):
+    """Every vertex bound to one bone (a BVH/CSM conversion): the equality optimum's energy is exactly 0, and
+    its relative gap once divided by it (ZeroDivisionError). The weights pass through, the gap is absolute."""
+    import rigslim
+
+    rng = np.random.default_rng(0)
+    V = rng.random((30, 3))
+    F = np.array([[i, i + 1, i + 2] for i in range(28)])
+    W = np.zeros((30, 3))
+    W[np.arange(30), np.arange(30) % 3] = 1.0
+    T = np.tile(np.eye(3, 4), (4, 3, 1, 1))
+    T[:, :, :, 3] = rng.random((4, 3, 3))
+    report: dict = {}
+    out = rigslim.reduce_weights((V, F), W, T, k=2, select="k-largest", solve=solve, report=report)
+    np.testing.assert_allclose(out.to_sparse().toarray(), W, atol=1e-12)
