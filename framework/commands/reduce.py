@@ -45,17 +45,14 @@ def resolved_select(select: str | None, by: str | None) -> str:
     return f"{name}:{chosen}" if chosen else name
 
 
-def select_step(select: str, by: str | None, k: int) -> dict:
-    """The ``select`` step of ``--select NAME[:BY]`` and ``--by BY`` (``by`` of best-fit)."""
-    name, _, by_in_name = select.partition(":")
-    step = {"select": name, "k": k}
-    if by or by_in_name:
-        step["by"] = by or by_in_name
-    return step
+def select_step(select: str, k: int) -> dict:
+    """The ``select`` step of a :func:`resolved_select` ``NAME[:BY]`` (``by`` of best-fit)."""
+    name, _, by = select.partition(":")
+    return {"select": name, "k": k} | ({"by": by} if by else {})
 
 
 def reduce_pipeline(src: Path, out: Path, *, k: int, select: str | None, solve: str | None, clip, fps: float,
-                    frames: int, quantize: str, skin: int | None = None, by: str | None = None) -> dict:
+                    frames: int, quantize: str, skin: int | None = None) -> dict:
     """The pipeline ``rigslim reduce`` runs (without animation: k-largest, no evaluation; select None: rewrite only).
 
     Animated: example poses from every clip (``--clip``: that one), held-out frames of each for the
@@ -64,7 +61,7 @@ def reduce_pipeline(src: Path, out: Path, *, k: int, select: str | None, solve: 
     steps = []
     animated = frames >= 2
     if select is not None:
-        steps += [select_step(select, by, k), {"solve": solve if animated else "k-largest"}]
+        steps += [select_step(select, k), {"solve": solve if animated else "k-largest"}]
         if animated:
             steps.append({"evaluate": ["position-rms", "normal-deviation", "max-influences"]})
     steps.append(write_step(out, quantize=quantize, clamp_negative=True, keep_input_weights=False))
