@@ -6,6 +6,9 @@ from __future__ import annotations
 def _cmd_report(args) -> int:
     from pathlib import Path
 
+    from rigslim.io.atomic import refuse_input_as_output
+
+    refuse_input_as_output({"-o": args.output}, args.metrics)        # first: the more precise message
     if Path(args.output).suffix.lower() not in (".html", ".htm"):   # never a page over a .glb or a .json
         from rigslim.errors import InputError
 
