@@ -9,10 +9,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from rigslim.errors import InputError, StepError
-from rigslim.io.gltf.document import GltfDocument, read_accessor
+from rigslim.io.gltf.document import GltfDocument
 from rigslim.io.gltf.primitives import PrimitiveData, primitive_data, welded_faces, welded_vertex_map
 from rigslim.io.gltf.seams import wedge_adjacency
-from rigslim.io.gltf.skin import GltfSkin, skinning_sets
+from rigslim.io.gltf.skin import GltfSkin, skinning_sets, weight_sums
 
 
 def input_joints_valid(skin: GltfSkin) -> bool:
@@ -59,13 +59,8 @@ def input_weights_normalized(skin: GltfSkin) -> bool:
     """
     doc, js = skin.document, skin.document.json
     for sl in skin.slices:
-        attrs = js["meshes"][sl.mesh]["primitives"][sl.primitive]["attributes"]
-        total, nonzero = np.zeros(sl.count), np.zeros(sl.count)
-        for s in skinning_sets(attrs):
-            w = np.asarray(read_accessor(doc, attrs[f"WEIGHTS_{s}"]), np.float64).reshape(sl.count, -1)
-            total += w.sum(1)
-            nonzero += np.count_nonzero(w, axis=1)
-        if sl.count and np.any(np.abs(total - 1.0) > 2e-7 * nonzero):
+        total, nonzero = weight_sums(doc, js["meshes"][sl.mesh]["primitives"][sl.primitive]["attributes"])
+        if total.size and np.any(np.abs(total - 1.0) > 2e-7 * nonzero):
             return False
     return True
 
