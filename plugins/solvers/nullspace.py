@@ -134,6 +134,19 @@ class NullSpaceSystem:
         n = self.unknowns
         return sp.bsr_matrix((self.blocks, self.indices, self.indptr), shape=(n, n))
 
+    def upper_blocks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The upper block triangle of ``A`` (diagonal blocks included, whole) in block-CSR arrays:
+        int32 ``indptr`` (m + 1,) and ``indices`` (block columns ``w >= v``, sorted), and the blocks'
+        values (nnz r^2,), each block stored column by column: the block sparse row input of MKL
+        PARDISO (``iparm(37) = r``), which orders, factorises and solves on the block graph."""
+        m = len(self.indptr) - 1
+        rows = np.repeat(np.arange(m), np.diff(self.indptr))
+        keep = self.indices >= rows
+        ptr = np.zeros(m + 1, dtype=np.int32)
+        np.cumsum(np.bincount(rows[keep], minlength=m), out=ptr[1:])
+        values = np.ascontiguousarray(self.blocks[keep].transpose(0, 2, 1)).ravel()
+        return ptr, self.indices[keep].astype(np.int32), values
+
     def upper_triangle(self) -> sp.csr_matrix:
         """The upper triangle of ``A`` (diagonal included) as a scalar CSR matrix with sorted int32
         indices, written straight from the blocks (what a symmetric factorisation such as PARDISO's

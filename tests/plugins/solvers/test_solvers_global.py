@@ -98,6 +98,32 @@ def test_upper_triangle_equals_triu_of_the_block_matrix(linear_precision):
     np.testing.assert_array_equal(U.data, ref.data)
 
 
+@pytest.mark.parametrize("linear_precision", [False, True])
+def test_upper_blocks_solve_equals_a_dense_solve(linear_precision):
+    """The upper block triangle PARDISO reads as block sparse rows holds the upper blocks of the matrix,
+    each column by column, and PARDISO's block solve agrees with a dense solve of the whole system
+    (dummy rows of vertices with fewer null directions included)."""
+    from rigslim.plugins.solvers.global_solver import pardiso_block_solve
+    from rigslim.plugins.solvers.nullspace import nullspace_system
+
+    asset = cage_asset()
+    asset.influences = k_largest(asset.weights, 5)
+    prob = build_problem(asset, "poisson", nonnegative=False, linear_precision=linear_precision)
+    system = nullspace_system(prob)
+    r = system.N.shape[1]
+    ptr, idx, vals = system.upper_blocks()
+    blocks = vals.reshape(-1, r, r).transpose(0, 2, 1)
+    upper = sp.bsr_matrix((blocks, idx, ptr), shape=(system.unknowns,) * 2).toarray()
+    A = system.matrix().toarray()
+    rows = np.repeat(np.arange(len(ptr) - 1), np.diff(ptr))
+    assert (idx >= rows).all() and ptr.dtype == np.int32 and idx.dtype == np.int32
+    np.testing.assert_array_equal(upper, np.where(np.kron(np.triu(np.ones((len(ptr) - 1,) * 2)),
+                                                          np.ones((r, r))) > 0, A, 0.0))
+    x = pardiso_block_solve(ptr, idx, vals, r, system.rhs)
+    ref = np.linalg.solve(A, system.rhs)
+    np.testing.assert_allclose(x, ref, rtol=0, atol=1e-9 * np.abs(ref).max())
+
+
 @pytest.mark.parametrize("position_weight", [0.0, 0.1])
 def test_poisson_optimum_equals_a_general_purpose_solve(position_weight):
     """The direct Poisson solve (PARDISO on the upper triangle) reaches the optimum scipy's dense solver
