@@ -18,7 +18,10 @@ or version contains a string of ``RIGSLIM_OPENCL_EXCLUDE`` (comma-separated,
 e.g. ``"PoCL 3.0"``) are ignored.
 
 Programs are built once per (context, source, options) and cached; kernels
-live as ``*.cl`` files in :mod:`rigslim.kernels`.
+live as ``*.cl`` files in :mod:`rigslim.kernels`. A work-group size a plugin
+takes from its parameters is checked against the device and the kernel
+(:func:`check_local_size`) before the first launch, so a size the device
+refuses is one line naming the parameter, not ``INVALID_WORK_GROUP_SIZE``.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ from dataclasses import dataclass
 from functools import cache
 from typing import TYPE_CHECKING
 
-from rigslim.errors import RigslimError
+from rigslim.errors import RigslimError, StepError
 
 if TYPE_CHECKING:
     import pyopencl
@@ -241,3 +244,49 @@ def _build(runtime: CLRuntime, name: str, options: tuple[str, ...]):
 def build_program(runtime: CLRuntime, name: str, options=()):
     """Build the kernel file ``name`` (in rigslim.kernels) once per runtime and options."""
     return _build(runtime, name, tuple(options))
+
+
+def max_local_size(runtime: CLRuntime, kernel=None) -> int:
+    """The largest one-dimensional work-group ``runtime``'s device runs (of ``kernel``, when given).
+
+    The least of ``CL_DEVICE_MAX_WORK_GROUP_SIZE``, ``CL_DEVICE_MAX_WORK_ITEM_SIZES[0]`` and, for a
+    kernel, its ``CL_KERNEL_WORK_GROUP_SIZE`` on that device (which its registers and local memory
+    can lower below the device's).
+    """
+    cl = _import_cl()
+    device = runtime.device
+    limit = min(int(device.max_work_group_size), int(device.max_work_item_sizes[0]))
+    if kernel is not None:
+        limit = min(limit, int(kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, device)))
+    return max(limit, 1)
+
+
+def check_local_size(runtime: CLRuntime, local_size: int | None, kernel=None, *, field: str = "local_size",
+                     source: str | None = None) -> None:
+    """Refuse a one-dimensional work-group size the device (or ``kernel`` on it) cannot run.
+
+    Parameters
+    ----------
+    runtime : CLRuntime
+        The context whose device will run the launch.
+    local_size : int or None
+        The work-group size asked for; None (the driver's choice) always passes.
+    kernel : pyopencl.Kernel, optional
+        The kernel to be launched; its ``CL_KERNEL_WORK_GROUP_SIZE`` bounds the size too.
+    field, source : str
+        The parameter and the plugin, for the message.
+
+    Raises
+    ------
+    StepError
+        When ``local_size`` is below 1 or above :func:`max_local_size` (a launch would fail with
+        ``INVALID_WORK_GROUP_SIZE``); the message names the device and the range it takes.
+    """
+    if local_size is None:
+        return
+    limit = max_local_size(runtime, kernel)
+    if not 1 <= local_size <= limit:
+        what = "this kernel on " if kernel is not None else ""
+        raise StepError(f"work-group size {local_size} is outside 1..{limit}, the sizes {what}{runtime.name} runs",
+                        source=source, field=field,
+                        fix=f"give {field} from 1 to {limit}, or leave it unset for the driver's choice")

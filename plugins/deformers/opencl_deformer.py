@@ -9,9 +9,10 @@ comes from the profiling event of the launch (``last_seconds``).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import numpy as np
+from pydantic import Field
 
 from rigslim.errors import StepError
 from rigslim.plugin import Deformer
@@ -43,11 +44,12 @@ class OpenCLBound(DeviceBound):
                  local_size: int | None, fit_precision: str = "auto"):
         import pyopencl as cl
 
-        from rigslim.device.opencl import get_runtime
+        from rigslim.device.opencl import check_local_size, get_runtime
 
         n = n_handles_of(weights)
         super().__init__(mesh.n_vertices, n, normals_mode)
         self.runtime = rt = get_runtime(device)
+        check_local_size(rt, local_size, source="opencl deformer")   # the device's bound, before any upload
         has_fp64 = "cl_khr_fp64" in rt.device.extensions
         if fit_precision == "double" and not has_fp64:
             raise StepError(f"{rt.name} has no double precision (cl_khr_fp64)", field="fit_precision",
@@ -89,7 +91,7 @@ class OpenCLBound(DeviceBound):
         """The kernel for this layout and normal mode, built (and normal data uploaded) on first use."""
         import pyopencl as cl
 
-        from rigslim.device.opencl import build_program
+        from rigslim.device.opencl import build_program, check_local_size
 
         if normals and self._normal_data is None:
             data = rest_normal_data(self.normals_mode, self._mesh, self._weights_in, self._handles_in)
@@ -101,7 +103,10 @@ class OpenCLBound(DeviceBound):
             options = [f"-DLAYOUT={_LAYOUT_CODE[self.layout]}", f"-DK={max(self.packed.k, 1)}",
                        f"-DNORMALS={_NORMALS_CODE[self.normals_mode] if normals else 0}",
                        f"-DFIT_DOUBLE={int(self.fit_double)}", "-cl-mad-enable"]
-            self._kernels[normals] = cl.Kernel(build_program(self.runtime, "blend.cl", options), "blend")
+            kernel = cl.Kernel(build_program(self.runtime, "blend.cl", options), "blend")
+            # the kernel's own bound (registers) can be below the device's: refused here, not by the launch
+            check_local_size(self.runtime, self.local_size, kernel, source="opencl deformer")
+            self._kernels[normals] = kernel
         return self._kernels[normals]
 
     def _args(self, normals: bool) -> list:
@@ -122,7 +127,7 @@ class OpenCLBound(DeviceBound):
         kernel = self._kernel(normals)
         global_size = self.n_vertices
         local = None
-        if self.local_size:
+        if self.local_size is not None:
             global_size = -(-self.n_vertices // self.local_size) * self.local_size
             local = (self.local_size,)
         event = kernel(queue, (max(global_size, 1),), local, *self._args(normals))
@@ -174,8 +179,9 @@ class OpenCLDeformer(Deformer):
         layout: Layout = "auto"
         """Weight layout on the device: auto (fixed for reduced weights, csr for full sparse weights), fixed (int32 +
         float32), compact (uint16 + float16) or csr."""
-        local_size: int | None = None
-        """Work-group size (None lets the driver choose)."""
+        local_size: Annotated[int, Field(ge=1)] | None = None
+        """Work-group size (None lets the driver choose); at most the device's and the kernel's work-group size
+        (``CL_DEVICE_MAX_WORK_GROUP_SIZE``, ``CL_KERNEL_WORK_GROUP_SIZE``), checked before the first launch."""
         fit_precision: Literal["auto", "single", "double"] = "auto"
         """Arithmetic of the approximate-affine fit: auto (double where the device has cl_khr_fp64), single (float32:
         error about cond(P) * 6e-8 rad) or double."""

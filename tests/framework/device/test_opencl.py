@@ -146,3 +146,28 @@ def test_probe_script_reports_devices():
     working = [d for d in cpu_devices() if opencl.probe_device(d) is None]
     assert out.returncode == (0 if working else 1)
     assert out.stdout.startswith("probe-opencl: CPU ")
+
+
+def test_check_local_size_takes_the_kernels_bound():
+    """A kernel whose CL_KERNEL_WORK_GROUP_SIZE is below the device's (registers, local memory) lowers the range:
+    a size within the device's but above the kernel's is refused, naming the kernel's bound."""
+    from rigslim.errors import StepError
+
+    try:
+        rt = opencl.get_runtime()
+    except OpenCLUnavailable as e:
+        pytest.skip(f"no OpenCL device: {e}")
+
+    class SmallKernel:
+        def get_work_group_info(self, param, device):
+            assert param == cl.kernel_work_group_info.WORK_GROUP_SIZE and device == rt.device
+            return 16
+
+    device_limit = opencl.max_local_size(rt)
+    assert device_limit == min(rt.device.max_work_group_size, rt.device.max_work_item_sizes[0])
+    assert opencl.max_local_size(rt, SmallKernel()) == min(16, device_limit)
+    opencl.check_local_size(rt, None, SmallKernel())
+    opencl.check_local_size(rt, min(16, device_limit), SmallKernel())
+    for bad in (0, -1, 17):
+        with pytest.raises(StepError, match=r"blend: local_size: .*outside 1\.\.16, the sizes this kernel on"):
+            opencl.check_local_size(rt, bad, SmallKernel(), source="blend")

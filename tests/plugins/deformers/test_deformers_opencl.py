@@ -221,3 +221,36 @@ def test_single_precision_fit_error_is_reported(cage):
     err = max(angles(bound.deform(T, normals=True)[1], ref.deform(T, normals=True)[1]).max() for T in poses)
     print(f"\nOpenCL approximate-affine normals, float32 fit, k=4 IDW cage: max {err:.2e} rad from numpy")
     assert err < 1e-3
+
+
+def test_work_group_size_the_device_refuses_is_a_step_error(elephant, skeleton, runtime):
+    """A local_size above what the device (and the kernel on it) runs was INVALID_WORK_GROUP_SIZE from the launch,
+    a 'bug in rigslim'; it is refused at bind, naming the field and the range; the largest size still runs."""
+    from rigslim.device.opencl import max_local_size
+    from rigslim.errors import StepError
+
+    mesh, handles, poses = skeleton
+    reduced = reduce_to(elephant.weights, 4)
+    limit = max_local_size(runtime)
+    for size in (limit + 1, 2 * limit, 10**6):
+        with pytest.raises(StepError, match=rf"local_size: .*outside 1\.\.{limit}.*give local_size from 1 to {limit}"):
+            OpenCLDeformer().bind(mesh, reduced, OpenCLDeformer.Params(local_size=size, normals="none"))
+    bound = OpenCLDeformer().bind(mesh, reduced, OpenCLDeformer.Params(local_size=limit, normals="none"))
+    ref = NumpyDeformer().bind(mesh, reduced, NumpyDeformer.Params(normals="none"))
+    assert np.linalg.norm(bound(poses[0]) - ref(poses[0]), axis=1).max() < POSITION_TOL * mesh.bbox_diagonal
+
+
+def test_work_group_size_in_a_pipeline_is_one_line(write_pipeline, tmp_path, capfd, runtime):
+    """Through `rigslim run`: beyond the device, zero and negative sizes are one line naming the field, exit 2."""
+    from support.bad_input import assert_one_line, run_cli
+
+    from rigslim.device.opencl import max_local_size
+
+    limit = max_local_size(runtime)
+    for size, words in ((limit * 2, f"give local_size from 1 to {limit}"),
+                        (0, "steps[3].local_size: input should be greater than or equal to 1"),
+                        (-4, "steps[3].local_size: input should be greater than or equal to 1")):
+        path = write_pipeline(PIPELINE.format(extra=f"  - deform: opencl\n    local_size: {size}"))
+        code, lines = run_cli(["run", "-q", path, "--metrics", tmp_path / "m.json"], capfd)
+        assert_one_line(code, lines, "local_size", words)
+        assert not (tmp_path / "m.json").exists()
