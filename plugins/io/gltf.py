@@ -66,7 +66,7 @@ class GltfWriterParams(Params):
     quantize: Literal["float", "ushort", "ubyte"] = "float"
     """Encoding of WEIGHTS_n: float32, or normalised ushort / ubyte (every row still sums to one)."""
     sets: int | None = None
-    """Number of JOINTS_n/WEIGHTS_n sets (default ceil(k / 4))."""
+    """Number of JOINTS_n/WEIGHTS_n sets (default: as many as each primitive's widest vertex needs)."""
     levels: bool = True
     """Write the simplified levels a decimate step made."""
     lod: bool = False

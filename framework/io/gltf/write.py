@@ -149,7 +149,9 @@ def skinning_sets_arrays(indices: np.ndarray, values: np.ndarray, kind: str = "f
         Handle (= skin joint) index and weight of each slot.
     kind : {"float", "ushort", "ubyte"}
     n_sets : int, optional
-        Number of sets (default ``ceil(k / 4)``: k <= 4 gives one set, 5..8 two).
+        Number of sets. Default: as many as the widest vertex needs, ``max(1, ceil(c / 4))`` for ``c`` the
+        largest count of non-zero encoded weights of a vertex (k = 8 on vertices with at most 4 influences
+        gives one set, not a second one of zeros).
 
     Returns
     -------
@@ -159,19 +161,31 @@ def skinning_sets_arrays(indices: np.ndarray, values: np.ndarray, kind: str = "f
     indices = np.asarray(indices, dtype=np.int64)
     values = np.asarray(values, dtype=np.float64)
     m, k = values.shape
-    n_sets = n_sets or max(1, -(-k // 4))
-    if k > 4 * n_sets:
+    width = 4 * (n_sets or max(1, -(-k // 4)))
+    if k > width:
         raise StepError(f"{k} weights per vertex do not fit in {n_sets} sets of four", field="k",
                         fix="reduce to k <= 8")
     order = np.argsort(-values, axis=1, kind="stable")
     I = np.take_along_axis(indices, order, 1)
     W = np.take_along_axis(values, order, 1)
-    width = 4 * n_sets
     I = np.pad(I, ((0, 0), (0, width - k)))
     W = np.pad(W, ((0, 0), (0, width - k)))
     Q = quantize_weights(W, kind)
     I = np.where(Q != 0, I, 0)
-    return [(I[:, 4 * s:4 * s + 4], Q[:, 4 * s:4 * s + 4]) for s in range(n_sets)]
+    sets = [(I[:, 4 * s:4 * s + 4], Q[:, 4 * s:4 * s + 4]) for s in range(width // 4)]
+    return sets if n_sets else used_sets(sets)
+
+
+def used_sets(sets: list[tuple[np.ndarray, np.ndarray]]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``sets`` without its trailing sets whose weights are zero at every vertex (at least the first is kept).
+
+    Slots are sorted by decreasing weight, so what remains is ``max(1, ceil(c / 4))`` sets for ``c`` the widest
+    vertex's count of non-zero weights: a ``WEIGHTS_n`` of zeros only costs memory and shader work.
+    """
+    n = len(sets)
+    while n > 1 and not np.any(sets[n - 1][1]):
+        n -= 1
+    return sets[:n]
 
 
 # --------------------------------------------------------------------------- binary assembly
@@ -341,13 +355,16 @@ def _put_sets(blob: _Blob, attrs: dict, indices, values, n_joints: int, kind: st
     if exact is not None and exact.mask.any():
         kind = lossless_encoding(kind, exact.kind)
     _, wct, wnorm, _ = QUANTIZATIONS[kind]
-    sets = skinning_sets_arrays(indices, values, kind, n_sets)
+    k = np.asarray(values).shape[1]
+    sets = skinning_sets_arrays(indices, values, kind, n_sets or max(1, -(-k // 4)))
     if exact is not None and exact.mask.any():
         J = np.concatenate([j for j, _ in sets], axis=1)
         Q = np.concatenate([q for _, q in sets], axis=1)
         EJ, EQ = exact.slots(kind, J.shape[1])
         J[exact.mask], Q[exact.mask] = EJ, EQ
         sets = [(J[:, 4 * i:4 * i + 4], Q[:, 4 * i:4 * i + 4]) for i in range(len(sets))]
+    if not n_sets:
+        sets = used_sets(sets)
     for s, (J, W) in enumerate(sets):
         attrs[f"JOINTS_{s}"] = blob.new_accessor(J.astype(jdt), jct, "VEC4")
         attrs[f"WEIGHTS_{s}"] = blob.new_accessor(W, wct, "VEC4", normalized=wnorm)
@@ -477,7 +494,8 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
         Encoding of ``WEIGHTS_n``; every vertex's weights sum exactly to one
         after decoding (:func:`quantize_weights`).
     sets : int, optional
-        Number of JOINTS/WEIGHTS sets (default ``ceil(k / 4)``).
+        Number of JOINTS/WEIGHTS sets of every primitive written (default: per primitive, as many as its
+        widest vertex needs, :func:`used_sets`).
     levels : list of SimplifiedLevel, optional
         Each becomes, for each mesh the reader used, a mesh of its own with
         one primitive per source primitive (every attribute and morph target
@@ -508,7 +526,8 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
     Returns
     -------
     dict
-        ``clamped_vertices`` and ``most_negative`` (when clamping), ``sets``.
+        ``clamped_vertices`` and ``most_negative`` (when clamping); with ``reduced``, ``sets`` (the most
+        sets a primitive got), ``weight_encodings`` and ``vertices_kept_exact``.
 
     Notes
     -----
@@ -531,8 +550,6 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
         stats.update(_put_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp, lod, coverage,
                                  level_extras, level_skins))
     _write_one_buffer(path, js, blob, embed)
-    if reduced is not None:
-        stats["sets"] = sets or max(1, -(-reduced.k // 4))
     if clamp is not None:
         stats.update({"clamped_vertices": 0, "most_negative": 0.0} | clamp)
     return stats
@@ -637,8 +654,9 @@ def relinked_uri(uri: str, source_folder: Path, output_folder: Path) -> str:
 
 def _put_reduced(js: dict, blob: _Blob, source: GltfSkin, reduced, quantize: str, sets: int | None) -> dict:
     """Step 2b of :func:`write_gltf`: the new JOINTS_n/WEIGHTS_n of every primitive the reader used (rows a
-    source file already holds exactly keep its bytes); ``weight_encodings`` and ``vertices_kept_exact``."""
-    encodings, kept = [], 0
+    source file already holds exactly keep its bytes); ``weight_encodings``, ``vertices_kept_exact`` and
+    ``sets``, the most JOINTS_n/WEIGHTS_n sets a primitive got (each as many as its widest vertex needs)."""
+    encodings, kept, n_sets = [], 0, 1
     for sl in source.slices:
         attrs = js["meshes"][sl.mesh]["primitives"][sl.primitive]["attributes"]
         rows = source.file_rows(sl)
@@ -646,7 +664,8 @@ def _put_reduced(js: dict, blob: _Blob, source: GltfSkin, reduced, quantize: str
         exact = source_rows(source, sl, I, W)
         encodings.append(_put_sets(blob, attrs, I, W, len(source.joints), quantize, sets, exact))
         kept += int(exact.mask.sum()) if exact is not None else 0
-    return {"weight_encodings": encodings, "vertices_kept_exact": kept}
+        n_sets = max(n_sets, len(skinning_sets(attrs)))
+    return {"weight_encodings": encodings, "vertices_kept_exact": kept, "sets": n_sets}
 
 
 def _put_levels(js: dict, blob: _Blob, source: GltfSkin, levels, hierarchy, quantize: str, sets: int | None,
@@ -960,7 +979,7 @@ def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.
     data = blob.bytes()
     js["buffers"] = [{"byteLength": len(data)}]
     _write_document(path, js, data, embed=embed)
-    stats = {"sets": max(1, -(-I.shape[1] // 4))}
+    stats = {"sets": len(skinning_sets(js["meshes"][0]["primitives"][0]["attributes"]))}
     if clamp is not None:
         stats.update({"clamped_vertices": 0, "most_negative": 0.0} | clamp)
     return stats

@@ -39,6 +39,21 @@ def _skin_rows(doc, prim) -> tuple[np.ndarray, np.ndarray]:
     return np.hstack(Ws), np.hstack(raw)
 
 
+def check_no_empty_set(path: Path) -> int:
+    """Every skinned primitive's last WEIGHTS_n has a non-zero weight (a set of zeros is dead weight); returns
+    the most sets a primitive has."""
+    doc = load_gltf(path)
+    most = 0
+    for mesh in doc.json["meshes"]:
+        for prim in mesh["primitives"]:
+            sets = skinning_sets(prim["attributes"])
+            if sets:
+                W, _ = _skin_rows(doc, prim)
+                assert W[:, -4:].any(), f"{path}: {mesh.get('name')} has a WEIGHTS_{sets[-1]} of zeros"
+                most = max(most, len(sets))
+    return most
+
+
 def check_lod_structure(source: Path, out: Path, levels: int) -> None:
     """Each original node links its own level nodes; each level mesh keeps the primitives, materials, UVs."""
     src, doc = load_gltf(source).json, load_gltf(out)
@@ -74,6 +89,7 @@ def check_lod_structure(source: Path, out: Path, levels: int) -> None:
                 elif raw.dtype == np.uint16:
                     assert (raw.astype(int).sum(axis=1) == 65535).all()
     assert "MSFT_lod" in js["extensionsUsed"]
+    check_no_empty_set(out)
 
 
 @pytest.mark.parametrize("path", CHARACTERS, ids=lambda p: p.name)
@@ -154,6 +170,22 @@ def test_reduce(path, tmp_path, valid):
             assert ((W > 0).sum(axis=1) <= 2).all()
     report = json.loads((tmp_path / "r.json").read_text())
     assert report["command"] == "reduce" and report["world"]["position_rms_m"] >= 0
+
+
+def test_k8_writes_only_the_sets_the_widest_vertex_needs(tmp_path, valid):
+    """RiggedFigure has at most 4 influences per vertex: reduce -k 8 writes JOINTS_0/WEIGHTS_0 only (it once added
+    a WEIGHTS_1 of zeros); lod --max-bones 8 --split levels, whose collapses blend up to 6, keep a second set."""
+    src = GLTF / "RiggedFigure" / "RiggedFigure.gltf"
+    out = tmp_path / "k8.glb"
+    assert main(["reduce", str(src), "-o", str(out), "-k", "8", "--report", str(tmp_path / "r.json")]) == 0
+    valid(out)
+    assert check_no_empty_set(out) == 1
+    step = next(s for s in json.loads((tmp_path / "r.json").read_text())["run"]["steps"] if s["stage"] == "write")
+    assert step["report"]["sets"] == 1
+    assert main(["lod", str(src), "-o", str(tmp_path / "rf.glb"), "--ratios", "0.5", "--max-bones", "8",
+                 "--quantize", "ubyte", "--split"]) == 0
+    valid(tmp_path / "rf-50.glb")
+    assert check_no_empty_set(tmp_path / "rf-50.glb") == 2
 
 
 def test_reduce_defaults_to_best_fit_by_error_fitted_on_every_clip(tmp_path, capsys):

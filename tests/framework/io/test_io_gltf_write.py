@@ -200,6 +200,71 @@ def test_six_influences_use_two_sets(tmp_path, valid, quantize):
     assert abs(back.weights - ReducedWeights(idx, val, n).to_sparse()).max() <= tol
 
 
+def _k8_at_most(src, wide_rows=()) -> ReducedWeights:
+    """k = 8 rows of ``src``'s joints with 4 distinct non-zero weights each (the other 4 slots zero), and 5 in
+    ``wide_rows``."""
+    n, m = src.handles.n, src.mesh.n_vertices
+    rng = np.random.default_rng(5)
+    idx = np.array([rng.choice(n, 8, replace=False) for _ in range(m)])
+    val = np.zeros((m, 8))
+    val[:, :4] = rng.dirichlet(np.ones(4), size=m)
+    for v in wide_rows:
+        val[v, :5] = rng.dirichlet(np.ones(5))
+    return ReducedWeights(idx, val, n)
+
+
+def test_sets_count_the_widest_vertex_not_k():
+    """k = 8 slots with at most 4 non-zero weights are one set (no WEIGHTS_1 of zeros); a row of 5 makes two."""
+    idx = np.tile(np.arange(8), (3, 1))
+    val = np.zeros((3, 8))
+    val[:, [1, 3, 5, 6]] = 0.25
+    for kind in ("float", "ushort", "ubyte"):
+        sets = skinning_sets_arrays(idx, val, kind)
+        assert len(sets) == 1 and (sets[0][1] != 0).all()
+    val[2, [1, 3, 5, 6, 7]] = 0.2
+    assert len(skinning_sets_arrays(idx, val, "float")) == 2
+    assert len(skinning_sets_arrays(idx, np.zeros((3, 8)) + np.eye(8)[:3], "float", n_sets=2)) == 2   # forced
+    tiny = np.zeros((1, 8))
+    tiny[0, :5] = [0.6, 0.2, 0.1, 0.099, 0.001]     # the fifth is below half a ubyte code: one set in ubyte
+    assert len(skinning_sets_arrays(np.arange(8)[None], tiny, "ubyte")) == 1
+    assert len(skinning_sets_arrays(np.arange(8)[None], tiny, "ushort")) == 2
+
+
+@pytest.mark.parametrize("quantize", ["float", "ubyte"])
+def test_k8_writes_only_the_sets_the_widest_vertex_needs(tmp_path, valid, quantize):
+    src = read_gltf_skin(GLTF / "huesitos.glb")
+    out = tmp_path / "k8.glb"
+    stats = write_gltf(out, src, _k8_at_most(src), quantize=quantize)
+    valid(out)
+    assert stats["sets"] == 1
+    assert skinning_sets(load_gltf(out).json["meshes"][0]["primitives"][0]["attributes"]) == [0]
+    assert np.diff(read_gltf_skin(out).weights.indptr).max() == 4
+    wide = _k8_at_most(src, wide_rows=[17])
+    stats = write_gltf(out, src, wide, quantize=quantize)
+    valid(out)
+    assert stats["sets"] == 2
+    back = read_gltf_skin(out)
+    assert skinning_sets(back.document.json["meshes"][0]["primitives"][0]["attributes"]) == [0, 1]
+    tol = 1e-7 if quantize == "float" else 2.0 / 255
+    assert abs(back.weights - wide.to_sparse()).max() <= tol
+
+
+def test_k8_rows_kept_exact_from_the_source_write_one_set(tmp_path, valid):
+    """The lossless path (rows equal to the file's keep its bytes) trims the empty sets too."""
+    src = read_gltf_skin(GLTF / "simple_skin.gltf")
+    A = src.weights.toarray()                       # 2 joints, at most 2 weights per vertex
+    idx = np.tile(np.arange(8) % 2, (len(A), 1))
+    val = np.zeros((len(A), 8))
+    val[:, :2] = A
+    out = tmp_path / "k8.gltf"
+    stats = write_gltf(out, src, ReducedWeights(idx, val, 2))
+    valid(out)
+    assert stats["vertices_kept_exact"] == len(A) and stats["sets"] == 1
+    back = read_gltf_skin(out)
+    assert skinning_sets(back.document.json["meshes"][0]["primitives"][0]["attributes"]) == [0]
+    assert (back.weights != src.weights).nnz == 0
+
+
 def test_merged_meshes_are_split_back(tmp_path, valid):
     """Two meshes with the same skin are read as one; the writer gives each its own rows back."""
     doc = load_gltf(GLTF / "huesitos.glb")
