@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from rigslim.errors import InputError
+from rigslim.errors import InputError, PipelineError, brief
 from rigslim.model.asset import Asset
 from rigslim.model.handles import Handles
 from rigslim.model.mesh import Mesh
@@ -87,11 +87,17 @@ class Pipeline:
             ``"STEP.PARAM=VALUE"`` settings, as ``rigslim run --set``.
         """
         host = host or get_host()
+        if isinstance(overrides, (str, bytes)) or not all(isinstance(o, str) for o in overrides):
+            raise PipelineError(f"overrides must be a list of strings (got {brief(overrides)})", field="overrides",
+                                fix="give e.g. overrides=['select.k=6'], as rigslim run --set")
         if isinstance(spec, Mapping):
             raw: dict[str, Any] | None = dict(spec)
             source = Path(base_dir if base_dir is not None else Path.cwd()).resolve() / "<python>"
-        else:
+        elif isinstance(spec, (str, Path)):
             raw, source = None, Path(spec)
+        else:
+            raise PipelineError(f"spec is neither a path nor a mapping (got {brief(spec)})", field="spec",
+                                fix="give a pipeline file's path or the document as a dict")
         doc, steps = load_pipeline(source, list(overrides), host, raw=raw)
         return cls(doc, steps, source, raw, overrides, host)
 
@@ -119,14 +125,62 @@ class Pipeline:
                             console=console, raw=self._raw)
 
 
+def _real_array(value: Any, source: str, field: str, what: str, fix: str) -> np.ndarray:
+    """``value`` as an array of real numbers, or one :class:`InputError` naming the argument.
+
+    Strings, ``None``, objects, ragged nesting (numpy's ``ValueError``) and complex numbers (which
+    numpy would cast to real in silence, dropping the imaginary part) are refused here, before any
+    numpy, scipy or pymeshlab code sees them.
+    """
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError):  # ragged nesting: "inhomogeneous shape"
+        raise InputError(f"{what} are nested lists of different lengths", source=source, field=field,
+                         fix=fix) from None
+    if arr.dtype.kind not in "biuf":
+        got = "None" if value is None else f"{arr.dtype} values" if arr.dtype.kind != "O" else type(value).__name__
+        raise InputError(f"{what} are not real numbers (got {got})", source=source, field=field, fix=fix)
+    return arr
+
+
+def _mesh_arg(mesh: Any) -> Mesh:
+    """The ``mesh`` argument as a :class:`Mesh` with at least one vertex (shapes, indices, finiteness checked)."""
+    if not isinstance(mesh, Mesh):
+        if not (isinstance(mesh, tuple) and len(mesh) == 2):
+            raise InputError("mesh must be a rigslim.model.mesh.Mesh or a (V, F) pair", field="mesh",
+                             fix="pass Mesh(V, F) or (V, F)")
+        V = _real_array(mesh[0], "mesh", "vertices", "vertex positions", "give V as an (m, 3) array of floats")
+        F = _real_array(mesh[1], "mesh", "faces", "face indices", "give F as an (f, 3) array of vertex indices")
+        if F.dtype.kind == "f" and not (np.isfinite(F).all() and np.array_equal(F, np.round(F))):
+            raise InputError("face indices are not whole numbers (they would be truncated)", source="mesh",
+                             field="faces", fix="give F as an (f, 3) array of integer vertex indices")
+        mesh = Mesh(V, F, source="mesh")
+    if mesh.n_vertices == 0:
+        raise InputError("the mesh has no vertices", source="mesh", field="vertices",
+                         fix="give V as an (m, 3) array with m >= 1 (and the weights' m rows)")
+    return mesh
+
+
+def _weights_arg(weights: Any, mesh: Mesh) -> sp.csr_matrix:
+    """The ``weights`` argument as checked (m, n) CSR weights: 2-D, real, finite, one row per vertex."""
+    fix = "give an (m, n) array or sparse matrix: one row per vertex, one column per handle"
+    if sp.issparse(weights):
+        if weights.dtype.kind not in "biuf":
+            raise InputError(f"weights are not real numbers (got {weights.dtype} values)", source="weights",
+                             field="values", fix=fix)
+    else:
+        weights = _real_array(weights, "weights", "values", "weights", fix)
+        if weights.ndim != 2:
+            raise InputError(f"weights have shape {weights.shape}, expected (m, n) with m = {mesh.n_vertices}",
+                             source="weights", field="shape", fix=fix)
+        weights = sp.csr_matrix(weights.astype(np.float64))
+    return validate_weights(weights, mesh.n_vertices, source="weights")
+
+
 def _as_poses(poses, n: int, field: str) -> Poses:
     if not isinstance(poses, Poses):
-        try:
-            arr = np.asarray(poses, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise InputError(f"{field} are not numbers", field=field,
-                             fix="give (p, n, 3, 4) transforms, one per handle") from None
-        poses = Poses(arr, source=field)
+        arr = _real_array(poses, field, "transforms", f"{field}", "give (p, n, 3, 4) transforms, one per handle")
+        poses = Poses(arr.astype(np.float64), source=field)
     if not len(poses):
         raise InputError(f"{field} hold no pose", field=field,
                          fix="give at least one (n, 3, 4) pose, or poses=None for the methods that need none")
@@ -138,13 +192,10 @@ def _as_poses(poses, n: int, field: str) -> Poses:
 
 def _asset(mesh: Mesh | tuple[np.ndarray, np.ndarray], weights: Any, poses: Any, handles: Handles | None,
            validation: Any = None, examples: int | None = None) -> Asset:
-    if not isinstance(mesh, Mesh):
-        if not (isinstance(mesh, tuple) and len(mesh) == 2):
-            raise InputError("mesh must be a rigslim.model.mesh.Mesh or a (V, F) pair", field="mesh",
-                             fix="pass Mesh(V, F) or (V, F)")
-        mesh = Mesh(*mesh, source="mesh")
-    W = validate_weights(weights if sp.issparse(weights) else sp.csr_matrix(np.asarray(weights, dtype=np.float64)),
-                         mesh.n_vertices, source="weights")
+    """The asset of an API call: every array argument checked here, once (shapes, real numbers, finiteness),
+    so that bad input is one :class:`InputError` naming the argument, never numpy's or a plugin's exception."""
+    mesh = _mesh_arg(mesh)
+    W = _weights_arg(weights, mesh)
     n = W.shape[1]
     if handles is None:
         handles = Handles("skeleton", [f"handle{i}" for i in range(n)])
@@ -159,6 +210,10 @@ def _asset(mesh: Mesh | tuple[np.ndarray, np.ndarray], weights: Any, poses: Any,
         clips = [_as_poses(c, n, f"poses[{i}]") for i, c in enumerate(poses)]
         if not clips:
             raise InputError("poses is an empty list of clips", field="poses", fix="give at least one clip")
+        if examples is not None and (isinstance(examples, bool) or not isinstance(examples, (int, np.integer))
+                                     or examples < 1):
+            raise PipelineError(f"input should be a whole number >= 1 (got {brief(examples)})",
+                                field="reduce_weights.examples", fix="give the example poses in all, e.g. examples=24")
         sampled = sample_clip_frames([len(c) for c in clips], DEFAULT_EXAMPLE_COUNT if examples is None else examples)
         starts = np.cumsum([0] + [len(c) for c in clips])
         ex = [int(starts[i] + f) for i, (e, _, _) in enumerate(sampled) for f in e]
@@ -290,6 +345,10 @@ def simplify(mesh: Mesh | tuple[np.ndarray, np.ndarray], weights: Any, poses: Po
     """
     host = host or get_host()
     asset = _asset(mesh, weights, poses, handles)
+    assert asset.mesh is not None
+    if asset.mesh.n_faces == 0:
+        raise InputError("the mesh has no faces: nothing to simplify", source="mesh", field="faces",
+                         fix="give F as an (f, 3) array of triangles, f >= 1")
     decimator = host.get("articulated-decimation", method)
     assert isinstance(decimator, Decimator)
     ctx = StepContext()

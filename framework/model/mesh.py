@@ -115,9 +115,13 @@ class Mesh:
         Raises
         ------
         InputError
-            When no face has area (a flat-to-a-line, collinear or
-            single-point mesh): no Laplacian exists, naming the faces.
+            When the mesh has no faces, or no face has area (a flat-to-a-line,
+            collinear or single-point mesh): no Laplacian exists, naming the faces.
         """
+        if not len(self.F):
+            raise InputError("the mesh has no faces; the Laplacian (smooth, poisson, bone heat...) needs triangles",
+                             source=self.source or "mesh", field="faces",
+                             fix="give a triangle mesh, or a method that needs no faces (geometric, k-largest)")
         areas = self.face_areas
         tol = DEGENERATE_AREA * max(self.bbox_diagonal, np.finfo(float).tiny) ** 2
         good = areas > tol

@@ -69,6 +69,9 @@ class StaticQSlim(Decimator[StaticQSlimParams]):
             raise StepError("static-qslim needs targets", field="targets", fix="add e.g. 'targets: [0.1, 0.02]'")
         mesh = asset.mesh
         assert mesh is not None  # require() raised otherwise
+        if mesh.n_faces == 0:  # pymeshlab's filter would fail ("does not have Any Faces")
+            raise StepError("the mesh has no triangles (its primitives are points or lines): nothing to simplify",
+                            field="faces", fix="give a file whose primitives are triangles")
         W = limited_weights(asset.weights, params.max_bones)
         faces = target_faces(params.targets, mesh.n_faces)
         ms = pymeshlab.MeshSet()
