@@ -150,9 +150,20 @@ class GltfWriter(Writer[GltfWriterParams]):
             weights = asset.reduced if asset.reduced is not None else asset.weights
             if weights is None:
                 asset.require("weights", step="write: gltf")
-            stats = export_skinned(path, asset.mesh, asset.handles, weights, asset.poses, fps=params.fps,
-                                   quantize=params.quantize, embed=params.embed, levels=levels, lod=params.lod,
-                                   clamp_negative=params.clamp_negative)
+            usd = asset.extras.get("usd")
+            if usd is not None and usd.mesh is asset.mesh:     # a USD character: its materials, UVs, normals too
+                from rigslim.io.usd.looks import export_with_looks
+
+                stats = export_with_looks(path, usd, asset.mesh, asset.handles, weights, asset.poses,
+                                          levels=levels, hierarchy=asset.hierarchy, fps=params.fps,
+                                          quantize=params.quantize, embed=params.embed, lod=params.lod,
+                                          clamp_negative=params.clamp_negative)
+                for note in stats.pop("looks_notes"):
+                    ctx.log(note)
+            else:
+                stats = export_skinned(path, asset.mesh, asset.handles, weights, asset.poses, fps=params.fps,
+                                       quantize=params.quantize, embed=params.embed, levels=levels, lod=params.lod,
+                                       clamp_negative=params.clamp_negative)
             ctx.report.update(stats)
             mode = "export"
         if ctx.report.get("clamped_vertices"):

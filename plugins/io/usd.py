@@ -126,18 +126,23 @@ class UsdWriter(Writer[UsdWriterParams]):
         bound = _clip_name(gltf) if from_gltf else "Animation"
         stage = build_stage(asset.mesh, asset.handles, weights, asset.poses, fps=fps, bind=bind,
                             name=_stem(name), clips=clips, animation_name=bound)
-        looks = {}
-        if from_gltf:
-            from rigslim.io.usd.export import add_gltf_looks
+        from rigslim.io.atomic import scratch_folder
 
-            looks = add_gltf_looks(stage, gltf)
-        if not levels:
-            save_stage(stage, path)
-            k = asset.reduced.k if asset.reduced is not None else None
-            return {"element_size": k, "levels": 0, "lod": None, "meshes": 1, **looks}
-        skin = usd_skin_of_stage(stage, asset.mesh, asset.handles, asset.weights, asset.poses, path)
-        return looks | write_usd(path, skin, None, levels=levels, hierarchy=asset.hierarchy, lod=params.lod,
-                                 clamp_negative=params.clamp_negative)
+        # textures: beside the output (NAME_textures/), or packaged into a .usdz from a scratch folder
+        with scratch_folder("rigslim-usdz-textures-") as scratch:
+            folder = scratch if path.suffix.lower() == ".usdz" else path.parent / f"{path.stem}_textures"
+            looks = {}
+            if from_gltf:
+                from rigslim.io.usd.export import add_gltf_looks
+
+                looks = add_gltf_looks(stage, gltf, textures=folder)
+            if not levels:
+                save_stage(stage, path)
+                k = asset.reduced.k if asset.reduced is not None else None
+                return {"element_size": k, "levels": 0, "lod": None, "meshes": 1, **looks}
+            skin = usd_skin_of_stage(stage, asset.mesh, asset.handles, asset.weights, asset.poses, path)
+            return looks | write_usd(path, skin, None, levels=levels, hierarchy=asset.hierarchy, lod=params.lod,
+                                     clamp_negative=params.clamp_negative)
 
 
 def _other_gltf_clips(gltf, fps: float) -> list:

@@ -280,17 +280,33 @@ def set_influences(prim, indices: np.ndarray, values: np.ndarray, *, clamp_negat
     return stats
 
 
-def add_gltf_looks(stage, gltf) -> dict:
-    """UVs and material slots of a glTF skin on the exported mesh (:func:`build_stage` of ``gltf.mesh``).
+def add_gltf_looks(stage, gltf, textures=None) -> dict:
+    """UVs, normals and material slots of a glTF skin on the exported mesh (:func:`build_stage` of ``gltf.mesh``).
 
     - ``TEXCOORD_n`` (when every skinned primitive has it) becomes the ``faceVarying`` primvar ``st``
       (``st1``, ...), ``st = (u, 1 - v)`` (glTF's texture origin is the top left, USD's the bottom left),
       taken at each face corner's own file vertex, so UV seams stay seams;
+    - ``NORMAL`` (when every skinned primitive has it) becomes the ``faceVarying`` primvar ``normals``
+      (indexed), the file's own normal at each corner, replacing the welded vertex normals, so hard edges
+      and the shading of the file are kept;
     - each primitive's faces become a ``GeomSubset`` of the ``materialBind`` family (a partition) bound to
       a ``Material`` named after the glTF material, with a ``UsdPreviewSurface`` carrying its base colour
-      factor, metallic and roughness factors (textures are not converted).
+      factor, metallic and roughness factors, ``opacityThreshold`` (``MASK``) and, with ``textures`` given,
+      its base colour texture: the image written there (PNG or JPEG, as in the file) and read by a
+      ``UsdUVTexture`` (``sourceColorSpace = sRGB``, ``scale`` = the factor, ``a`` to ``opacity`` unless
+      ``OPAQUE``) at ``st`` through a ``UsdPrimvarReader_float2``. A double-sided material makes the mesh
+      ``doubleSided`` and is noted in the Material's ``customData`` (``rigslim:doubleSided``: USD has no
+      per-material flag; :mod:`rigslim.io.usd.looks` reads it back).
 
-    Returns ``{"uv_sets": n, "materials": m}``.
+    Parameters
+    ----------
+    stage : pxr.Usd.Stage
+    gltf : GltfSkin
+    textures : path-like, optional
+        Folder for the texture images (absolute paths are authored; the writer makes them relative to
+        the output). None: textures are not converted.
+
+    Returns ``{"uv_sets": n, "materials": m, "textures": t}``.
     """
     Usd, UsdGeom, _, Sdf, Gf, Vt = pxr_modules()
     from pxr import UsdShade
@@ -302,37 +318,95 @@ def add_gltf_looks(stage, gltf) -> dict:
     geom = next(p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
     mesh = UsdGeom.Mesh(geom)
     sets = 0
-    while all(f"TEXCOORD_{sets}" in d.attributes for d in data) and data:
-        uv = np.concatenate([d.attributes[f"TEXCOORD_{sets}"][Ff - sl.start] for d, sl, (_, Ff)
-                             in zip(data, gltf.slices, faces, strict=True)]).reshape(-1, 2)
-        uv = np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1)
-        values, index = np.unique(np.round(uv, 7), axis=0, return_inverse=True)
-        pv = UsdGeom.PrimvarsAPI(geom).CreatePrimvar("st" if sets == 0 else f"st{sets}",
-                                                     Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
-        pv.Set(Vt.Vec2fArray.FromNumpy(values.astype(np.float32)))
+
+    def corners(name):
+        return np.concatenate([d.attributes[name][Ff - sl.start] for d, sl, (_, Ff)
+                               in zip(data, gltf.slices, faces, strict=True)]).reshape(len(gltf.mesh.F) * 3, -1)
+
+    def indexed(name, type_name, X, decimals):
+        values, index = np.unique(np.round(X, decimals), axis=0, return_inverse=True)
+        pv = UsdGeom.PrimvarsAPI(geom).CreatePrimvar(name, type_name, UsdGeom.Tokens.faceVarying)
+        pv.Set(Vt.Vec2fArray.FromNumpy(values.astype(np.float32)) if X.shape[1] == 2
+               else Vt.Vec3fArray.FromNumpy(values.astype(np.float32)))
         pv.SetIndices(Vt.IntArray.FromNumpy(np.asarray(index, np.int32).ravel()))
+
+    while all(f"TEXCOORD_{sets}" in d.attributes for d in data) and data:
+        uv = corners(f"TEXCOORD_{sets}")
+        uv = np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1)
+        indexed("st" if sets == 0 else f"st{sets}", Sdf.ValueTypeNames.TexCoord2fArray, uv, 7)
         sets += 1
+    if data and all("NORMAL" in d.attributes for d in data):
+        N = corners("NORMAL")
+        N = N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
+        geom.RemoveProperty("normals")
+        indexed("normals", Sdf.ValueTypeNames.Normal3fArray, N, 6)
     js = gltf.document.json
     root = stage.GetDefaultPrim().GetPath()
+    UsdGeom.Scope.Define(stage, root.AppendChild("Looks"))
     taken: set[str] = set()
     materials: dict = {}
+    images: dict = {}
     start = 0
+    double = False
     for d, sl, (Fw, _) in zip(data, gltf.slices, faces, strict=True):
         m = js["meshes"][sl.mesh]["primitives"][sl.primitive].get("material")
         if m not in materials:
             spec = js.get("materials", [])[m] if m is not None else {}
             materials[m] = _preview_material(stage, root, usd_identifier(spec.get("name") or f"material{m}", taken),
-                                             spec)
+                                             spec, _texture_file(gltf, spec, textures, images), _sampler(js, spec))
+            double |= bool(spec.get("doubleSided"))
         subset = UsdGeom.Subset.CreateUniqueGeomSubset(
             mesh, f"primitive{d.index}", UsdGeom.Tokens.face,
             Vt.IntArray.FromNumpy(np.arange(start, start + len(Fw), dtype=np.int32)), "materialBind", "partition")
         UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(materials[m])
         start += len(Fw)
-    return {"uv_sets": sets, "materials": len(materials)}
+    if double:
+        mesh.CreateDoubleSidedAttr(True)
+    return {"uv_sets": sets, "materials": len(materials), "textures": len(images)}
 
 
-def _preview_material(stage, root, name: str, spec: dict):
-    """A Material with a UsdPreviewSurface from a glTF material's factors."""
+def _sampler(js: dict, spec: dict) -> dict:
+    """The sampler of a glTF material's base colour texture (``{}``: none, glTF's default: repeat)."""
+    ref = spec.get("pbrMetallicRoughness", {}).get("baseColorTexture")
+    if ref is None:
+        return {}
+    s = js.get("textures", [])[ref["index"]].get("sampler")
+    return js.get("samplers", [])[s] if s is not None else {}
+
+
+def _texture_file(gltf, spec: dict, folder, written: dict) -> str | None:
+    """The image file of a glTF material's base colour texture, written once into ``folder`` (None: none)."""
+    from rigslim.io.atomic import atomic_path
+
+    ref = spec.get("pbrMetallicRoughness", {}).get("baseColorTexture")
+    js = gltf.document.json
+    if folder is None or ref is None:
+        return None
+    source = js.get("textures", [])[ref["index"]].get("source")
+    if source is None:
+        return None
+    if source in written:
+        return written[source]
+    image = js["images"][source]
+    doc = gltf.document
+    data = doc.buffer_view_bytes(image["bufferView"]) if "bufferView" in image else \
+        doc.uri_bytes(image["uri"], f"images[{source}]")
+    ext = ".png" if data[:8] == b"\x89PNG\r\n\x1a\n" else ".jpg" if data[:3] == b"\xff\xd8\xff" else None
+    if ext is None:       # glTF core images are PNG or JPEG; anything else stays behind
+        return None
+    from pathlib import Path
+
+    taken = {Path(p).stem for p in written.values()}
+    name = usd_identifier(image.get("name") or Path(str(image.get("uri", ""))).stem or f"image{source}", taken)
+    target = Path(folder).resolve() / (name + ext)
+    with atomic_path(target) as tmp:
+        Path(tmp).write_bytes(data)
+    written[source] = str(target)
+    return written[source]
+
+
+def _preview_material(stage, root, name: str, spec: dict, texture: str | None = None, sampler: dict | None = None):
+    """A Material with a UsdPreviewSurface from a glTF material's factors (and base colour texture file)."""
     _, _, _, Sdf, Gf, _ = pxr_modules()
     from pxr import UsdShade
 
@@ -341,9 +415,37 @@ def _preview_material(stage, root, name: str, spec: dict):
     shader.CreateIdAttr("UsdPreviewSurface")
     pbr = spec.get("pbrMetallicRoughness", {})
     r, g, b, a = (list(pbr.get("baseColorFactor", [1.0, 1.0, 1.0, 1.0])) + [1.0] * 4)[:4]
-    shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(float(r), float(g), float(b)))
-    shader.CreateInput("opacity", Sdf.ValueTypeNames.Float).Set(float(a))
+    mode = spec.get("alphaMode", "OPAQUE")
+    diffuse = shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f)
+    opacity = shader.CreateInput("opacity", Sdf.ValueTypeNames.Float)
+    if texture is not None:
+        reader = UsdShade.Shader.Define(stage, material.GetPath().AppendChild("TexCoordReader"))
+        reader.CreateIdAttr("UsdPrimvarReader_float2")
+        reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+        st = reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
+        tex = UsdShade.Shader.Define(stage, material.GetPath().AppendChild("BaseColorTexture"))
+        tex.CreateIdAttr("UsdUVTexture")
+        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(texture))
+        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(st)
+        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
+        tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(float(r), float(g), float(b), float(a)))
+        wrap = {10497: "repeat", 33648: "mirror", 33071: "clamp"}
+        sampler = sampler or {}
+        tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set(wrap.get(sampler.get("wrapS", 10497), "repeat"))
+        tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set(wrap.get(sampler.get("wrapT", 10497), "repeat"))
+        diffuse.ConnectToSource(tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3))
+        alpha = tex.CreateOutput("a", Sdf.ValueTypeNames.Float)
+        if mode != "OPAQUE":
+            opacity.ConnectToSource(alpha)
+        else:
+            opacity.Set(1.0)
+    else:
+        diffuse.Set(Gf.Vec3f(float(r), float(g), float(b)))
+        opacity.Set(float(a) if mode != "OPAQUE" else 1.0)
+    if mode == "MASK":
+        shader.CreateInput("opacityThreshold", Sdf.ValueTypeNames.Float).Set(float(spec.get("alphaCutoff", 0.5)))
     shader.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(float(pbr.get("metallicFactor", 1.0)))
     shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(float(pbr.get("roughnessFactor", 1.0)))
     material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+    material.GetPrim().SetCustomDataByKey("rigslim:doubleSided", bool(spec.get("doubleSided", False)))
     return material
