@@ -36,7 +36,10 @@ class PoseSpec(BaseModel):
     @field_validator("examples", "test", mode="before")
     @classmethod
     def _one_clip_form(cls, v):
-        """A mapping side is either ``{clip, frames}`` or ``{clips, count}`` (one message, not the union's)."""
+        """A mapping side is either ``{clip, frames}`` or ``{clips, count}`` (one message, not the union's);
+        true/false is no frame (pydantic would read it as frame 1 or 0)."""
+        if isinstance(v, bool) or (isinstance(v, list) and any(isinstance(x, bool) for x in v)):
+            raise ValueError("true/false is not a frame number")
         if isinstance(v, dict):
             if ("clip" in v) == ("clips" in v):
                 raise ValueError("give either 'clip' (one clip) or 'clips' (several, or 'all')")
@@ -92,6 +95,57 @@ def _format_validation(err: ValidationError) -> tuple[str, str]:
     return loc, e["msg"]
 
 
+#: The accepted forms of ``poses.examples`` and ``poses.test`` (docs/pipelines.md), for messages.
+POSE_FORMS = ("a frame spec ('0:60:5', '1,5,9', 7 or a list of those), {clip: NAME, frames: SPEC} "
+              "or {clips: all or [NAMES], count: N}")
+#: The accepted forms of each field of a mapping side, for messages.
+CLIP_FIELD_FORMS = {"clip": "a clip name or index", "frames": "a frame spec ('0:60:5', '1,5,9', 7 or a list of those)",
+                    "clips": "all or a list of clip names or indices", "count": "a whole number >= 1"}
+
+
+def _user_loc(loc: tuple) -> tuple:
+    """A pydantic error location without its union-branch tags (``str``, ``int``, ``list[...]``, ``ClipFrames``,
+    ``literal[...]``): the path the user wrote (``poses.examples.frames``)."""
+    def tag(x) -> bool:
+        return isinstance(x, str) and (x in ("str", "int", "float", "bool", "none") or "[" in x or x[:1].isupper())
+    return tuple(x for x in loc if not tag(x))
+
+
+def _poses_error(errors: list, value: Any, path: Path) -> PipelineError:
+    """One line for a malformed ``poses:`` naming the user's field (``poses.examples``, not the union branch
+    ``poses.examples.str``) and the accepted forms, instead of the first of pydantic's per-branch errors."""
+    first = errors[0]
+    loc = _user_loc(first["loc"])
+    example = "write e.g. poses: {examples: '0:60:5', test: '1:60:5'} (docs/pipelines.md)"
+    if len(loc) == 1:
+        return PipelineError(f"poses is {brief(value)}, not a mapping of 'examples' and 'test'", source=path,
+                             field="poses", fix=example)
+    side, field = loc[1], f"poses.{loc[1]}"
+    if first["type"] == "extra_forbidden" and len(loc) == 2:
+        return PipelineError(f"unknown key '{side}'", source=path, field="poses",
+                             fix=closest(str(side), PoseSpec.model_fields))
+    if first["type"] == "missing":
+        return PipelineError(f"'{side}' is missing; poses needs both 'examples' and 'test'", source=path, field=field,
+                             fix=f"give {field} as {POSE_FORMS}")
+    if first["type"] == "value_error":  # PoseSpec._one_clip_form: its own message
+        return PipelineError(str(first["msg"]).removeprefix("Value error, "), source=path, field=field,
+                             fix=f"give {field} as {POSE_FORMS}")
+    given = value.get(side) if isinstance(value, dict) else None
+    inner = [e for e in errors if _user_loc(e["loc"])[:2] == loc[:2] and len(_user_loc(e["loc"])) > 2]
+    if isinstance(given, dict) and inner:  # a mapping side: the first of its own fields that is wrong
+        key = _user_loc(inner[0]["loc"])[2]
+        same = [e for e in inner if _user_loc(e["loc"])[2] == key]
+        if same[0]["type"] == "extra_forbidden":
+            return PipelineError(f"unknown key '{key}'", source=path, field=field,
+                                 fix=closest(str(key), ClipFrames.model_fields))
+        forms = CLIP_FIELD_FORMS.get(str(key), "see docs/pipelines.md")
+        got = brief(given.get(key))
+        what = f"{same[0]['msg'].lower()} (got {got})" if len(same) == 1 else f"{got} is none of the accepted forms"
+        return PipelineError(what, source=path, field=f"{field}.{key}", fix=f"give {field}.{key} as {forms}")
+    return PipelineError(f"{brief(given)} is none of the accepted forms", source=path, field=field,
+                         fix=f"give {field} as {POSE_FORMS}")
+
+
 def load_pipeline(path, overrides: Sequence[str] = (), host: PluginHost | None = None, *,
                   raw: dict | None = None) -> tuple[PipelineDoc, list[Step]]:
     """Read, validate and parse a pipeline file.
@@ -120,6 +174,8 @@ def load_pipeline(path, overrides: Sequence[str] = (), host: PluginHost | None =
     try:
         doc = PipelineDoc.model_validate(raw)
     except ValidationError as err:
+        if err.errors()[0]["loc"][:1] == ("poses",):
+            raise _poses_error(err.errors(), raw.get("poses"), path) from None
         loc, msg = _format_validation(err)
         top = loc.split(".")[0]
         fix = closest(top, PipelineDoc.model_fields) if "extra" in err.errors()[0]["type"] else \

@@ -361,3 +361,36 @@ def test_medit_tetrahedron_index_out_of_range(project, capfd):
     (project / "bad.mesh").write_text("MeshVersionFormatted 1\nDimension 3\nVertices\n4\n0 0 0 0\n1 0 0 0\n0 1 0 0\n"
                                       "0 0 1 0\nTetrahedra\n1\n1 2 3 2082712575 0\nEnd\n")
     _bad(project, capfd, _pipeline(project, mesh="bad.mesh"), "bad.mesh", "Tetrahedra")
+
+
+# --------------------------------------------------------------------------- poses: (a union of forms)
+
+FORMS = "{clip: NAME, frames: SPEC} or {clips: all or [NAMES], count: N}"
+
+
+@pytest.mark.parametrize(("poses", "field", "words"), [
+    ("{examples: 1.5, test: 1}", "poses.examples", ["1.5 is none of the accepted forms", FORMS]),
+    ("{examples: [1.5], test: 1}", "poses.examples", ["[1.5] is none of the accepted forms", FORMS]),
+    ("{examples: null, test: 1}", "poses.examples", ["None is none of the accepted forms", FORMS]),
+    ("{examples: true, test: 1}", "poses.examples", ["true/false is not a frame number", FORMS]),
+    ("{examples: 5}", "poses.test", ["'test' is missing", FORMS]),
+    ("5", "poses", ["poses is 5, not a mapping of 'examples' and 'test'"]),
+    ("{examples: 1, test: 2, tset: 3}", "poses", ["unknown key 'tset'", "did you mean 'test'"]),
+    ("{examples: {clip: 0, frames: {x: 1}}, test: 1}", "poses.examples.frames",
+     ["{'x': 1} is none of the accepted forms", "a frame spec ('0:60:5'"]),
+    ("{examples: {clip: [1]}, test: 1}", "poses.examples.clip", ["[1] is none", "a clip name or index"]),
+    ("{examples: {clips: some}, test: {clips: all}}", "poses.examples.clips",
+     ["'some' is none", "all or a list of clip names"]),
+    ("{examples: {clips: all, count: 0}, test: {clips: all}}", "poses.examples.count",
+     ["greater than or equal to 1 (got 0)"]),
+    ("{examples: {clip: 0, frames: 1, fps: 3}, test: 1}", "poses.examples", ["unknown key 'fps'"]),
+])
+def test_poses_union_errors_name_the_users_field(project, capfd, poses, field, words):
+    """A malformed poses: side failed every branch of the union and the line named the first branch
+    (poses.examples.str: input should be a valid string); it names the field written and the accepted forms."""
+    text = CHEB.format(mesh="cheburashka.off", skeleton="cheburashka.tgf", animation="cheburashka-anim.dmat",
+                       steps=K_LARGEST.rstrip("\n"))
+    text = text.replace('poses:\n  examples: "0:40:6"\n  test: "1:40:6"\n', f"poses: {poses}\n")
+    line = _bad(project, capfd, _pipeline(project, text), "pipeline.yaml", f"{field}: ", *words)
+    for branch in (".str", ".int", "ClipFrames", "list[", "literal[", "PoseSpec", "Field required"):
+        assert branch not in line, line
