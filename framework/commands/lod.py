@@ -27,6 +27,7 @@ from rigslim.commands.lod_levels import (
     decimate_params,
     level_rows,
     print_levels,
+    say_joint_budget_stops,
     sidecar_path,
     switch_camera,
     write_params,
@@ -162,6 +163,7 @@ def cmd_lod(args) -> int:
     print_levels(rows)
     for t in targets:
         _say_where_it_stopped(t, max_error, doc["locked_seam_vertices"])
+    say_joint_budget_stops(rows, max_error)
     if unnormalised:
         print(unnormalised, file=sys.stderr)
     return 0
@@ -178,6 +180,8 @@ def _lod_document(args, src, outputs, runs, result, targets, kept, step, clip, d
     per_prim = {x["label"]: x["primitive_faces"] for x in write.get("level_primitives", [])}
     for row in rows:
         row["primitive_faces"] = per_prim.get(row["label"])
+        if (row.get("joint_budget") or {}).get("error") is not None:     # the faces' error plus the joints'
+            row["error"] = row["joint_budget"]["error"]
     doc = _header("lod") | {"input": str(src), "outputs": [str(p) for p in outputs], "clip": clip,
                              "clip_seconds": duration, "frames": frames, "ratios": ratios,
                              "max_bones": args.max_bones, "method": args.method, "split": args.split,

@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +20,7 @@ import numpy as np
 from rigslim.errors import InputError
 
 __all__ = ["SIDECAR_SCHEMA", "add_level_arguments", "decimate_params", "level_rows", "parse_max_joints",
-           "print_levels", "sidecar_path", "switch_camera", "write_params", "write_sidecar"]
+           "print_levels", "say_joint_budget_stops", "sidecar_path", "switch_camera", "write_params", "write_sidecar"]
 
 #: Schema name of ``OUT.lod.json``.
 SIDECAR_SCHEMA = "rigslim-lod-sidecar"
@@ -120,7 +121,8 @@ def level_rows(result) -> list[dict]:
         if lv.label in budget:
             b = budget[lv.label]
             row["joint_budget"] = {k: b.get(k) for k in ("budget", "joints_before", "dropped", "met", "strategy",
-                                                         "example_rms")}
+                                                         "example_rms", "error", "max_error", "stopped",
+                                                         "next_error")}
         if lv.label in switch:
             s = switch[lv.label]
             row |= {k: s[k] for k in ("error_max_m", "error_rms_m", "screen_coverage", "switch_distance_m")}
@@ -136,9 +138,24 @@ def print_levels(rows: list[dict]) -> None:
             line += (f", test-pose error max {r['error_max_m']:.3g} m (RMS {r['error_rms_m']:.3g} m), from "
                      f"{r['switch_distance_m']:.3g} m / coverage {r['screen_coverage']:.3g}")
         b = r.get("joint_budget")
-        if b and not b.get("met", True):
+        if b and b.get("stopped") == "max_error":
+            line += f" (joint budget {b['budget']} not met within --max-error)"
+        elif b and not b.get("met", True):
             line += f" (joint budget {b['budget']} not met: the rest are joints the file needs)"
         print(line)
+
+
+def say_joint_budget_stops(rows: list[dict], max_error: str | None) -> None:
+    """One stderr line per level whose joint budget the error bound stopped: the joints kept, the error the
+    next merge would reach against the bound, and the fix."""
+    for r in rows:
+        b = r.get("joint_budget") or {}
+        if b.get("stopped") != "max_error":
+            continue
+        print(f"rigslim lod: level {r['label']} keeps {r['joints']} joints, above --max-joints {b['budget']}: "
+              f"merging one more would reach error {b['next_error']:.4g} m, above --max-error {max_error} "
+              f"({b['max_error']:.4g} m; the level is at {b['error']:.4g} m); raise --max-joints or --max-error",
+              file=sys.stderr)
 
 
 def switch_camera(result) -> dict | None:

@@ -92,7 +92,8 @@ class DecimationParams(Params):
     the bounding-box diagonal of the first test pose, ``"Em"`` metres (world units); ``none`` (default) turns
     it off.
     A level whose next collapse would move the surface farther than this (meshoptimizer's normalised
-    quadric error, over every example pose) stops there, short of its target."""
+    quadric error, over every example pose) stops there, short of its target. With ``joint_budget`` the
+    joints' displacement counts too: a level keeps more joints than its budget rather than pass the bound."""
     joint_budget: float | list[float] | None = None
     """Joints each level's skin may list (:mod:`rigslim.plugins.decimation.joint_budget`): a count (24), a
     fraction of the skin's joints (0.5), or one per face target; the others' vertices are re-fitted."""
@@ -325,7 +326,7 @@ class ArticulatedDecimator(Decimator):
             with clock("joints"):
                 from rigslim.plugins.decimation.joint_budget import step_joint_budgets
 
-                levels = step_joint_budgets(asset, params, levels, choices, faces, ctx)
+                levels = step_joint_budgets(asset, params, levels, choices, faces, ctx, bound)
         self.report(asset, params, ctx, hier, levels, choices, bound, locked, seams, len(T))
         ctx.report["seconds"] = clock.seconds
         if hier.faces_after(hier.n_collapses) > min_faces:

@@ -21,6 +21,14 @@ costs of candidates whose vertices the last removal did not touch are kept (lazy
 
 Joints the file needs (:mod:`rigslim.io.gltf.joints`: attached nodes and meshes, joints of other
 skins, ``keep_joints``) are never dropped; a budget below their count stops there and says so.
+
+The step's error bound (``max_error``, :mod:`rigslim.plugins.decimation.levels`) holds for the joints too.
+A removal moves vertex ``v`` by ``d_v = sqrt(e_v / P)``, its RMS displacement over the P example poses
+(``e_v``: :func:`rigslim.plugins.decimation.joint_refit.row_errors`), so a level whose collapses reached
+the geometric error ``d_f`` reaches ``d_f + max_v d_v`` without those joints. Only removals that keep it
+within the bound are candidates; where none is left before the budget, the level keeps more joints than
+its budget (``met: false``, ``stopped: "max_error"``, and ``next_error``: the least the next removal would
+reach).
 Joints without weight at a level cost nothing: its skin leaves them out anyway. Dropped joints stay
 in the node hierarchy and the animation is unchanged; only the level's weights (and, in the glTF
 writer, its skin: :mod:`rigslim.io.gltf.level_skins`) change.
@@ -65,6 +73,14 @@ class BudgetChoice:
     method: str
     met: bool
     energy: float
+    stopped: str | None = None
+    """``"max_error"`` when the error bound stopped the removals before the budget, else None."""
+    next_error: float | None = None
+    """With ``stopped``: the least largest displacement ``max_v d_v`` one more removal would have reached."""
+
+    def displacement(self, target: LevelTarget) -> float:
+        """Largest per-vertex RMS example-pose displacement ``max_v sqrt(e_v / P)`` (metres for glTF)."""
+        return float(np.sqrt(self.errors.max(initial=0.0) / max(len(target.T), 1)))
 
     def rms(self, target: LevelTarget) -> float:
         """Area-weighted RMS example-pose error, ``sqrt(E / (P sum_v a_v))`` (metres for glTF)."""
@@ -112,8 +128,11 @@ def level_target(asset, level, k: int) -> LevelTarget:
 class _Greedy:
     """One greedy removal (module docstring) on one level."""
 
-    def __init__(self, target: LevelTarget, required: np.ndarray, strategy: str, method: str, solver, handles):
+    def __init__(self, target: LevelTarget, required: np.ndarray, strategy: str, method: str, solver, handles,
+                 limit: float | None = None):
         self.t, self.required, self.strategy, self.method = target, required, strategy, method
+        # the bound on max_v d_v as one on e_v = P d_v^2
+        self.limit = None if limit is None else max(len(target.T), 1) * max(float(limit), 0.0) ** 2
         self.solver, self.handles = solver, handles
         W = target.W.tocsr()
         m, k = len(target.V), target.k
@@ -188,32 +207,54 @@ class _Greedy:
                     ((cidx == j) & (cval > 0)).any():       # a cached re-fit that leans on j is stale
                 del self.cache[c]
 
+    def peak(self, j: int) -> float:
+        """Largest ``e_v`` of the level once joint j (evaluated) is dropped."""
+        g, _, _, err, _ = self.cache[j]
+        rest = np.ones(len(self.err), bool)
+        rest[g] = False
+        return max(float(err.max(initial=0.0)), float(self.err[rest].max(initial=0.0)))
+
     def run(self, budget: int) -> BudgetChoice:
+        stopped, blocked = None, None
         while int(self.used().sum()) > budget:
             cands = self.candidates()
             if not cands:
                 break
             self.evaluate(cands)
+            if self.limit is not None:
+                peaks = {j: self.peak(j) for j in cands}
+                within = [j for j in cands if peaks[j] <= self.limit]
+                if not within:
+                    stopped, blocked = "max_error", min(peaks.values())
+                    break
+                cands = within
             best = min(cands, key=lambda j: (self.cache[j][4], len(self.cache[j][0]), j))
             self.drop(best)
         used = self.used()
         k = self.t.k
         order = np.argsort(-self.val, axis=1, kind="stable")[:, :k]
+        P = max(len(self.t.T), 1)
         return BudgetChoice(np.take_along_axis(self.idx, order, 1), np.take_along_axis(self.val, order, 1),
                             self.err.copy(), used, list(self.dropped), self.strategy, self.method,
-                            int(used.sum()) <= budget, float((self.t.area * self.err).sum()))
+                            int(used.sum()) <= budget, float((self.t.area * self.err).sum()), stopped,
+                            None if blocked is None else float(np.sqrt(blocked / P)))
 
 
 def choose_joints(target: LevelTarget, budget: int, required: np.ndarray, *, strategy: str = DEFAULT_CHOICE,
-                  method: str = "refit", solver=None, handles=None) -> BudgetChoice:
-    """The greedy joint choice of one level (module docstring); ``best`` keeps the lower-energy of both."""
+                  method: str = "refit", solver=None, handles=None, limit: float | None = None) -> BudgetChoice:
+    """The greedy joint choice of one level (module docstring); ``best`` keeps the better of both (the budget
+    met, then fewer joints, then the lower energy).
+
+    ``limit`` (units of the positions, or None) bounds the largest per-vertex RMS example-pose displacement
+    ``max_v d_v`` the removals may reach (:meth:`BudgetChoice.displacement`); removals stop before it.
+    """
     if strategy == "best":
-        tries = [choose_joints(target, budget, required, strategy=s, method=method, solver=solver, handles=handles)
-                 for s in ("leaf-first", "global")]
-        return min(tries, key=lambda c: (not c.met, c.energy))
+        tries = [choose_joints(target, budget, required, strategy=s, method=method, solver=solver, handles=handles,
+                               limit=limit) for s in ("leaf-first", "global")]
+        return min(tries, key=lambda c: (not c.met, int(c.used.sum()), c.energy))
     if strategy not in CHOICES:
         raise StepError(f"unknown joint choice '{strategy}'", field="joint_choice", fix="use " + ", ".join(CHOICES))
-    return _Greedy(target, np.asarray(required, bool), strategy, method, solver, handles).run(budget)
+    return _Greedy(target, np.asarray(required, bool), strategy, method, solver, handles, limit).run(budget)
 
 
 def default_solver():
@@ -226,7 +267,8 @@ def default_solver():
 
 def apply_joint_budgets(asset, levels: list, budgets: list[int | None], required: dict[int, str], *,
                         max_bones: int | None, strategy: str = DEFAULT_CHOICE, method: str = "refit",
-                        log=None) -> tuple[list, list[dict]]:
+                        log=None, bound: float | None = None, face_errors: list[float] | None = None
+                        ) -> tuple[list, list[dict]]:
     """Levels with their joint budgets applied, and one report record per level.
 
     Parameters
@@ -240,6 +282,18 @@ def apply_joint_budgets(asset, levels: list, budgets: list[int | None], required
         Joints that are never dropped.
     max_bones : int or None
         The bone limit of the re-fit (default: the level's widest row).
+    bound : float or None
+        The step's error bound (units of the positions): a level's ``error``, its collapses' geometric error
+        (``face_errors``, default 0) plus its largest joint displacement, stays within it (module docstring).
+
+    Returns
+    -------
+    levels, records
+        Each record: ``label``, ``budget``, ``joints_before``, ``joints``, ``dropped``, ``met``; for a level
+        the budget changed, ``strategy``, ``method``, ``example_rms``, ``seconds``, ``required``, and
+        ``error`` (``face_error + displacement``), ``face_error``, ``displacement``, ``max_error`` (the
+        bound), ``stopped`` (``"max_error"`` or None) and ``next_error`` (the error the next removal would
+        have reached, when stopped).
     """
     if asset.handles is None or asset.handles.kind != "skeleton" or asset.handles.parents is None:
         raise StepError("joint_budget needs a skeleton (joints and their parents)", field="joint_budget",
@@ -249,7 +303,7 @@ def apply_joint_budgets(asset, levels: list, budgets: list[int | None], required
     req[list(required)] = True
     solver = default_solver() if method == "refit" else None
     out, records = [], []
-    for level, budget in zip(levels, budgets, strict=True):
+    for i, (level, budget) in enumerate(zip(levels, budgets, strict=True)):
         before = int(len(np.unique(level.weights.indices[level.weights.values != 0])))
         record = {"label": level.label, "budget": budget, "joints_before": before, "joints": before}
         if budget is None or before <= budget:
@@ -259,15 +313,23 @@ def apply_joint_budgets(asset, levels: list, budgets: list[int | None], required
         t0 = time.perf_counter()
         k = max_bones or int(level.weights.influence_counts().max(initial=1))
         target = level_target(asset, level, k)
+        face = float(face_errors[i]) if face_errors is not None else 0.0
         choice = choose_joints(target, budget, req, strategy=strategy, method=method, solver=solver,
-                               handles=asset.handles)
+                               handles=asset.handles, limit=None if bound is None else bound - face)
         weights = level_weights(choice.indices, choice.values, asset.handles.n)
         out.append(dataclasses.replace(level, weights=weights))
+        shift = choice.displacement(target)
         record |= {"joints": int(choice.used.sum()), "dropped": [names[j] for j in choice.dropped],
                    "met": choice.met, "strategy": choice.strategy, "method": method,
                    "example_rms": choice.rms(target), "seconds": time.perf_counter() - t0,
-                   "required": {names[j]: why for j, why in required.items() if choice.used[j]}}
-        if not choice.met and log is not None:
+                   "required": {names[j]: why for j, why in required.items() if choice.used[j]},
+                   "error": face + shift, "face_error": face, "displacement": shift, "max_error": bound,
+                   "stopped": choice.stopped,
+                   "next_error": None if choice.next_error is None else face + choice.next_error}
+        if log is not None and choice.stopped == "max_error":
+            log(f"level {level.label}: {record['joints']} joints, above its budget of {budget}: the next removal "
+                f"would reach error {record['next_error']:.4g}, above max_error {bound:.4g}")
+        elif not choice.met and log is not None:
             log(f"level {level.label}: {int(choice.used.sum())} joints, above its budget of {budget}: the rest "
                 f"are joints the file needs ({len(required)}) or carry every vertex left")
         records.append(record)
@@ -285,12 +347,15 @@ def required_joints(asset, keep_joints: str | None) -> dict[int, str]:
     return named_joints(list(asset.handles.names), keep_joints)
 
 
-def step_joint_budgets(asset, params, levels: list, choices, faces: list[int], ctx) -> list:
+def step_joint_budgets(asset, params, levels: list, choices, faces: list[int], ctx, bound: float | None = None
+                       ) -> list:
     """A decimation step's levels with its ``joint_budget`` applied, its report under ``joint_budget``.
 
     A list of budgets has one entry per face target (in the step's order); a target that ended at a
     finer level's prefix has no level, so its budget goes unused. Levels of error or adaptive
-    targets take a single budget.
+    targets take a single budget. ``bound`` (the step's ``max_error`` in the units of the positions) caps
+    each level's error, its face target's geometric error (``choices``) plus the joints' displacement;
+    levels of error or adaptive targets count their displacement alone.
     """
     per_target = isinstance(params.joint_budget, list)
     if per_target and (params.error_targets or params.adaptive_targets):
@@ -302,9 +367,11 @@ def step_joint_budgets(asset, params, levels: list, choices, faces: list[int], c
         ordered = [b for _, b in sorted(zip(faces, budgets, strict=True), key=lambda x: -x[0])]
         budgets = [b for b, c in zip(ordered, choices, strict=True) if c.same_as is None]
     required = required_joints(asset, params.keep_joints)
+    face = {c.label: c.error for c in choices if c.same_as is None}
     out, records = apply_joint_budgets(asset, levels, budgets, required, max_bones=params.max_bones,
-                                       strategy=params.joint_choice, method=params.joint_weights, log=ctx.log)
+                                       strategy=params.joint_choice, method=params.joint_weights, log=ctx.log,
+                                       bound=bound, face_errors=[face.get(lv.label, 0.0) for lv in levels])
     names = list(asset.handles.names)
-    ctx.report["joint_budget"] = {"choice": params.joint_choice, "weights": params.joint_weights,
+    ctx.report["joint_budget"] = {"choice": params.joint_choice, "weights": params.joint_weights, "max_error": bound,
                                   "required": {names[j]: why for j, why in required.items()}, "levels": records}
     return out

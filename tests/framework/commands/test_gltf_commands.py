@@ -276,6 +276,32 @@ def test_lod_max_error_stops_levels_and_says_so(tmp_path, capsys):
     check_lod_structure(src, out, len([x for x in doc["targets"] if x["same_as"] is None]))
 
 
+def test_lod_joint_budget_stays_within_max_error_and_says_so(tmp_path, capsys):
+    """wuson at half its faces: 8 of 37 joints reach an example-pose displacement of 0.24 m against the 1 %
+    bound (0.033 m), once shipped without a word. Now the merges stop inside the bound, the level keeps more
+    joints and one stderr line names the level, the error the next merge would reach, the bound and the fix;
+    --max-error none still meets the budget."""
+    src = GLTF / "suite" / "wuson.glb"
+    out, rep = tmp_path / "w.glb", tmp_path / "w.json"
+    assert main(["lod", str(src), "-o", str(out), "--ratios", "0.5", "--max-joints", "8", "--report", str(rep)]) == 0
+    err = capsys.readouterr().err
+    doc = json.loads(rep.read_text())
+    row, t = doc["levels"][0], doc["targets"][0]
+    b = row["joint_budget"]
+    assert b["stopped"] == "max_error" and not b["met"] and row["joints"] > 8
+    assert b["max_error"] == t["max_error"] and t["error"] <= b["error"] == row["error"] <= b["max_error"]
+    assert b["next_error"] > b["max_error"]
+    line = next(x for x in err.splitlines() if "--max-joints" in x)
+    assert line == (f"rigslim lod: level {row['label']} keeps {row['joints']} joints, above --max-joints 8: merging "
+                    f"one more would reach error {b['next_error']:.4g} m, above --max-error 1% "
+                    f"({b['max_error']:.4g} m; the level is at {b['error']:.4g} m); raise --max-joints or --max-error")
+    assert main(["lod", str(src), "-o", str(out), "--ratios", "0.5", "--max-joints", "8", "--max-error", "none",
+                 "--report", str(rep)]) == 0
+    assert "--max-joints" not in capsys.readouterr().err
+    b = json.loads(rep.read_text())["levels"][0]["joint_budget"]
+    assert b["met"] and b["stopped"] is None and b["max_error"] is None and b["error"] > 0.2
+
+
 def test_lod_says_why_no_collapse_was_left(tmp_path, capsys):
     """mangonel (37 wooden parts) cannot reach 5 % without removing parts: the report counts the parts left
     whole at 4 faces or fewer, and stderr says so (it once printed "None seam vertices")."""

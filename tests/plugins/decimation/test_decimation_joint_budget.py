@@ -110,6 +110,50 @@ def test_apply_reports_each_level_and_leaves_unbudgeted_levels_alone():
     assert 0 in used and len(used) <= 2
 
 
+def _displacement(asset, level, weights) -> float:
+    """Largest per-vertex RMS example-pose displacement of ``weights`` from ``level``'s own deformation."""
+    from rigslim.numerics.blend import linear_blend
+
+    T = asset.example_poses().T
+    d2 = sum(((linear_blend(level.mesh.V, weights.to_sparse(), Tp)
+               - linear_blend(level.mesh.V, level.weights.to_sparse(), Tp)) ** 2).sum(axis=1) for Tp in T)
+    return float(np.sqrt(d2.max() / len(T)))
+
+
+def test_the_error_bound_stops_joint_removals_before_the_budget():
+    """Unbounded, two joints of six displace the tube by d; under a bound of half of d (less the faces' error)
+    the removals stop inside it: more joints than the budget, met false, stopped max_error, and the error the
+    next removal would reach (above the bound) recorded; the weights written displace it within the bound."""
+    asset = tube_asset(rings=24, segments=8, bones=6, poses=10, seed=8)
+    lv = _level(asset)
+    (free,), (rec,) = apply_joint_budgets(asset, [lv], [2], {}, max_bones=4)
+    d = _displacement(asset, lv, free.weights)
+    assert rec["met"] and rec["joints"] == 2 and rec["stopped"] is None and rec["max_error"] is None
+    assert rec["displacement"] == pytest.approx(d, rel=1e-6) and rec["error"] == rec["displacement"]
+    bound, face = 0.5 * d, 0.1 * d
+    (held,), (rec,) = apply_joint_budgets(asset, [lv], [2], {}, max_bones=4, bound=bound, face_errors=[face])
+    assert not rec["met"] and rec["stopped"] == "max_error" and rec["joints"] > 2
+    assert rec["max_error"] == bound and rec["face_error"] == face
+    assert rec["error"] == pytest.approx(face + _displacement(asset, lv, held.weights), rel=1e-6)
+    assert rec["error"] <= bound < rec["next_error"]
+    assert len(np.unique(held.weights.indices[held.weights.values > 0])) == rec["joints"]
+    (same,), (rec2,) = apply_joint_budgets(asset, [lv], [2], {}, max_bones=4, bound=2 * d)
+    assert rec2["met"] and rec2["stopped"] is None and rec2["error"] <= 2 * d      # room enough: the budget met
+
+
+def test_best_prefers_the_fewer_joints_when_neither_choice_meets_the_budget():
+    asset = tube_asset(rings=24, segments=8, bones=6, poses=10, seed=8)
+    target = level_target(asset, _level(asset), 4)
+    none = np.zeros(6, bool)
+    solver = default_solver()
+    free = choose_joints(target, 2, none, strategy="global", solver=solver, handles=asset.handles)
+    limit = 0.5 * free.displacement(target)
+    tries = [choose_joints(target, 2, none, strategy=s, solver=solver, handles=asset.handles, limit=limit)
+             for s in ("leaf-first", "global", "best")]
+    assert all(c.stopped == "max_error" and c.displacement(target) <= limit < c.next_error for c in tries)
+    assert int(tries[2].used.sum()) == min(int(c.used.sum()) for c in tries[:2])
+
+
 def test_a_cage_has_no_joints_to_budget():
     from support.synthetic import cage_asset
 
