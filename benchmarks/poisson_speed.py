@@ -19,7 +19,6 @@ Writes ``docs/results/poisson_speed.{json,md}``: seconds, the ratio to geometric
 
 from __future__ import annotations
 
-import os
 import sys
 import time
 from pathlib import Path

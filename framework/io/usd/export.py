@@ -308,15 +308,21 @@ def add_gltf_looks(stage, gltf, textures=None) -> dict:
 
     Returns ``{"uv_sets": n, "materials": m, "textures": t}``.
     """
-    Usd, UsdGeom, _, Sdf, Gf, Vt = pxr_modules()
-    from pxr import UsdShade
-
     from rigslim.io.gltf.primitives import primitive_data, welded_faces
 
+    UsdGeom = pxr_modules()[1]
     data = primitive_data(gltf)
     faces = welded_faces(gltf, data)
     geom = next(p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
-    mesh = UsdGeom.Mesh(geom)
+    sets = _corner_primvars(geom, gltf, data, faces)
+    n_materials, n_textures = _bind_materials(stage, UsdGeom.Mesh(geom), gltf, data, faces, textures)
+    return {"uv_sets": sets, "materials": n_materials, "textures": n_textures}
+
+
+def _corner_primvars(geom, gltf, data, faces) -> int:
+    """``st`` (``st1``, ...) and ``normals`` as indexed ``faceVarying`` primvars of the mesh prim ``geom``, from
+    each face corner's own file vertex (:func:`add_gltf_looks`); returns the number of UV sets written."""
+    _, UsdGeom, _, Sdf, _, Vt = pxr_modules()
     sets = 0
 
     def corners(name):
@@ -340,6 +346,15 @@ def add_gltf_looks(stage, gltf, textures=None) -> dict:
         N = N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
         geom.RemoveProperty("normals")
         indexed("normals", Sdf.ValueTypeNames.Normal3fArray, N, 6)
+    return sets
+
+
+def _bind_materials(stage, mesh, gltf, data, faces, textures) -> tuple[int, int]:
+    """One ``materialBind`` ``GeomSubset`` per primitive, bound to a ``UsdPreviewSurface`` material per glTF
+    material (:func:`add_gltf_looks`); returns the numbers of materials and texture images written."""
+    _, UsdGeom, _, _, _, Vt = pxr_modules()
+    from pxr import UsdShade
+
     js = gltf.document.json
     root = stage.GetDefaultPrim().GetPath()
     UsdGeom.Scope.Define(stage, root.AppendChild("Looks"))
@@ -362,7 +377,7 @@ def add_gltf_looks(stage, gltf, textures=None) -> dict:
         start += len(Fw)
     if double:
         mesh.CreateDoubleSidedAttr(True)
-    return {"uv_sets": sets, "materials": len(materials), "textures": len(images)}
+    return len(materials), len(images)
 
 
 def _sampler(js: dict, spec: dict) -> dict:
