@@ -123,7 +123,8 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
         ``hausdorff_rms_m``, ``hausdorff_max_m`` (world units: metres for
         glTF), ``faces``, ``hausdorff_frames`` (the frame numbers measured),
         ``hausdorff_frame_cap`` (0: no cap), ``hausdorff_all_frames``; when
-        both have the same vertices and faces also
+        both have the same faces, in the same order, also (vertices matched corner by corner,
+        :func:`corner_map`, where one file splits or welds the other's vertices)
         ``position_rms_m``/``position_max_m``/``position_rms_pct`` (vertex to
         vertex, every frame), ``normal_rms_rad`` and ``hausdorff_max_bound_m``.
 
@@ -171,6 +172,12 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
     if same:
         vertex, worst = vertex_errors(Pr, Pc, Fr, diag)
         out |= vertex
+    elif (to_ref := corner_map(Fr, Fc, Pc.shape[1])) is not None:     # the candidate splits the reference's vertices
+        vertex, worst = vertex_errors(Pr[:, to_ref], Pc, Fc, diag)
+        out |= vertex
+    elif (to_cand := corner_map(Fc, Fr, Pr.shape[1])) is not None:    # the candidate welds them
+        vertex, worst = vertex_errors(Pr, Pc[:, to_cand], Fr, diag)
+        out |= vertex
     if hausdorff:
         large = max(len(Fr), len(Fc)) > large_faces
         cap = hausdorff_frames if hausdorff_frames is not None else (LARGE_HAUSDORFF_FRAMES if large else 0)
@@ -186,8 +193,22 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
                 "hausdorff_frames": [chosen[j] for j in idx], "hausdorff_frame_cap": int(cap),
                 "hausdorff_all_frames": len(idx) == len(times),
                 "per_frame_rms_m": rms.tolist(), "per_frame_max_m": mx.tolist(), "samples": samples}
-        if same:
+        if "position_max_m" in out:
             out["hausdorff_max_bound_m"] = out["position_max_m"]
+    return out
+
+
+def corner_map(Fr: np.ndarray, Fc: np.ndarray, n_candidate: int) -> np.ndarray | None:
+    """The ``Fr`` vertex of every ``Fc`` vertex when the two face lists are the same faces in the same order and
+    ``Fc`` only splits vertices ``Fr`` shares (a glTF that splits a USD mesh's points at UV seams and materials):
+    ``map[Fc] == Fr`` corner by corner, one ``Fr`` vertex per ``Fc`` vertex, every ``Fc`` vertex used
+    (``n_candidate`` of them). None when there is no such map (other faces, another order, another mesh)."""
+    if Fr.shape != Fc.shape or not len(Fc):
+        return None
+    out = np.full(n_candidate, -1, dtype=np.int64)
+    out[Fc.ravel()] = Fr.ravel()
+    if (out < 0).any() or not np.array_equal(out[Fc], Fr):
+        return None
     return out
 
 

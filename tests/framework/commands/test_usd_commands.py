@@ -41,6 +41,35 @@ def test_reduce_gltf_to_usd_keeps_the_motion(exported, capsys):
     assert res["hausdorff_rms_pct"] < 1e-4 and res["hausdorff_max_pct"] < 1e-3
 
 
+def test_compare_matches_split_and_welded_vertices_corner_by_corner(exported, tmp_path, capsys):
+    """glTF (seam copies) against its UsdSkel copy (welded points), both ways, and a USD -> glTF reduction: the
+    faces correspond in order, so vertices are matched corner by corner and the vertex-to-vertex figures come
+    back (``reduce`` prints its test-pose position RMS again for a USD input written as glTF)."""
+    for ref, cand in ((HUESITOS, exported), (exported, HUESITOS)):
+        code, out, _ = run(["compare", ref, cand, "--json"], capsys)
+        res = json.loads(out)
+        assert code == 0 and res["position_rms_pct"] < 1e-3 and res["normal_rms_rad"] < 1e-3     # float32 USD
+        assert res["position_max_m"] < 1e-4 * res["reference_diagonal_m"]
+        assert res["hausdorff_max_bound_m"] == res["position_max_m"]
+    glb = tmp_path / "back.glb"
+    code, text, err = run(["reduce", exported, "-o", glb, "-k", "2"], capsys)
+    assert code == 0, err
+    assert "test-pose position RMS" in text
+
+
+def test_corner_map_needs_the_same_faces_in_the_same_order():
+    """One reference vertex per candidate vertex, every candidate vertex used, ``map[Fc] == Fr``; otherwise None."""
+    from rigslim.commands.compare import corner_map
+
+    Fr = np.array([[0, 1, 2], [2, 1, 3]])
+    Fc = np.array([[0, 1, 2], [4, 1, 3]])          # vertex 2 split into 2 and 4 (a seam)
+    np.testing.assert_array_equal(corner_map(Fr, Fc, 5), [0, 1, 2, 3, 2])
+    assert corner_map(Fc, Fr, 4) is None            # welded -> split is the other direction's map
+    assert corner_map(Fr, np.array([[1, 2, 0], [4, 1, 3]]), 5) is None    # corners in another order
+    assert corner_map(Fr, Fc, 6) is None            # an unused candidate vertex
+    assert corner_map(Fr, Fc[:1], 5) is None        # other faces
+
+
 def test_reduce_usd_to_usd_writes_element_size_k(exported, tmp_path, capsys):
     out = tmp_path / "k2.usda"
     report = tmp_path / "k2.json"
