@@ -167,17 +167,8 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
         "reference": str(ref), "candidate": str(cand), "level": level, "clip": clip_name, "fps": fps,
         "frames": chosen, "clip_frames": count, "reference_diagonal_m": diag, "faces": int(len(Fc)),
         "reference_faces": int(len(Fr))}
-    same = Pr.shape == Pc.shape and np.array_equal(Fr, Fc)
-    worst = None
-    if same:
-        vertex, worst = vertex_errors(Pr, Pc, Fr, diag)
-        out |= vertex
-    elif (to_ref := corner_map(Fr, Fc, Pc.shape[1])) is not None:     # the candidate splits the reference's vertices
-        vertex, worst = vertex_errors(Pr[:, to_ref], Pc, Fc, diag)
-        out |= vertex
-    elif (to_cand := corner_map(Fc, Fr, Pr.shape[1])) is not None:    # the candidate welds them
-        vertex, worst = vertex_errors(Pr, Pc[:, to_cand], Fr, diag)
-        out |= vertex
+    vertex, worst = matched_vertex_errors(Pr, Fr, Pc, Fc, diag)
+    out |= vertex
     if hausdorff:
         large = max(len(Fr), len(Fc)) > large_faces
         cap = hausdorff_frames if hausdorff_frames is not None else (LARGE_HAUSDORFF_FRAMES if large else 0)
@@ -196,6 +187,20 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
         if "position_max_m" in out:
             out["hausdorff_max_bound_m"] = out["position_max_m"]
     return out
+
+
+def matched_vertex_errors(Pr: np.ndarray, Fr: np.ndarray, Pc: np.ndarray, Fc: np.ndarray,
+                          diag: float) -> tuple[dict, int | None]:
+    """:func:`vertex_errors` of two posed files whose vertices correspond: the same vertices and faces, or the same
+    faces in the same order with one file splitting the other's vertices (:func:`corner_map`, either way);
+    ``({}, None)`` when they do not correspond."""
+    if Pr.shape == Pc.shape and np.array_equal(Fr, Fc):
+        return vertex_errors(Pr, Pc, Fr, diag)
+    if (to_ref := corner_map(Fr, Fc, Pc.shape[1])) is not None:       # the candidate splits the reference's vertices
+        return vertex_errors(Pr[:, to_ref], Pc, Fc, diag)
+    if (to_cand := corner_map(Fc, Fr, Pr.shape[1])) is not None:      # the candidate welds them
+        return vertex_errors(Pr, Pc[:, to_cand], Fr, diag)
+    return {}, None
 
 
 def corner_map(Fr: np.ndarray, Fc: np.ndarray, n_candidate: int) -> np.ndarray | None:
