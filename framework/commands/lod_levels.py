@@ -131,12 +131,19 @@ def level_rows(result) -> list[dict]:
 
 
 def print_levels(rows: list[dict]) -> None:
-    """One stdout line per level: faces, joints, influences, error and where it switches in."""
-    for r in rows:
+    """One stdout line per level: faces, joints, influences, error and where it switches in; a level that is
+    never shown (the next, coarser level switches in at the same coverage, its maximum error being no larger)
+    says so."""
+    for i, r in enumerate(rows):
         line = f"  {r['label']}: {r['faces']} faces, {r['joints']} joints, {r['influences']} influences"
         if r.get("error_max_m") is not None:
             line += (f", test-pose error max {r['error_max_m']:.3g} m (RMS {r['error_rms_m']:.3g} m), from "
                      f"{r['switch_distance_m']:.3g} m / coverage {r['screen_coverage']:.3g}")
+            nxt = rows[i + 1] if i + 1 < len(rows) else None
+            if nxt is not None and nxt.get("screen_coverage") is not None and \
+                    nxt["screen_coverage"] >= r["screen_coverage"]:
+                line += (f"; never shown: {nxt['label']}'s max error ({nxt['error_max_m']:.3g} m) is no larger, "
+                         "so it switches in at the same distance")
         b = r.get("joint_budget")
         if b and b.get("stopped") == "max_error":
             line += f" (joint budget {b['budget']} not met within --max-error)"
