@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -157,14 +158,16 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
         count, clip_name, _ = clip_frames(ref, clip, fps, None if is_usd(ref) else load_gltf(ref))
         chosen = compared_frames(frames, count)
         times = [f / fps for f in chosen]
+        cand_clip, cand_name, note = candidate_clip(ref, cand, clip, clip_name)
         Pr, Fr, sr = posed_surfaces(ref, clip=clip, times=times)
-        Pc, Fc, sc = posed_surfaces(cand, clip=clip if clip is not None else None, times=times, level=level)
+        Pc, Fc, sc = posed_surfaces(cand, clip=cand_clip, times=times, level=level)
     lo, hi = Pr[0].min(axis=0), Pr[0].max(axis=0)
     diag = float(np.linalg.norm(hi - lo))
     if diag <= 0:
         raise InputError("the reference has zero extent", source=ref, field="POSITION", fix="give a real mesh")
     out = _header("compare") | {
-        "reference": str(ref), "candidate": str(cand), "level": level, "clip": clip_name, "fps": fps,
+        "reference": str(ref), "candidate": str(cand), "level": level, "clip": clip_name,
+        "candidate_clip": cand_name, **({"clip_note": note} if note else {}), "fps": fps,
         "frames": chosen, "clip_frames": count, "reference_diagonal_m": diag, "faces": int(len(Fc)),
         "reference_faces": int(len(Fr))}
     vertex, worst = matched_vertex_errors(Pr, Fr, Pc, Fc, diag)
@@ -187,6 +190,44 @@ def compare(ref: Path, cand: Path, *, clip=None, frames: str | None = None, leve
         if "position_max_m" in out:
             out["hausdorff_max_bound_m"] = out["position_max_m"]
     return out
+
+
+def _clip_names(path: Path) -> list[str | None]:
+    """The names of a glTF file's animations (None for an unnamed one)."""
+    from rigslim.io.gltf.document import load_gltf
+
+    return [a.get("name") for a in load_gltf(path).json.get("animations", [])]
+
+
+def candidate_clip(ref: Path, cand: Path, clip, clip_name: str | None) -> tuple[object, str | None, str | None]:
+    """The candidate's clip to pose at the reference clip's times: ``(clip, its name, note)``.
+
+    ``--clip`` (``clip`` not None) names one clip of both files (the candidate lacking it is an error naming
+    ``--clip`` and its clips). Without it, the reference's first clip is compared with the candidate's clip of
+    the same name, else with the candidate's first clip, and ``note`` (one line, printed to stderr by the
+    command) says so. USD files keep their own first clip (their clip names are not the glTF's).
+    """
+    if is_usd(ref) or is_usd(cand):
+        return clip, None, None
+    names = _clip_names(cand)
+    shown = ", ".join(repr(n) if n is not None else f"#{i}" for i, n in enumerate(names)) or "none"
+    if clip is not None:
+        if clip in names or (isinstance(clip, int) and not isinstance(clip, bool) and 0 <= clip < len(names)):
+            return clip, clip if isinstance(clip, str) else names[clip], None
+        if isinstance(clip, str) and clip.isdigit() and int(clip) < len(names):
+            return clip, names[int(clip)], None
+        raise InputError(f"the candidate has no clip {clip!r} (its clips: {shown})", source=cand, field="--clip",
+                         fix="name a clip both files have, or rename the candidate's clip")
+    named = clip_name is not None and clip_name in _clip_names(ref)       # an unnamed clip has no name to match
+    if named and clip_name in names:
+        return clip_name, clip_name, None
+    if not names or clip_name is None or (not named and names[0] is None):    # two unnamed clips: nothing to match
+        return None, names[0] if names else None, None
+    first = repr(names[0]) if names[0] is not None else "#0 (unnamed)"
+    mine = repr(clip_name) if named else "#0 (unnamed)"
+    return None, names[0], (f"rigslim compare: {cand.name} has no clip {mine} (its clips: {shown}): comparing "
+                            f"{ref.name}'s clip {mine} with its first clip {first} (--clip NAME compares a "
+                            f"clip both files have)")
 
 
 def matched_vertex_errors(Pr: np.ndarray, Fr: np.ndarray, Pc: np.ndarray, Fc: np.ndarray,
@@ -260,6 +301,8 @@ def cmd_compare(args) -> int:
         res = compare(ref, cand, clip=args.clip, frames=args.frames, level=args.level, fps=args.fps,
                       samples=args.samples, hausdorff_frames=cap)
         _emit_report(args, res)
+    if res.get("clip_note"):
+        print(res["clip_note"], file=sys.stderr)
     if args.json:
         print(dumps_strict({k: v for k, v in res.items() if not k.startswith("per_frame")}, default=_jsonable))
         return 0

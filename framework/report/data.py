@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -79,7 +80,8 @@ def load_render_data(document: dict, json_path=None) -> RenderData:
 
 def _run_inputs(document: dict, json_path: Path | None, notes: list[str]):
     """The asset of the run's inputs (with the document's frame split), the pipeline file (or None) and its
-    parsed steps; read with the pipeline's reader options, else from the document's ``inputs``."""
+    parsed steps; read with the pipeline's reader options (its file, else the pipeline a command report
+    holds, ``pipeline_document``), else from the document's ``inputs``. Poses: :func:`_stacked_clips`."""
     from rigslim.model.poses import FrameSplit
     from rigslim.plugin.contract import StepContext
     from rigslim.plugin.host import get_host
@@ -89,10 +91,13 @@ def _run_inputs(document: dict, json_path: Path | None, notes: list[str]):
     pipeline = _pipeline_path(document, json_path)
     host = get_host()
     pipeline_steps: list[Step] = []
-    if pipeline is not None:
-        doc, pipeline_steps = load_pipeline(pipeline, host=host)
+    in_memory = document.get("pipeline_document")
+    if pipeline is not None or isinstance(in_memory, dict):
+        named = pipeline or Path(str(document.get("pipeline") or "pipeline"))
+        doc, pipeline_steps = load_pipeline(named, host=host,
+                                            raw=None if pipeline is not None else copy.deepcopy(in_memory))
         spec = doc.model_copy(update={"poses": None})  # the inputs alone: frames come from the document
-        base = pipeline.parent.resolve()
+        base = pipeline.parent.resolve() if pipeline is not None else (json_path.parent if json_path else Path.cwd())
     else:
         inputs = document.get("inputs") or {}
         if not inputs:
@@ -101,12 +106,71 @@ def _run_inputs(document: dict, json_path: Path | None, notes: list[str]):
         spec = PipelineDoc.model_construct(inputs=dict(inputs), poses=None, steps=[])  # read_inputs' part only
         base = json_path.parent if json_path else Path.cwd()
         notes.append("pipeline file not found: inputs read with default reader options")
+    _check_command_input(document, json_path)
     asset = read_inputs(spec, base, host, StepContext(base_dir=base), json_path or "metrics document")
     frames = document.get("frames") or {}
     if asset.poses is not None and frames.get("test"):
+        gltf = spec.inputs.get("gltf") if isinstance(spec.inputs, dict) else None
+        segments = _stacked_clips(frames, asset, base, json_path or "metrics document",
+                                  gltf if isinstance(gltf, dict) else None)
         asset.split = FrameSplit(list(frames.get("examples") or []), list(frames["test"]),
-                                 list(frames.get("dropped_from_test") or []))
+                                 list(frames.get("dropped_from_test") or []), clips=frames.get("clips"),
+                                 segments=segments)
     return asset, pipeline, pipeline_steps
+
+
+def _check_command_input(document: dict, json_path: Path | None) -> None:
+    """Refuse, with the way that works, a command report of several skins whose run read a file that is gone
+    (``rigslim reduce``'s last skin reads the output of the skin before it, an intermediate file)."""
+    command = document.get("command_report") or {}
+    skins = command.get("skins") or []
+    gltf = (document.get("inputs") or {}).get("gltf")
+    if len(skins) > 1 and gltf and not Path(gltf).is_file():
+        raise InputError(f"'rigslim {command.get('command')}' ran one pipeline per skin ({len(skins)}); this run "
+                         f"(skin {skins[-1]}) read an intermediate file, gone", source=json_path,
+                         field="run.inputs.gltf",
+                         fix=f"render a skin with 'rigslim run --metrics' on its pipeline (inputs: gltf: "
+                             f"{{path: {Path(str(command.get('input'))).name}, skin: N}})")
+
+
+def _clip_labels(clips) -> list[str]:
+    """The clips of a document's ``frames.clips`` in the order the run stacked them: the example clips, then the
+    test clips not among them (:func:`rigslim.runtime.clips.clip_split`)."""
+    labels: list[str] = []
+    for side in ("examples", "validation", "test"):
+        parts = (clips or {}).get(side) or []
+        for part in parts if isinstance(parts, list) else [parts]:
+            label = part.get("clip") if isinstance(part, dict) else None
+            if isinstance(label, str) and label not in labels:
+                labels.append(label)
+    return labels
+
+
+def _stacked_clips(frames: dict, asset, base: Path, source, gltf_params: dict | None) -> list[dict] | None:
+    """Stack the poses of the clips the run used, as it stacked them, so that the document's frame numbers
+    (numbered over the stacked clips) name the same poses here; returns the segments
+    (``[{"clip", "start", "frames"}]``, :attr:`FrameSplit.segments`), None for a run of one clip.
+
+    ``asset.poses`` is the input animation (``input animation``); the other clips are read as the run read them
+    (:func:`rigslim.runtime.clips.load_clip`: an animation of the glTF input by name, or a ``.dmat`` file).
+    """
+    import numpy as np
+
+    from rigslim.model.poses import Poses
+    from rigslim.runtime.clips import load_clip
+
+    labels = _clip_labels(frames.get("clips"))
+    if not labels or labels == ["input animation"]:
+        return None
+    parts, segments, at = [], [], 0
+    for label in labels:
+        poses = asset.poses if label == "input animation" else \
+            load_clip(label, asset, base, source, "frames.clips", gltf_params)[1]
+        parts.append(poses.T)
+        segments.append({"clip": label, "start": at, "frames": len(poses)})
+        at += len(poses)
+    asset.poses = Poses(np.concatenate(parts, axis=0), source=" + ".join(labels))
+    return segments
 
 
 def _evaluation_normals(at: int, steps: list[dict], pipeline_steps: list) -> tuple[str | None, dict] | None:

@@ -347,7 +347,8 @@ def _frame_figures(rf, top: float, renders: dict[str, bytes]) -> str:
         figs.append(f"<div class=\"pair\"><figure><img alt=\"{html.escape(label)} frame {rf.frame}\" "
                     f"src=\"{_data_uri(p1)}\"><figcaption>{html.escape(label)} ({faces} faces, "
                     f"own weights)</figcaption></figure></div>")
-    return f"<div class=\"frame\"><h3>{html.escape(rf.run)}, frame {rf.frame}</h3>{''.join(figs)}</div>"
+    place = f" ({html.escape(rf.place)})" if rf.place else ""
+    return f"<div class=\"frame\"><h3>{html.escape(rf.run)}, frame {rf.frame}{place}</h3>{''.join(figs)}</div>"
 
 
 def _png_of(image) -> bytes:

@@ -1,8 +1,10 @@
 """What ``rigslim report`` reads, checked before anything is drawn.
 
 :func:`read_metrics_document` reads a metrics JSON written by
-``rigslim run --metrics`` (UTF-8, at most :data:`MAX_BYTES`, strict JSON)
-and checks the parts the report uses with pydantic models in strict mode:
+``rigslim run --metrics``, or the ``--report`` document of ``rigslim reduce``
+or ``rigslim lod`` (:func:`command_run`: the run it holds under ``run``)
+(UTF-8, at most :data:`MAX_BYTES`, strict JSON), and checks the parts the report uses with pydantic models
+in strict mode:
 ``evaluations`` is a non-empty list of objects, each metric (and each value
 of a simplified level in ``levels``, schema version 2) is a number,
 ``null``, a string, or ``{"mean", "max", "per_frame"}`` of numbers (``null``
@@ -29,6 +31,10 @@ MAX_BYTES = 256 << 20
 #: Largest render side (pixels); a render holds width x height x 4 bytes per frame and evaluation.
 MAX_RENDER_SIDE = 8192
 FIX = "give the file written by 'rigslim run --metrics FILE.json'"
+#: ``schema`` of the ``--report`` documents of the one-command front ends (``rigslim reduce``, ``lod``, ...).
+COMMAND_SCHEMA = "rigslim-gltf-command"
+#: The commands whose ``--report`` holds a pipeline run (``run``) and its pipeline (``pipeline``).
+RUN_COMMANDS = ("reduce", "lod")
 
 Number = int | float | None
 
@@ -116,11 +122,49 @@ def _json_path(loc) -> str:
     return out or "top level"
 
 
+def command_run(doc, path) -> dict:
+    """The metrics document of a command's ``--report`` (``rigslim reduce`` or ``rigslim lod``); ``doc`` itself
+    when it is no command report.
+
+    The run's document is ``doc["run"]``; the pipeline the command ran (``doc["pipeline"]``, in memory: the run
+    records no pipeline file) goes with it as ``pipeline_document``, and ``command_report`` keeps the command
+    and, for a file of several skins (``per_skin``: one run per skin, ``run`` the last skin's for ``reduce``,
+    the first's for ``lod``), the skins.
+
+    Raises
+    ------
+    InputError
+        For the report of another command (no run in it), or a run that measured nothing, with the option
+        that makes one.
+    """
+    if not isinstance(doc, dict) or doc.get("schema") != COMMAND_SCHEMA:
+        return doc
+    command = doc.get("command")
+    run = doc.get("run")
+    if command not in RUN_COMMANDS or not isinstance(run, dict):
+        raise InputError(f"a 'rigslim {command}' report holds no pipeline run", source=path, field="command",
+                         fix="give the --report of 'rigslim reduce' or 'rigslim lod', or a 'rigslim run --metrics' "
+                             "file")
+    if not run.get("evaluations"):
+        how = ("'rigslim lod ... --measure --report FILE.json' measures the levels" if command == "lod" else
+               "'rigslim reduce' measures only an animated input (frames >= 2) it reduces (k below the joint "
+               "count)")
+        raise InputError(f"the 'rigslim {command}' run measured nothing", source=path, field="run.evaluations",
+                         fix=how)
+    run = dict(run)
+    if isinstance(doc.get("pipeline"), dict):
+        run["pipeline_document"] = doc["pipeline"]
+    skins = [s.get("skin") for s in doc.get("per_skin") or [] if isinstance(s, dict)]
+    run["command_report"] = {"command": command, "input": doc.get("input"), **({"skins": skins} if skins else {})}
+    return run
+
+
 def check_metrics_document(doc, path) -> dict:
     """Validate a parsed metrics document (see the module docstring); returns it unchanged."""
     if not isinstance(doc, dict) or not isinstance(doc.get("evaluations"), list):
         raise InputError("no 'evaluations' list", source=path, field="evaluations",
-                         fix="run a pipeline with an 'evaluate' step and '--metrics FILE.json'")
+                         fix="give the file of 'rigslim run PIPELINE.yaml --metrics FILE.json' (a pipeline with an "
+                             "'evaluate' step) or of 'rigslim reduce|lod ... --report FILE.json'")
     if not doc["evaluations"]:
         raise InputError("the document has no evaluation", source=path, field="evaluations",
                          fix="add an 'evaluate' step to the pipeline")
@@ -166,7 +210,7 @@ def read_metrics_document(path) -> dict:
     except RecursionError:
         raise InputError("the JSON is nested too deeply", source=path, field="document", fix=FIX) from None
     # NaN / Infinity (older rigslim versions wrote them) read as missing values, like the null written now
-    return check_metrics_document(finite_copy(doc), path)
+    return check_metrics_document(command_run(finite_copy(doc), path), path)
 
 
 def check_render_size(width, height, field: str = "size") -> None:

@@ -55,6 +55,8 @@ class RenderedFrame:
     #: [(row label, image, heat image, max deviation in degrees, RMS deviation in radians)]
     reduced: list
     levels: list = field(default_factory=list)  # [(level label, faces, image)] of a simplification
+    #: Where the frame lies in a run of several clips (``clip 'run', frame 12``; :func:`frame_place`), else "".
+    place: str = ""
 
 
 @dataclass
@@ -63,6 +65,24 @@ class RenderSet:
     heat_max: float = 0.0
     backend: str = ""
     notes: list = field(default_factory=list)
+
+
+def frame_place(split, f: int) -> str:
+    """``clip 'NAME', frame F`` of stack frame ``f`` of a run of several clips (the clip it falls in and its
+    own frame number, :attr:`~rigslim.model.poses.FrameSplit.segments`); "" for a run of one clip."""
+    for s in (getattr(split, "segments", None) or []):
+        if s["start"] <= f < s["start"] + s["frames"]:
+            return f"clip '{s['clip']}', frame {f - s['start']}"
+    return ""
+
+
+def _clip_ranges(split) -> str:
+    """The stacked clips' frame ranges (``; clips stacked: 'walk' 0..57, 'run' 58..81``), "" for one clip."""
+    segments = getattr(split, "segments", None) or []
+    if not segments:
+        return ""
+    return "; clips stacked: " + ", ".join(f"'{s['clip']}' {s['start']}..{s['start'] + s['frames'] - 1}"
+                                           for s in segments)
 
 
 def render_rows(rows: list[EvaluationRow], data: dict, *, frames=None, width: int = 320, height: int = 270,
@@ -144,11 +164,12 @@ def _frame_jobs(rows: list[EvaluationRow], data: dict, frames, notes: list[str])
             if f is None:
                 continue
             if not 0 <= int(f) < len(asset.poses):
-                raise InputError(f"frame {f} is outside the animation (0..{len(asset.poses) - 1})",
-                                 source=group[0].source or group[0].run, field="frames",
-                                 fix="choose test frames of the run")
+                raise InputError(f"frame {f} is outside the animation (0..{len(asset.poses) - 1}"
+                                 f"{_clip_ranges(asset.split)})", source=group[0].source or group[0].run,
+                                 field="frames", fix="choose test frames of the run")
             if group[0].frames and int(f) not in group[0].frames:
-                notes.append(f"{name}: frame {f} is not a test frame")
+                place = frame_place(asset.split, int(f))
+                notes.append(f"{name}: frame {f}{f' ({place})' if place else ''} is not a test frame")
             jobs.append((group, name, asset, int(f)))
     return jobs
 
@@ -168,7 +189,7 @@ def _render_frame(group: list[EvaluationRow], name: str, asset, f: int, data: di
     cam = Camera.fit(X, view["width"], view["height"], projection=view["projection"], azimuth=view["azimuth"],
                      elevation=view["elevation"], up_axis=view["up_axis"], tight=True)
     full, used = render_mesh(X, F, FULL_COLOR, cam, normals=N, backend=backend)
-    rf = RenderedFrame(name, f, full, [])
+    rf = RenderedFrame(name, f, full, [], place=frame_place(asset.split, f))
     for r in group:
         R = data[id(r.document)].reduced.get(r.step)
         if R is None:

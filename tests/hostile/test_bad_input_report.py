@@ -124,3 +124,20 @@ def test_render_size_bounded(metrics, out, capfd, size):
     folder, _ = metrics
     line = _bad(capfd, out, [folder / "metrics.json"], "size", extra=[f"--size={size}"], subprocess=True)
     assert "8192" in line
+
+
+def test_command_report_without_a_run(out, capfd, tmp_path):
+    """The report of a command that runs no pipeline (rigslim inspect): one line naming the command and the
+    reports that work."""
+    bad = write_json(tmp_path / "inspect.json", {"schema": "rigslim-gltf-command", "schema_version": 1,
+                                                 "command": "inspect", "path": "x.glb"})
+    line = _bad(capfd, out, [bad], "inspect.json", "command", "rigslim inspect", "rigslim reduce")
+    assert "no 'evaluations' list" not in line
+
+
+def test_command_report_that_measured_nothing(metrics, out, capfd, tmp_path):
+    """A rigslim lod run without --measure has no evaluation: the fix names --measure."""
+    _, doc = metrics
+    report = {"schema": "rigslim-gltf-command", "schema_version": 1, "command": "lod",
+              "run": dict(copy.deepcopy(doc), evaluations=[]), "pipeline": {}}
+    _bad(capfd, out, [write_json(tmp_path / "lod.json", report)], "lod.json", "run.evaluations", "--measure")
