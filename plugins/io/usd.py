@@ -122,9 +122,8 @@ class UsdWriter(Writer[UsdWriterParams]):
         from_gltf = gltf is not None and gltf.mesh is asset.mesh
         # a glTF's frames keep the rate they were sampled at
         fps = gltf.fps if from_gltf and gltf is not None else params.fps
-        clips = _other_gltf_clips(gltf, fps) if from_gltf else None
-        bound = _clip_name(gltf) if from_gltf else "Animation"
-        stage = build_stage(asset.mesh, asset.handles, weights, asset.poses, fps=fps, bind=bind,
+        bound, poses, clips = _animations(asset, gltf if from_gltf else None, fps)
+        stage = build_stage(asset.mesh, asset.handles, weights, poses, fps=fps, bind=bind,
                             name=_stem(name), clips=clips, animation_name=bound)
         from rigslim.io.atomic import scratch_folder
 
@@ -140,9 +139,47 @@ class UsdWriter(Writer[UsdWriterParams]):
                 save_stage(stage, path)
                 k = asset.reduced.k if asset.reduced is not None else None
                 return {"element_size": k, "levels": 0, "lod": None, "meshes": 1, **looks}
-            skin = usd_skin_of_stage(stage, asset.mesh, asset.handles, asset.weights, asset.poses, path)
+            skin = usd_skin_of_stage(stage, asset.mesh, asset.handles, asset.weights, poses, path)
             return looks | write_usd(path, skin, None, levels=levels, hierarchy=asset.hierarchy, lod=params.lod,
                                      clamp_negative=params.clamp_negative)
+
+
+def _animations(asset: Asset, gltf, fps: float) -> tuple[str, object, list | None]:
+    """The clips an exported character gets: the bound one's name and poses, and the others ``(name, Poses)``.
+
+    ``asset.poses`` may stack several clips (a ``clips:`` split, :mod:`rigslim.runtime.clips`): the bound
+    ``SkelAnimation`` holds only its own clip's frames. From a glTF input (``gltf``) that is the clip the
+    input read, the segment of that name in the stack or else the poses read with the input, and every
+    other animation of the file follows, read again; from any other input the stack's first clip, the
+    others after it under their names.
+    """
+    split = asset.split
+    segments = (split.segments if split is not None else None) or []
+    if gltf is not None:
+        label = _segment_label(gltf)
+        segment = next((s for s in segments if s["clip"] == label), None) if asset.poses is not None else None
+        poses = _segment(asset.poses, segment) if segment is not None else gltf.poses
+        return _clip_name(gltf), poses, _other_gltf_clips(gltf, fps)
+    if asset.poses is None or len(segments) < 2:
+        return "Animation", asset.poses, None
+    parts = [("Animation" if s["clip"] == "input animation" else str(s["clip"]), _segment(asset.poses, s))
+             for s in segments]
+    return parts[0][0], parts[0][1], parts[1:]
+
+
+def _segment(poses, segment: dict):
+    """The frames of one clip of stacked poses (a :attr:`FrameSplit.segments` entry)."""
+    from rigslim.model.poses import Poses
+
+    start, count = int(segment["start"]), int(segment["frames"])
+    return Poses(poses.T[start:start + count], source=f"{poses.source} ({segment['clip']})")
+
+
+def _segment_label(gltf) -> str | None:
+    """The label :func:`rigslim.runtime.clips.load_clip` gives the glTF clip the input read (None: no clip)."""
+    if gltf.animation is None:
+        return None
+    return gltf.document.json["animations"][gltf.animation].get("name", f"#{gltf.animation}")
 
 
 def _other_gltf_clips(gltf, fps: float) -> list:

@@ -919,7 +919,7 @@ def fixed_width_weights(W) -> ReducedWeights:
 
 def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.0, quantize: str = "float",
                    name: str = "rigslim", animation_name: str = "animation", embed: bool = False,
-                   levels=None, lod: bool = False, clamp_negative: bool = False) -> dict:
+                   levels=None, lod: bool = False, clamp_negative: bool = False, clips=None) -> dict:
     """Write a skinned glTF from libigl-style data (mesh, TGF skeleton, weights, bone transforms).
 
     Parameters
@@ -943,6 +943,9 @@ def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.
         Names of the mesh/node and of the animation.
     levels, lod, clamp_negative :
         Simplified levels and how to link them, as in :func:`write_gltf`.
+    clips : list of (str, Poses), optional
+        More animations of the same handles, each written after ``poses``' as an animation of that name
+        with its own frames (frame f at ``f / fps`` s); default none: ``poses`` is the only animation.
 
     Returns
     -------
@@ -976,6 +979,9 @@ def export_skinned(path, mesh, handles, weights, poses=None, *, fps: float = 30.
     _put_export_levels(js, blob, levels or [], n, quantize, clamp, lod, roots)
     if poses is not None and len(poses):
         _put_export_animation(js, blob, poses, n, start, parents, fps, animation_name)
+    for clip_name, clip_poses in clips or []:
+        if clip_poses is not None and len(clip_poses):
+            _put_export_animation(js, blob, clip_poses, n, start, parents, fps, clip_name)
     data = blob.bytes()
     js["buffers"] = [{"byteLength": len(data)}]
     _write_document(path, js, data, embed=embed)
@@ -1069,7 +1075,7 @@ def _put_export_levels(js: dict, blob: _Blob, levels: list, n: int, quantize: st
 
 def _put_export_animation(js: dict, blob: _Blob, poses, n: int, start: np.ndarray, parents: np.ndarray,
                           fps: float, animation_name: str) -> None:
-    """The poses as one animation: LINEAR translation, rotation and (where a joint scales) scale channels of
+    """The poses as one more animation: LINEAR translation, rotation and (where a joint scales) scale channels of
     every joint node, local transforms ``G_parent^{-1} G_b`` (the Notes of :func:`export_skinned`), frame f
     at ``f / fps`` s."""
     if poses.n_handles != n:
@@ -1091,7 +1097,7 @@ def _put_export_animation(js: dict, blob: _Blob, poses, n: int, start: np.ndarra
             out = blob.new_accessor(values.astype(np.float32), 5126, type_, target=None)
             samplers.append({"input": tacc, "output": out, "interpolation": "LINEAR"})
             channels.append({"sampler": len(samplers) - 1, "target": {"node": b + 1, "path": path_name}})
-    js["animations"] = [{"name": animation_name, "samplers": samplers, "channels": channels}]
+    js.setdefault("animations", []).append({"name": animation_name, "samplers": samplers, "channels": channels})
 
 
 def local_trs(T: np.ndarray, start: np.ndarray, parents: np.ndarray, *, tolerance: float = 1e-5,

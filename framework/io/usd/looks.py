@@ -414,6 +414,20 @@ def _level_corners(skin, looks: Looks, level, hierarchy):
     return np.concatenate(rows), np.concatenate(ls), uv, nrm
 
 
+def _named_clips(skin, poses, export: dict) -> list[str]:
+    """Put the clip names and the other clips of a USD character into ``export`` (``animation_name``, ``clips``
+    of :func:`rigslim.io.gltf.write.export_skinned`) unless given; the notes on siblings left out."""
+    from rigslim.io.usd.read import sibling_clips
+
+    if skin.animation is None or poses is None or not len(poses):
+        return []
+    export.setdefault("animation_name", skin.animation.rsplit("/", 1)[-1])
+    if "clips" in export:
+        return []
+    export["clips"], notes = sibling_clips(skin)
+    return notes
+
+
 def export_with_looks(path, skin, mesh, handles, weights, poses=None, *, levels=None, hierarchy=None,
                       **export) -> dict:
     """:func:`rigslim.io.gltf.write.export_skinned` of a USD character, with its looks (module docstring).
@@ -430,7 +444,9 @@ def export_with_looks(path, skin, mesh, handles, weights, poses=None, *, levels=
         The hierarchy the levels were taken from (their faces carry the looks); a level without one gets the
         look most of the source's faces have.
     **export
-        ``fps``, ``quantize``, ``embed``, ``lod``, ``clamp_negative``: passed to ``export_skinned``.
+        ``fps``, ``quantize``, ``embed``, ``lod``, ``clamp_negative``: passed to ``export_skinned``. The
+        animation ``poses`` is named after the ``SkelAnimation`` the skin sampled, and every other clip
+        beside it (:func:`rigslim.io.usd.read.sibling_clips`) follows under its own name.
 
     Returns
     -------
@@ -446,6 +462,7 @@ def export_with_looks(path, skin, mesh, handles, weights, poses=None, *, levels=
     path = Path(path)
     embed = bool(export.pop("embed", False))
     looks = read_looks(skin)
+    looks.notes += _named_clips(skin, poses, export)
     with scratch_folder("rigslim-looks-") as tmp:
         base = tmp / "export.glb"
         stats = export_skinned(base, mesh, handles, weights, poses, levels=levels, **export)

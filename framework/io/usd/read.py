@@ -733,3 +733,61 @@ def usd_skin_of_stage(stage, mesh: Mesh, handles: Handles, weights, poses, path)
     frames = len(poses) if poses is not None else 1
     return UsdSkin(Path(f"{path} (in memory)"), stage, str(root.GetPath()), str(skel.GetPath()), joints, [part],
                    mesh, handles, weights, poses, bind, None, 30.0, np.arange(frames, dtype=np.float64))
+
+
+def sibling_clips(skin: UsdSkin) -> tuple[list[tuple[str, Poses]], list[str]]:
+    """The other clips of a character: every ``SkelAnimation`` beside the one ``skin`` sampled.
+
+    rigslim writes a character's clips as siblings of the bound ``SkelAnimation`` (docs/usd.md); each
+    sibling whose joints are joints of ``skin``'s skeleton is sampled as :func:`read_usd_skin` samples a
+    clip: at ``skin.fps`` from its first key to its last, joints it does not name at rest.
+
+    Parameters
+    ----------
+    skin : UsdSkin
+        A character read by :func:`read_usd_skin` (its stage still open).
+
+    Returns
+    -------
+    clips : list of (str, Poses)
+        Each sibling's prim name and its poses (its own frame count), in the stage's order; empty when
+        ``skin`` sampled no animation.
+    notes : list of str
+        The siblings left out, each with why (joints of another skeleton, values that cannot be read).
+    """
+    if skin.animation is None:
+        return [], []
+    from pxr import Tf
+
+    Usd, _, UsdSkel, _, _, _ = pxr_modules()
+    stage: Any = skin.stage
+    bound = stage.GetPrimAtPath(skin.animation)
+    skel_prim = stage.GetPrimAtPath(skin.skeleton)
+    if not bound or not skel_prim:
+        return [], []
+    cache = UsdSkel.Cache()
+    with diagnostics():
+        cache.Populate(UsdSkel.Root(stage.GetPrimAtPath(skin.root)), Usd.PrimDefaultPredicate)
+        skel_query = cache.GetSkelQuery(UsdSkel.Skeleton(skel_prim))
+    joints, parents, bind, rest = _skeleton(skel_query, skin.path, skin.skeleton)
+    known = set(joints)
+    clips, notes = [], []
+    for prim in bound.GetParent().GetChildren():
+        if prim == bound or not prim.IsA(UsdSkel.Animation):
+            continue
+        try:
+            own = [str(j) for j in (UsdSkel.Animation(prim).GetJointsAttr().Get() or [])]
+            if not own or not set(own) <= known:
+                notes.append(f"SkelAnimation {prim.GetPath()} animates joints the skeleton {skin.skeleton} "
+                             "lacks: left out")
+                continue
+            query = cache.GetAnimQuery(prim)
+            codes = sample_time_codes(query, stage, skin.fps, None, skin.path)
+            T = skinning_transforms(query, joints, parents, bind, rest, codes, skin.path)
+        except (InputError, Tf.ErrorException) as e:
+            why = e.problem if isinstance(e, InputError) else usd_stage.tf_message(e)
+            notes.append(f"SkelAnimation {prim.GetPath()} cannot be read ({why}): left out")
+            continue
+        clips.append((prim.GetName(), Poses(T, np.arange(len(codes)), source=f"{skin.path} animation "
+                                                                              f"{prim.GetPath()}")))
+    return clips, notes

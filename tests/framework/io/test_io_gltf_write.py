@@ -396,6 +396,28 @@ def test_export_writes_scaled_joints_as_scale_channels(tmp_path, valid, elephant
         assert np.abs(X1 - X0).max() < 1e-5 * scale, f
 
 
+def test_export_writes_extra_named_clips_each_with_its_frames(tmp_path, valid, elephant_small):
+    """``clips`` adds one animation per named clip after ``poses``' (its own frame count, its own poses);
+    without it the file has the one animation it always had."""
+    mesh, handles, W, P = elephant_small
+    walk, turn = Poses(P.T[2:5]), Poses(P.T[::-1].copy())
+    out = tmp_path / "clips.glb"
+    export_skinned(out, mesh, handles, W, P, fps=10, animation_name="Idle", clips=[("Walk", walk), ("Turn", turn)])
+    valid(out)
+    assert [a["name"] for a in load_gltf(out).json["animations"]] == ["Idle", "Walk", "Turn"]
+    scale = mesh.bbox_diagonal
+    for i, clip in enumerate((P, walk, turn)):
+        back = read_gltf_skin(out, animation=i, fps=10)
+        assert len(back.poses) == len(clip), i
+        for f in range(len(clip)):
+            X0 = linear_blend(mesh.V, W, clip.T[f])
+            X1 = linear_blend(back.mesh.V, back.weights, back.poses.T[f])
+            assert np.abs(X1 - X0).max() < 1e-6 * scale, (i, f)
+    one = tmp_path / "one.glb"
+    export_skinned(one, mesh, handles, W, P, fps=10)
+    assert [a["name"] for a in load_gltf(one).json["animations"]] == ["animation"]
+
+
 def test_export_rejects_sheared_or_mirrored_bones(tmp_path, elephant_small):
     mesh, handles, W, P = elephant_small
     T = P.T[:2].copy()

@@ -255,6 +255,37 @@ def test_sampling_follows_fps_times_and_named_animation(hero):
     assert u.animation == "/Hero/Rig/Bend"
 
 
+def test_sibling_clips_are_the_other_animations_of_the_skeleton(hero):
+    """The SkelAnimations beside the sampled one, each with its own frames; one over joints the skeleton
+    lacks is left out with a note, and one elsewhere in the stage is not a sibling."""
+    from pxr import Gf, Usd, UsdSkel, Vt
+
+    from rigslim.io.usd.read import sibling_clips
+
+    stage = Usd.Stage.Open(str(hero))
+    wave = UsdSkel.Animation.Define(stage, "/Hero/Rig/Wave")
+    wave.CreateJointsAttr(["root/mid"])
+    alien = UsdSkel.Animation.Define(stage, "/Hero/Rig/Alien")
+    alien.CreateJointsAttr(["root/elsewhere"])
+    far = UsdSkel.Animation.Define(stage, "/Hero/Geo/Far")
+    far.CreateJointsAttr(["root/mid"])
+    for t in range(0, 13, 3):
+        for anim in (wave, alien, far):
+            anim.CreateTranslationsAttr().Set(Vt.Vec3fArray([(0, 0, 2)]), t)
+            anim.CreateRotationsAttr().Set(Vt.QuatfArray([Gf.Quatf(Gf.Rotation(Gf.Vec3d(1, 0, 0), 5.0 * t)
+                                                                    .GetQuat())]), t)
+            anim.CreateScalesAttr().Set(Vt.Vec3hArray([(1, 1, 1)]), t)
+    stage.GetRootLayer().Save()
+    clips, notes = sibling_clips(read_usd_skin(hero, fps=24))
+    assert [name for name, _ in clips] == ["Wave"]
+    assert len(clips[0][1]) == 13
+    np.testing.assert_allclose(clips[0][1].T, read_usd_skin(hero, animation="Wave", fps=24).poses.T)
+    assert len(notes) == 1 and "/Hero/Rig/Alien" in notes[0] and "left out" in notes[0]
+    clips, _ = sibling_clips(read_usd_skin(hero, animation="Wave", fps=24))
+    assert [name for name, _ in clips] == ["Bend"] and len(clips[0][1]) == 25
+    assert sibling_clips(read_usd_skin(hero, times=[0.0], animation="Wave"))[0][0][0] == "Bend"
+
+
 def test_reduced_weights_are_written_with_element_size_k(hero, tmp_path):
     u = read_usd_skin(hero)
     reduced = top_k(u.weights, 2)

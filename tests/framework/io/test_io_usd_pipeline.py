@@ -8,6 +8,8 @@ every written file passes the USD validators in every LOD variant.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from test_io_usd import make_character
@@ -269,3 +271,114 @@ steps:
                                       for s in UsdGeom.Subset.GetAllGeomSubsets(UsdGeom.Imageable(level))]))
     np.testing.assert_array_equal(members, np.arange(n))
     assert np.array(UsdGeom.PrimvarsAPI(level).GetPrimvar("st").ComputeFlattened()).shape == (3 * n, 2)
+
+
+SUITE_WUSON = Path(__file__).resolve().parents[3] / "examples" / "data" / "gltf" / "suite" / "wuson.glb"
+
+
+def _clip_lengths(path) -> dict[str, int]:
+    """``{SkelAnimation name: time samples}`` of every animation of a USD file, and the bound one's path."""
+    from pxr import Usd, UsdSkel
+
+    stage = Usd.Stage.Open(str(path))
+    return {p.GetName(): len(UsdSkel.Animation(p).GetRotationsAttr().GetTimeSamples())
+            for p in stage.Traverse() if p.IsA(UsdSkel.Animation)}
+
+
+def _bound(path) -> tuple[str, float, float]:
+    """The bound SkelAnimation's name and the stage's start and end time codes."""
+    from pxr import Usd, UsdSkel
+
+    stage = Usd.Stage.Open(str(path))
+    skel = next(p for p in stage.Traverse() if p.IsA(UsdSkel.Skeleton))
+    (target,) = UsdSkel.BindingAPI(skel).GetAnimationSourceRel().GetTargets()
+    return target.name, stage.GetStartTimeCode(), stage.GetEndTimeCode()
+
+
+def _assert_same_clip(g, u, scale: float, what) -> None:
+    """Two reads of one clip pose their (index-matched) rest points alike, frame for frame."""
+    assert len(u.poses) == len(g.poses), what
+    for f in range(0, len(g.poses), 7):
+        a = linear_blend(g.mesh.V, g.weights, g.poses.T[f])
+        b = linear_blend(u.mesh.V, u.weights, u.poses.T[f])
+        assert np.abs(a - b).max() <= 1e-4 * scale, (what, f)
+
+
+@pytest.mark.parametrize("command, suffix", [("reduce", ".usda"), ("reduce", ".usdc"), ("lod", ".usdz")])
+def test_each_exported_clip_holds_only_its_own_frames(tmp_path, command, suffix):
+    """``rigslim reduce``/``lod`` stack every clip of the glTF for the fit; the bound SkelAnimation holds the
+    read clip's frames alone (it held all 139 of both clips, endTimeCode 138) and each other clip its own."""
+    from rigslim.commands.cli import main
+    from rigslim.io.gltf.skin import read_gltf_skin
+
+    out = tmp_path / f"wuson{suffix}"
+    extra = ["--ratios", "0.5"] if command == "lod" else ["-k", "4"]
+    assert main([command, str(SUITE_WUSON), "-o", str(out), *extra]) == 0
+    names = [a["name"] for a in read_gltf_skin(SUITE_WUSON, times=[0.0]).document.json["animations"]]
+    reads = [read_gltf_skin(SUITE_WUSON, animation=i, weld=True) for i in range(len(names))]
+    assert _clip_lengths(out) == {n: len(g.poses) for n, g in zip(names, reads, strict=True)} \
+        == {"Wuson_Run": 30, "Wuson_Walk": 109}
+    assert _bound(out) == ("Wuson_Run", 0.0, 29.0)
+    scale = float(np.linalg.norm(reads[0].mesh.V.max(axis=0) - reads[0].mesh.V.min(axis=0)))
+    for name, g in zip(names, reads, strict=True):
+        _assert_same_clip(g, read_usd_skin(out, animation=name), scale, name)
+    assert check_usd(out) == []
+
+
+def _without_animations(src, dst) -> None:
+    """A copy of the .glb ``src`` with its animations taken out."""
+    import json
+    import struct
+
+    from rigslim.io.gltf.document import load_gltf
+
+    doc = load_gltf(src)
+    js = dict(doc.json)
+    js.pop("animations")
+    text = json.dumps(js).encode()
+    text += b" " * ((-len(text)) % 4)
+    binary = doc.buffers[0] + b"\0" * ((-len(doc.buffers[0])) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(binary), 0x004E4942) + binary
+    dst.write_bytes(struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body)
+
+
+def test_one_clip_and_still_inputs_export_their_own_frames(tmp_path):
+    """A one-clip glTF keeps its clip alone; a glTF without animations gets its rest pose (which the commands
+    read twice, as one example and one test frame: ``times: [0, 0]``)."""
+    from rigslim.commands.cli import main
+    from rigslim.io.gltf.skin import read_gltf_skin
+
+    gltf = SUITE_WUSON.parents[1] / "huesitos.glb"
+    out = tmp_path / "huesitos.usda"
+    assert main(["reduce", str(gltf), "-o", str(out), "-k", "2"]) == 0
+    g = read_gltf_skin(gltf)
+    (name,) = _clip_lengths(out)
+    assert _clip_lengths(out) == {name: len(g.poses)} and _bound(out) == (name, 0.0, len(g.poses) - 1.0)
+    still = tmp_path / "still.glb"
+    _without_animations(SUITE_WUSON, still)
+    out = tmp_path / "still.usdc"
+    assert main(["lod", str(still), "-o", str(out), "--ratios", "0.5"]) == 0
+    assert _clip_lengths(out) == {"Animation": 2} and _bound(out) == ("Animation", 0.0, 1.0)
+    assert check_usd(out) == []
+
+
+def test_usd_to_gltf_keeps_every_clip_by_name(tmp_path):
+    """glTF -> USD -> glTF: the glTF written from the USD file has the bound clip and the SkelAnimation beside
+    it, each under its name with its own frames posing like the source's (it had one clip, 'animation')."""
+    from rigslim.commands.cli import main
+    from rigslim.io.gltf.document import load_gltf
+    from rigslim.io.gltf.skin import read_gltf_skin
+
+    usd, back = tmp_path / "w.usda", tmp_path / "back.glb"
+    assert main(["reduce", str(SUITE_WUSON), "-k", "4", "-o", str(usd)]) == 0
+    assert main(["reduce", str(usd), "-k", "4", "-o", str(back)]) == 0
+    assert [a["name"] for a in load_gltf(back).json["animations"]] == ["Wuson_Run", "Wuson_Walk"]
+    for i, name in enumerate(("Wuson_Run", "Wuson_Walk")):
+        g, b = read_gltf_skin(SUITE_WUSON, animation=i), read_gltf_skin(back, animation=name)
+        assert len(b.poses) == len(g.poses), name
+        scale = float(np.linalg.norm(g.mesh.V.max(axis=0) - g.mesh.V.min(axis=0)))
+        at = {n: j for j, n in enumerate(b.handles.names)}
+        order = [at[n] for n in g.handles.names]
+        Tg, Tb = g.poses.T, b.poses.T[:, order]
+        np.testing.assert_allclose(Tb[..., :3], Tg[..., :3], atol=1e-4, err_msg=name)
+        np.testing.assert_allclose(Tb[..., 3], Tg[..., 3], atol=1e-5 * scale, err_msg=name)
