@@ -545,6 +545,7 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
     if reduced is not None and clamp is not None:
         reduced = _clamped(reduced, clamp)
     blob = _repacked(path, js, source, reduced)
+    _exact_affine_binds(js, blob, source)
     stats: dict = _put_reduced(js, blob, source, reduced, quantize, sets) if reduced is not None else {}
     if levels:
         stats.update(_put_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp, lod, coverage,
@@ -553,6 +554,26 @@ def write_gltf(path, source: GltfSkin, reduced=None, *, quantize: str = "float",
     if clamp is not None:
         stats.update({"clamped_vertices": 0, "most_negative": 0.0} | clamp)
     return stats
+
+
+def _exact_affine_binds(js: dict, blob: _Blob, source: GltfSkin) -> None:
+    """The skin read gets inverse bind matrices whose last rows are exactly ``[0, 0, 0, 1]``.
+
+    The reader accepts a last row within ``1e-6`` of it (the ``0.9999999`` some exporters write), the validator
+    does not (``ACCESSOR_INVALID_IBM``): such matrices are written again with the row made exact, as the level
+    skins' are (:mod:`rigslim.io.gltf.level_skins`), so that a rewritten file carries no error its source had
+    there. Exact matrices keep their accessor."""
+    from rigslim.io.gltf.document import read_accessor
+
+    sk = js.get("skins", [])[source.skin] if source.skin is not None and js.get("skins") else None
+    if sk is None or "inverseBindMatrices" not in sk:
+        return
+    ibm = np.asarray(read_accessor(source.document, source.document.json["skins"][source.skin]["inverseBindMatrices"]),
+                     np.float32).reshape(-1, 4, 4)      # column-major: row 3 of each matrix is [:, :, 3]
+    if (ibm[:, :, 3] == np.float32([0, 0, 0, 1])).all():
+        return
+    ibm[:, :, 3] = [0.0, 0.0, 0.0, 1.0]
+    sk["inverseBindMatrices"] = blob.new_accessor(ibm.reshape(-1, 16), 5126, "MAT4", target=None)
 
 
 def _check_rewrite(path: Path, source: GltfSkin, reduced, quantize: str, js: dict) -> None:
