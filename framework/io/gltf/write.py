@@ -570,7 +570,7 @@ def _exact_affine_binds(js: dict, blob: _Blob, source: GltfSkin) -> None:
         return
     ibm = np.asarray(read_accessor(source.document, source.document.json["skins"][source.skin]["inverseBindMatrices"]),
                      np.float32).reshape(-1, 4, 4)      # column-major: row 3 of each matrix is [:, :, 3]
-    if (ibm[:, :, 3] == np.float32([0, 0, 0, 1])).all():
+    if (ibm[:, :, 3] == np.array([0, 0, 0, 1], np.float32)).all():
         return
     ibm[:, :, 3] = [0.0, 0.0, 0.0, 1.0]
     sk["inverseBindMatrices"] = blob.new_accessor(ibm.reshape(-1, 16), 5126, "MAT4", target=None)
