@@ -1,0 +1,143 @@
+"""Build the sweep characters: 13 animated characters for robustness sweeps, never committed, never tuned on.
+
+The suite (``build.py``) is what methods and constants are chosen on and the hold-out set
+(``build.py --set holdout``) is what they are checked on; these are for running every command on
+characters nothing in the repository has seen (the sweep of 2026-12-03 found the USD clip and
+``rigslim report`` defects of the changelog with them). They are built into ``--out`` from the same
+Debian packages and with the same converters as the suite:
+
+- ten 0 A.D. characters (``0ad-data``, CC-BY-SA-3.0, Wildfire Games): camel, tiger, bear, boar, rhino,
+  croc, fox, elephant, a soldier (the short-tunic infantry body with hoplite and swordsman clips) and
+  the lithobolos siege engine (rigid parts), each a cached PMD with its skeleton and five PSA clips
+  (``pmd2gltf.py``);
+- three cube2 models (``cube2-data``): the shotgun and the minigun first-person guns (IQM, textured,
+  rigid parts; ``iqm2gltf.py``) and the cloth flag (MD5 through ``assimp export``, texture embedded by
+  ``clips.py``).
+
+``OUT/index.json`` lists each file as ``build.py``'s indexes do (faces, joints, clips, provenance).
+
+Usage::
+
+    python tools/suite/sweep.py --out /tmp/rigslim-sweep [--work /tmp/rigslim-suite] [--only NAME ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import build as B  # noqa: E402
+
+Q = "art/animation/quadraped"          # (sic: 0 A.D.'s folder name)
+BI = "art/animation/biped/infantry"
+CLIPS5 = ("walk", "run", "idle", "attack", "death")
+
+#: name, kind, PMD, skeleton (art/skeletons/NAME.xml), [(clip, PSA)]
+ZERO_AD = [
+    ("camel", "quadruped (camel, long neck)", "art/meshes/skeletal/camel.dae.cached.pmd", "camelus",
+     list(zip(CLIPS5, [f"{Q}/camel_{s}.dae.cached.psa" for s in ("walk", "run", "idle_01", "attack_melee_01",
+                                                                  "death")], strict=True))),
+    ("tiger", "quadruped (tiger, long tail)", "art/meshes/skeletal/tiger.dae.cached.pmd", "feline_blender",
+     list(zip(CLIPS5, [f"{Q}/feline_{s}.dae.cached.psa" for s in ("walk", "run", "idle_01", "attack", "death")],
+              strict=True))),
+    ("bear", "quadruped (bear)", "art/meshes/skeletal/bear.dae.cached.pmd", "ursidae_armature",
+     list(zip(CLIPS5, [f"{Q}/bear_{s}.dae.cached.psa" for s in ("walk", "run", "idle_01", "attack_01", "death_01")],
+              strict=True))),
+    ("boar", "quadruped (boar, tusks)", "art/meshes/skeletal/animal_boar.dae.cached.pmd", "boar",
+     list(zip(CLIPS5, [f"{Q}/animal_boar_{s}_01.dae.cached.psa" for s in ("walk", "run", "idle", "attack", "death")],
+              strict=True))),
+    ("rhino", "quadruped (rhino, horn)", "art/meshes/skeletal/rhino.dae.cached.pmd", "rhino",
+     list(zip(CLIPS5, [f"{Q}/rhino_{s}.dae.cached.psa" for s in CLIPS5], strict=True))),
+    ("croc", "quadruped (crocodile, long tail, low legs)", "art/meshes/skeletal/Croc.dae.cached.pmd", "crocodile",
+     list(zip(("walk", "run", "idle", "attack", "swim"),
+              [f"{Q}/Croc_{s}.dae.cached.psa" for s in ("walk", "run", "idle1", "attack", "swim")], strict=True))),
+    ("fox", "quadruped (fox, bushy tail, ears)", "art/meshes/skeletal/fox.dae.cached.pmd", "fox_armature",
+     list(zip(("walk", "run", "idle", "death"), [f"{Q}/fox_{s}.dae.cached.psa" for s in ("walk", "run", "idle",
+                                                                                            "death")], strict=True))),
+    ("elephant", "quadruped (african elephant, trunk, ears)",
+     "art/meshes/skeletal/elephant_african_bush.dae.cached.pmd", "elephantidae_african_bush",
+     list(zip(CLIPS5, [f"{Q}/elephant_african_bush_{s}.dae.cached.psa"
+                       for s in ("walk", "run", "idle_01", "attack_melee_01", "death")], strict=True))),
+    ("soldier", "humanoid (0 A.D. infantry, tunic)", "art/meshes/skeletal/new/m_tunic_short.dae.cached.pmd", "biped",
+     list(zip(CLIPS5, [f"{BI}/hoplite/walk_ready.dae.cached.psa", f"{BI}/hoplite/run_ready.dae.cached.psa",
+                       f"{BI}/hoplite/idle_relax_01.dae.cached.psa",
+                       f"{BI}/swordsman/attack_melee_2h_01.dae.cached.psa", f"{BI}/death_a.dae.cached.psa"],
+              strict=True))),
+    ("lithobolos", "mechanical (stone thrower, rigid parts)", "art/meshes/structural/hele_lithobolos.dae.cached.pmd",
+     "hele_lithobolos", [("attack", "art/animation/mechanical/hele_lithobolos.dae.cached.psa"),
+                         ("idle", "art/animation/mechanical/hele_lithobolos_idle.dae.cached.psa")]),
+]
+CUBE2 = ["shotgun", "minigun", "flag"]
+
+
+def build_zero_ad(spec, work: Path, out: Path) -> dict:
+    """One 0 A.D. character: its PMD, skeleton and PSA clips extracted from public.zip, ``pmd2gltf.py``."""
+    name, kind, pmd, skeleton, clips = spec
+    skel = f"art/skeletons/{skeleton}.xml"
+    root = B._zero_ad(work, [pmd, skel, *[p for _, p in clips]])
+    B.run([B.PY, B.HERE / "pmd2gltf.py", root / pmd, root / skel, "-o", out, "--name", name,
+           *[x for clip, p in clips for x in ("--anim", f"{clip}={root / p}")]])
+    c = B.Character(name, kind, "0ad-data", pmd, "CC-BY-SA-3.0", "Wildfire Games (0 A.D.)", "sweep",
+                    fit=[clips[0][0]], holdout=[clip for clip, _ in clips[1:2]], test=[(clips[0][0], 0.3)])
+    return B.describe(c, out) | {"skeleton": skel, "psa": [p for _, p in clips]}
+
+
+def build_cube2(name: str, work: Path, out: Path) -> dict:
+    """The shotgun and the minigun (IQM, ``iqm2gltf.py``) or the cloth flag (MD5 -> assimp -> ``clips.py``)."""
+    models = B.package_root(work, "cube2-data") / B.CUBE2
+    guns = models / "hudguns"
+    if name == "shotgun":
+        d = guns / "shotg"
+        B.run([B.PY, B.HERE / "iqm2gltf.py", d / "shotgun.iqm", "-o", out, "--texture", f"shotgun={d / 'shotgun.jpg'}",
+               "--texture", f"shell={d / 'shotgun_shell.jpg'}", "--anim", f"attack={d / 'shotgun_attack.md5anim.iqm'}",
+               "--anim", f"idle={d / 'shotgun_idle.md5anim.iqm'}"])
+        kind, source = "mechanical (first-person shotgun, textured)", "hudguns/shotg/shotgun.iqm"
+        clips = ["attack", "idle"]
+    elif name == "minigun":
+        d = guns / "chaing"
+        B.run([B.PY, B.HERE / "iqm2gltf.py", d / "chaing.iqm", "-o", out, "--texture", f"minigun={d / 'm134.jpg'}",
+               "--anim", f"shoot={d / 'chaing_shoot.iqm'}", "--anim", f"idle={d / 'chaing_idle.iqm'}"])
+        kind, source = "mechanical (minigun, rotating barrels, textured)", "hudguns/chaing/chaing.iqm"
+        clips = ["shoot", "idle"]
+    else:
+        d, tmp = models / "ffflag", work / "ffflag"
+        tmp.mkdir(parents=True, exist_ok=True)
+        shutil.copy(d / "ffflag.md5mesh", tmp / "wave.md5mesh")
+        shutil.copy(d / "ffflag.md5anim", tmp / "wave.md5anim")
+        B.run(["assimp", "export", tmp / "wave.md5mesh", tmp / "wave.glb", "-fglb2"])
+        B.run([B.PY, B.HERE / "clips.py", tmp / "wave.glb", "-o", out, "--rename", "anim=wave",
+               "--texture", f"0={d / 'ffflag_cc.png'}"])
+        kind, source, clips = "cloth (flag, textured)", "ffflag/ffflag.md5mesh", ["wave"]
+    c = B.Character(name, kind, "cube2-data", source, "see the package's copyright file", "Cube 2: Sauerbraten",
+                    "sweep", fit=clips[:1], holdout=clips[1:], test=[(clips[0], 0.3)])
+    return B.describe(c, out)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--out", type=Path, required=True, help="folder for the .glb files and index.json")
+    ap.add_argument("--work", type=Path, default=Path("/tmp/rigslim-suite"), help="downloads and scratch files")
+    ap.add_argument("--only", nargs="*", default=None, help="build only these characters")
+    args = ap.parse_args(argv)
+    args.work.mkdir(parents=True, exist_ok=True)
+    args.out.mkdir(parents=True, exist_ok=True)
+    entries = []
+    for spec in [*ZERO_AD, *CUBE2]:
+        name = spec if isinstance(spec, str) else spec[0]
+        if args.only is not None and name not in args.only:
+            continue
+        out = args.out / f"{name}.glb"
+        e = build_cube2(name, args.work, out) if isinstance(spec, str) else build_zero_ad(spec, args.work, out)
+        entries.append(e)
+        print(f"{name}: {e['faces']} faces, {e['joints']} joints, {len(e['clips'])} clips, textured {e['textured']}")
+    (args.out / "index.json").write_text(json.dumps({"version": 1, "about": "rigslim's sweep characters "
+                                                     "(tools/suite/sweep.py)", "characters": entries}, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
