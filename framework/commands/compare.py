@@ -205,7 +205,9 @@ def candidate_clip(ref: Path, cand: Path, clip, clip_name: str | None) -> tuple[
     ``--clip`` (``clip`` not None) names one clip of both files (the candidate lacking it is an error naming
     ``--clip`` and its clips). Without it, the reference's first clip is compared with the candidate's clip of
     the same name, else with the candidate's first clip, and ``note`` (one line, printed to stderr by the
-    command) says so. USD files keep their own first clip (their clip names are not the glTF's).
+    command) says so. A USD side keeps the clip of ``--clip`` or its bound (first) clip: the USD export names
+    its ``SkelAnimation`` prims after the glTF's clips, but USD prim names are identifiers (a glTF name with
+    spaces or a leading digit is changed), so names are not matched across the two formats.
     """
     if is_usd(ref) or is_usd(cand):
         return clip, None, None

@@ -76,7 +76,8 @@ def reduce_pipeline(src: Path, out: Path, *, k: int, select: str | None, solve: 
 def _world(src: Path, written: Path, split, clip, clip_name, fps: float) -> dict:
     """Position and normal errors of the written file on the test frames of every clip, in world units
     (pooled over the clips' frames; % of the first clip's world-space diagonal). A USD side: the clip of
-    ``--clip`` (default the first) only, its clip names not being the glTF's."""
+    ``--clip`` (default the first, its bound clip) only, as :func:`rigslim.commands.compare.candidate_clip`
+    matches no clip names across the two formats."""
     per_clip = (split.clips or {}).get("test") if split is not None else None
     if not isinstance(per_clip, list) or is_usd(src) or is_usd(written):
         part = next((p for p in per_clip or [] if p["clip"] in (clip_name, "input animation")), None)
