@@ -21,7 +21,8 @@ import threading
 
 import numpy as np
 
-__all__ = ["degenerate_distance", "is_degenerate", "metro_distance", "pymeshlab_available", "referenced"]
+__all__ = ["degenerate_distance", "exact_sampled_distance", "is_degenerate", "metro_distance", "pymeshlab_available",
+           "exact_sampled_distances", "referenced", "surface_samples"]
 
 
 def pymeshlab_available() -> bool:
@@ -102,10 +103,16 @@ def referenced(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     origin vertex: 44 % of the diagonal between a file and its own copy).
     """
     F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])]
-    used, inverse = np.unique(F, return_inverse=True)
-    if len(used) == len(V):
+    used = _used(F, len(V))
+    if used.all():
         return V, F
-    return V[used], inverse.reshape(F.shape).astype(np.int64)
+    renumber = np.cumsum(used) - 1
+    return V[used], renumber[F].astype(np.int64)
+
+
+def _used(F: np.ndarray, n: int) -> np.ndarray:
+    """Which of ``n`` vertices the faces ``F`` use (a mask; a count, not a sort)."""
+    return np.bincount(np.asarray(F, np.int64).ravel(), minlength=n)[:n] > 0
 
 
 def _pymeshlab_distance(V1, F1, V2, F2, samples: int) -> dict:
@@ -132,7 +139,7 @@ def surface_samples(V, F, samples: int, seed: int = 0) -> np.ndarray:
     F = np.asarray(F, np.int64).reshape(-1, 3)
     if not len(F):
         return V
-    used = V[np.unique(F)]
+    used = V[_used(F, len(V))]
     rng = np.random.default_rng(seed)
     a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
     area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
@@ -162,21 +169,15 @@ def _distances(P: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
 def degenerate_distance(V1, F1, V2, F2, samples: int = 20000) -> dict:
     """:func:`metro_distance` for meshes pymeshlab must not see: the same two-sided RMS and max over
     :func:`surface_samples` of each mesh, each distance exact (:func:`_distances`)."""
-    V1, V2 = np.asarray(V1, float), np.asarray(V2, float)
-    F1, F2 = np.asarray(F1, np.int64).reshape(-1, 3), np.asarray(F2, np.int64).reshape(-1, 3)
-    if not (len(V1) and len(V2)) or not (np.isfinite(V1).all() and np.isfinite(V2).all()):
-        from rigslim.errors import StepError
-
-        raise StepError("a surface to compare has no finite vertices", field="positions",
-                        fix="check the mesh and its pose (NaN or inf positions)")
-    d12 = _distances(surface_samples(V1, F1, samples), V2, F2)
-    d21 = _distances(surface_samples(V2, F2, samples, seed=1), V1, F1)
-    d = np.concatenate([d12, d21])
-    return {"rms": float(np.sqrt(np.mean(d * d))), "max": float(d.max()), "n_samples": int(len(d))}
+    return exact_sampled_distance(V1, F1, V2, F2, samples, meshlab=False)
 
 
 class _Worker:
-    """One daemon thread that runs every pymeshlab call of the process (see the module's docstring)."""
+    """One daemon thread that runs every pymeshlab call of the process (see the module's docstring).
+
+    One, not several: pymeshlab silences MeshLab's output around each filter by swapping process-wide
+    ``std::cout``/``std::cerr`` redirections that it allocates and frees per call, so two filters at once
+    can free one redirection twice."""
 
     def __init__(self):
         self._jobs: queue.Queue = queue.Queue()
@@ -192,17 +193,26 @@ class _Worker:
                 box["error"] = e
             done.set()
 
-    def call(self, fn, *args):
-        """``fn(*args)`` on the pymeshlab thread; the caller waits in short slices so that its signal handlers
-        (SIGINT, SIGTERM) still run while the native call works."""
+    def submit(self, fn, *args) -> tuple[dict, threading.Event]:
+        """Queues ``fn(*args)``; :meth:`result` waits for it."""
         box: dict = {}
         done = threading.Event()
         self._jobs.put((fn, args, box, done))
+        return box, done
+
+    @staticmethod
+    def result(box: dict, done: threading.Event):
+        """Waits in short slices so that the caller's signal handlers (SIGINT, SIGTERM) still run while the
+        native call works."""
         while not done.wait(0.1):
             pass
         if "error" in box:
             raise box["error"]
         return box["value"]
+
+    def call(self, fn, *args):
+        """``fn(*args)`` on the pymeshlab thread."""
+        return self.result(*self.submit(fn, *args))
 
 
 _worker: _Worker | None = None
@@ -215,3 +225,79 @@ def _pymeshlab_thread() -> _Worker:
         if _worker is None:
             _worker = _Worker()
         return _worker
+
+
+def _pymeshlab_cloud(P: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """``[sum of squares, max, count]`` of the exact distances of the points ``P`` to the mesh (V, F): the
+    Hausdorff filter with the points as a vertex-only mesh, every vertex sampled (``samplenum`` >= their
+    count), nearest points from MeshLab's uniform grid, exact."""
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(np.ascontiguousarray(P, float)))
+    ms.add_mesh(pymeshlab.Mesh(np.ascontiguousarray(V, float), np.ascontiguousarray(F, np.int32)))
+    r = ms.get_hausdorff_distance(sampledmesh=0, targetmesh=1, samplevert=True, sampleface=False,
+                                  samplenum=len(P), maxdist=pymeshlab.PercentageValue(100))
+    n = float(r["n_samples"])
+    return np.array([n * float(r["RMS"]) ** 2, float(r["max"]), n])
+
+
+def _sides(V1, F1, V2, F2, samples: int, P1, P2, meshlab: bool):
+    """The two one-sided measurements of :func:`exact_sampled_distance`: whether MeshLab takes them, and
+    ``(points, target vertices, target faces)`` for each."""
+    V1, V2 = np.asarray(V1, float), np.asarray(V2, float)
+    F1, F2 = np.asarray(F1, np.int64).reshape(-1, 3), np.asarray(F2, np.int64).reshape(-1, 3)
+    if not (len(V1) and len(V2)) or not (np.isfinite(V1).all() and np.isfinite(V2).all()):
+        from rigslim.errors import StepError
+
+        raise StepError("a surface to compare has no finite vertices", field="positions",
+                        fix="check the mesh and its pose (NaN or inf positions)")
+    meshlab = meshlab and pymeshlab_available() and not (is_degenerate(V1, F1) or is_degenerate(V2, F2))
+    P1 = surface_samples(V1, F1, samples) if P1 is None else P1
+    P2 = surface_samples(V2, F2, samples, seed=1) if P2 is None else P2
+    if meshlab:         # pymeshlab gets the faces with three corners (:func:`referenced`), libigl every face
+        (V1, F1), (V2, F2) = referenced(V1, F1), referenced(V2, F2)
+    return meshlab, ((P1, V2, F2), (P2, V1, F1))
+
+
+def _libigl_side(P: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """:func:`_pymeshlab_cloud`'s figures from libigl (:func:`_distances`)."""
+    d = _distances(P, V, F)
+    return np.array([float((d * d).sum()), float(d.max()) if len(d) else 0.0, float(len(d))])
+
+
+def _combined(a: np.ndarray, b: np.ndarray) -> dict:
+    n = a[2] + b[2]
+    return {"rms": float(np.sqrt((a[0] + b[0]) / n)), "max": float(max(a[1], b[1])), "n_samples": int(n)}
+
+
+def exact_sampled_distance(V1, F1, V2, F2, samples: int = 5000, P1=None, P2=None, *, meshlab: bool = True) -> dict:
+    """:func:`degenerate_distance`'s figures for any two surfaces, repeatable.
+
+    Each side's :func:`surface_samples` (seeds 0 and 1; ``P1``, ``P2``: the same, computed before) and each
+    sample's exact distance to the other surface: MeshLab's grid (:func:`_pymeshlab_cloud`) for regular
+    surfaces when pymeshlab is installed (and ``meshlab``), else libigl's AABB (:func:`_distances`); the two
+    agree to round-off. Then ``rms = sqrt(sum_i d_i^2 / n)`` over both sides' ``n`` samples and
+    ``max = max_i d_i``. Unlike :func:`metro_distance` every vertex is a sample and no sample comes from
+    MeshLab's random generator, so the figures do not depend on what ran before.
+    """
+    return exact_sampled_distances([(V1, F1, V2, F2, samples, P1, P2)], meshlab=meshlab)[0]
+
+
+def exact_sampled_distances(jobs, *, meshlab: bool = True) -> list[dict]:
+    """``[exact_sampled_distance(*args) for args in jobs]``, each ``args`` ``(V1, F1, V2, F2, samples, P1,
+    P2)``, pipelined: while MeshLab measures one job on the pymeshlab thread (its filter runs without the
+    interpreter lock), this thread samples the next."""
+    pool = _pymeshlab_thread() if meshlab and pymeshlab_available() else None
+    queued: list[list[tuple[dict, threading.Event]]] = []
+    done: list[list[np.ndarray]] = []
+    for args in jobs:
+        V1, F1, V2, F2, samples, P1, P2 = args
+        on_meshlab, sides = _sides(V1, F1, V2, F2, samples, P1, P2, pool is not None)
+        if on_meshlab and pool is not None:
+            queued.append([pool.submit(_pymeshlab_cloud, *side) for side in sides])
+            done.append([])
+        else:
+            queued.append([])
+            done.append([_libigl_side(*side) for side in sides])
+    return [_combined(*(d or [_Worker.result(*x) for x in q])) for q, d in zip(queued, done, strict=True)]

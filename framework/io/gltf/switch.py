@@ -11,11 +11,9 @@ poses being in world space) and turns the maximum into the screen coverage at wh
 - into the write step's report (``switch``), from which ``rigslim lod`` writes its ``--report`` rows and,
   with ``--split``, the sidecar ``OUT.lod.json``.
 
-Up to ``switch_frames`` (12) test frames are measured, evenly spread over the test set, with
-``switch_samples`` (5,000) surface samples per side: the maximum is found at vertices on the suite
-(the same to 4 digits with 5,000 and 20,000 samples on wuson; the same 5 digits with 5,000 and 10,000 on
-the 12k-face elephant's 50 % and 10 % levels, in 0.61x the time), the RMS is a few % above ``rigslim
-compare``'s 20,000-sample figure.
+Up to ``switch_frames`` (12) test frames are measured, evenly spread over the test set, with every vertex
+and ``switch_samples`` (5,000) area-uniform points per side from a fixed generator (the maxima lie at
+vertices; RMS a few % above ``rigslim compare``'s 20,000-sample figure): docs/gltf.md, "Switch coverage".
 """
 
 from __future__ import annotations

@@ -8,7 +8,8 @@ import pytest
 from rigslim.model.hierarchy import SimplifiedLevel
 from rigslim.model.mesh import Mesh
 from rigslim.model.weights import ReducedWeights
-from rigslim.numerics.level_error import bounding_radius, level_errors, sampled_distance, surface_distance
+from rigslim.numerics.level_error import bounding_radius, level_errors
+from rigslim.numerics.surface_distance import exact_sampled_distance, metro_distance
 
 
 def _grid(n=12, z=0.0):
@@ -24,18 +25,34 @@ def _grid(n=12, z=0.0):
 
 def test_parallel_planes_are_their_offset_apart():
     V, F = _grid()
-    d = sampled_distance(V, F, V + [0, 0, 0.05], F, samples=3000)
-    assert d["max"] == pytest.approx(0.05, rel=1e-9) and d["rms"] == pytest.approx(0.05, rel=1e-9)
+    for meshlab in (False, True):
+        d = exact_sampled_distance(V, F, V + [0, 0, 0.05], F, samples=3000, meshlab=meshlab)
+        assert d["max"] == pytest.approx(0.05, rel=1e-6) and d["rms"] == pytest.approx(0.05, rel=1e-6)
 
 
-def test_sampled_and_metro_agree_on_a_bump():
-    pytest.importorskip("pymeshlab")
+def _bump():
     V, F = _grid(20)
     W = V.copy()
     W[:, 2] = 0.1 * np.exp(-((V[:, 0] - 0.5) ** 2 + (V[:, 1] - 0.5) ** 2) / 0.02)
-    a, b = sampled_distance(W, F, V, F, 20000), surface_distance(W, F, V, F, 20000)
+    return W, V, F
+
+
+def test_exact_sampled_distance_agrees_with_metro_on_a_bump():
+    pytest.importorskip("pymeshlab")
+    W, V, F = _bump()
+    a, b = exact_sampled_distance(W, F, V, F, 20000), metro_distance(W, F, V, F, 20000)
     assert a["max"] == pytest.approx(b["max"], rel=0.05)
     assert a["rms"] == pytest.approx(b["rms"], rel=0.05)
+
+
+def test_meshlab_and_libigl_give_the_same_exact_distances():
+    """The same samples, each distance exact either way: the two backends agree to float32 round-off."""
+    pytest.importorskip("pymeshlab")
+    W, V, F = _bump()
+    a = exact_sampled_distance(W, F, V, F, 5000, meshlab=True)
+    b = exact_sampled_distance(W, F, V, F, 5000, meshlab=False)
+    assert a["n_samples"] == b["n_samples"]
+    assert a["max"] == pytest.approx(b["max"], rel=1e-5) and a["rms"] == pytest.approx(b["rms"], rel=1e-5)
 
 
 def test_level_errors_pose_each_level_with_its_own_weights():
@@ -52,3 +69,30 @@ def test_level_errors_pose_each_level_with_its_own_weights():
     assert out[1]["error_max"] == pytest.approx(0.04, rel=1e-6)
     assert out[1]["error_rms"] == pytest.approx(0.02, rel=1e-6)       # mean over the frames of 0, 2, 4 cm
     assert bounding_radius(V, one, T[0]) == pytest.approx(0.5 * np.sqrt(2))
+
+
+def test_level_errors_are_repeatable_and_agree_with_one_backend():
+    """Two level-frame pairs at once (libigl here, MeshLab on its thread) give the same figures in every run,
+    and within float32 round-off of libigl alone."""
+    from rigslim.numerics.surface_distance import surface_samples
+
+    W, V, F = _bump()
+    mesh = Mesh(V, F)
+    one = ReducedWeights(np.zeros((len(V), 1), int), np.ones((len(V), 1)), 2)
+    half = ReducedWeights(np.zeros((200, 1), int), np.ones((200, 1)), 2)
+    T = np.zeros((6, 2, 3, 4))
+    T[..., :3] = np.eye(3)
+    T[:, 0, 2, 3] = np.linspace(0.0, 0.05, 6)
+    levels = [SimplifiedLevel(Mesh(W, F), one, "bump"), SimplifiedLevel(Mesh(V[:200], F[(F < 200).all(1)]), half,
+                                                                         "part")]
+    other = ReducedWeights(np.ones((len(V), 1), int), np.ones((len(V), 1)), 2).to_sparse()   # the full mesh
+    a = level_errors(mesh, other, T, levels, samples=3000)
+    assert a == level_errors(mesh, other, T, levels, samples=3000)
+    for i, level in enumerate(levels):
+        for j in range(len(T)):
+            X = level.mesh.V + T[j, 0, :, 3]
+            ref = exact_sampled_distance(X, level.mesh.F, V, F, 3000, None, surface_samples(V, F, 3000, seed=1),
+                                         meshlab=False)
+            assert a[i]["per_frame_max"][j] == pytest.approx(ref["max"], rel=1e-5, abs=1e-9)
+            assert a[i]["per_frame_rms"][j] == pytest.approx(ref["rms"], rel=1e-5, abs=1e-9)
+    assert a[0]["per_frame_max"][-1] > a[0]["per_frame_max"][0] > 0
