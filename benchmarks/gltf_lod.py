@@ -128,19 +128,26 @@ def compare(ref: Path, cand: Path, frames: str, level: int, samples: int) -> dic
 
 
 def peers(path: Path, tmp: Path, ratio: float, tools: dict) -> dict:
-    """Each peer's result at one ratio: ``{name: (file, seconds)}``."""
-    out = {}
+    """Each peer's result at one ratio: ``{name: (file, seconds)}``, or ``{name: (None, error)}`` where the
+    peer failed on the file (gltf-transform's ``weld`` refuses some skinned files)."""
+    out: dict = {}
     stem = path.stem
     if tools.get("gltfpack"):
         gp = tmp / f"{stem}-gltfpack-{ratio:g}.glb"
-        out["gltfpack"] = (gp, run(tools["gltfpack"] + ["-i", str(path), "-o", str(gp), "-si", str(ratio), "-sa",
-                                                        "-noq"])[0])
+        try:
+            out["gltfpack"] = (gp, run(tools["gltfpack"] + ["-i", str(path), "-o", str(gp), "-si", str(ratio),
+                                                            "-sa", "-noq"])[0])
+        except RuntimeError as err:
+            out["gltfpack"] = (None, str(err))
     if tools.get("gltf-transform"):
         welded, gt = tmp / f"{stem}-welded.glb", tmp / f"{stem}-gltf-transform-{ratio:g}.glb"
         t0 = time.perf_counter()
-        run(tools["gltf-transform"] + ["weld", str(path), str(welded)])
-        run(tools["gltf-transform"] + ["simplify", str(welded), str(gt), "--ratio", str(ratio), "--error", "1"])
-        out["gltf-transform"] = (gt, time.perf_counter() - t0)
+        try:
+            run(tools["gltf-transform"] + ["weld", str(path), str(welded)])
+            run(tools["gltf-transform"] + ["simplify", str(welded), str(gt), "--ratio", str(ratio), "--error", "1"])
+            out["gltf-transform"] = (gt, time.perf_counter() - t0)
+        except RuntimeError as err:
+            out["gltf-transform"] = (None, str(err))
     return out
 
 
@@ -183,6 +190,10 @@ def bench(path: Path, tmp: Path, tools: dict, samples: int) -> dict:
     for ratio in RATIOS:
         entry: dict = {"ratio": ratio}
         for name, (file, secs) in peers(path, tmp, ratio, tools).items():
+            if file is None:                # the peer itself failed on the file
+                print(f"{row['character']:40s} {ratio:4g}: {name} failed: {str(secs)[-200:]}", flush=True)
+                entry[f"{name}_failed"] = str(secs)[-400:]
+                continue
             try:
                 p = compare(path, file, test, 0, samples) | {"seconds": secs}
             except RuntimeError as err:     # e.g. gltf-transform removed every face: no skinned mesh is left
