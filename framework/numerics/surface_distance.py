@@ -71,7 +71,7 @@ def metro_distance(V1, F1, V2, F2, samples: int = 20000) -> dict:
     V1, F1, V2, F2 : arrays
         The two meshes.
     samples : int
-        Surface samples per direction (vertices are always sampled too).
+        Random surface samples per direction; every vertex is sampled too.
 
     Returns
     -------
@@ -116,15 +116,23 @@ def _used(F: np.ndarray, n: int) -> np.ndarray:
 
 
 def _pymeshlab_distance(V1, F1, V2, F2, samples: int) -> dict:
+    """Both directions of the Hausdorff filter. Each samples every vertex of its mesh and ``samples`` random
+    points of its faces: the filter's ``samplenum`` counts both, and with fewer than the mesh's vertices its
+    vertex sampling draws that many of them at random (``VertexUniform``) and can miss the one where the
+    maximum lies, so a larger mesh's vertices are measured in a call of their own (``samplenum`` = their
+    count: all of them, no random draw) before its face samples."""
     import pymeshlab
 
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(V1, F1.astype(np.int32)))
     ms.add_mesh(pymeshlab.Mesh(V2, F2.astype(np.int32)))
     out = []
-    for s, t in ((0, 1), (1, 0)):
-        out.append(ms.get_hausdorff_distance(sampledmesh=s, targetmesh=t, samplevert=True, sampleface=True,
-                                             samplenum=samples, maxdist=pymeshlab.PercentageValue(100)))
+    for s, t, n_vertices in ((0, 1, len(V1)), (1, 0, len(V2))):
+        passes = ([(True, True, samples)] if samples >= n_vertices
+                  else [(True, False, n_vertices), (False, True, samples)])
+        for vert, face, num in passes:
+            out.append(ms.get_hausdorff_distance(sampledmesh=s, targetmesh=t, samplevert=vert, sampleface=face,
+                                                 samplenum=num, maxdist=pymeshlab.PercentageValue(100)))
     n = np.array([r["n_samples"] for r in out], float)
     rms = float(np.sqrt((n * np.array([r["RMS"] for r in out]) ** 2).sum() / n.sum()))
     return {"rms": rms, "max": float(max(r["max"] for r in out)), "n_samples": int(n.sum())}
