@@ -198,7 +198,8 @@ def add_commands(sub) -> None:
     p.add_argument("candidate", metavar="CANDIDATE.glb")
     p.add_argument("--frames", metavar="a:b:c", help="frames of the clip at --fps (default: every frame)")
     p.add_argument("--level", type=int, default=0, help="MSFT_lod level of the candidate (0: full meshes)")
-    p.add_argument("--samples", type=int, default=20000, help="surface samples per direction and frame")
+    p.add_argument("--samples", type=int, default=20000,
+                   help="random surface samples per direction and frame (every vertex is measured too)")
     p.add_argument("--hausdorff-frames", type=int, metavar="N",
                    help="Hausdorff on N evenly spread frames, 0 = all (default: all; 3 above 500k triangles)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
