@@ -71,6 +71,12 @@ class DecimationParams(Params):
     (:func:`rigslim.plugins.decimation.compiled.source_error`), so that thin protrusions, whose planes hardly
     see the collapse, are not removed early. On for ``quartic`` (off for the baselines):
     on the suite it met 26 of 30 levels against 22 without (docs/simplification.md)."""
+    face_distance: bool = False
+    """With ``source_distance``: also add the face-side error, the mean squared distance of the new faces'
+    rest-pose centroids from the source faces of the originals their corners stand for
+    (:func:`rigslim.plugins.decimation.compiled.face_error`), so that no new face spreads within its plane
+    over empty space (a grip's opening covered). On for ``quartic`` (docs/simplification.md, "The face-side
+    error")."""
     attribute_weights: dict[str, NonNegative] = Field(default_factory=lambda: dict(ATTRIBUTE_WEIGHTS))
     """For a mesh read from glTF: weight of each vertex attribute's displacement term in the error, by name
     (``TEXCOORD_0``) or family (``TEXCOORD``, ``COLOR``, ``NORMAL``, ``TANGENT``); see :func:`attribute_term`."""
@@ -358,7 +364,7 @@ class ArticulatedDecimator(Decimator):
                         border_collapses=params.border_collapses, min_normal_cos=params.min_normal_cos,
                         progress=ctx.progress, method=self.name, params=params.model_dump(), backend=params.backend,
                         locked=locked, seams=seams, normalised=params.normalised_error,
-                        source_distance=params.source_distance)
+                        source_distance=params.source_distance, face_distance=params.face_distance)
 
     def levels(self, asset, params, hier, choices) -> list:
         """The face-target levels (:func:`choose_levels`), error-target and adaptive levels, finest first."""
@@ -436,6 +442,8 @@ class QuarticParams(DecimationParams):
     source_distance: bool = True
     """As for every decimator (:class:`DecimationParams`), but on by default: thin protrusions (horns, elbow
     flaps, tails, fins) survive the far levels; ``false`` ranks by the quadrics alone."""
+    face_distance: bool = True
+    """As for every decimator (:class:`DecimationParams`), but on by default: new faces stay on the source."""
 
 
 class Quartic(ArticulatedDecimator):

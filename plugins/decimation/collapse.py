@@ -207,7 +207,7 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
              min_normal_cos: float = 0.0, progress=None, method: str = "", params: dict | None = None,
              batch: int = 2048, backend: str = "numpy", locked=None, seams=None,
              border_collapses: bool = True, normalised: bool = False,
-             source_distance: bool = False) -> ProgressiveHierarchy:
+             source_distance: bool = False, face_distance: bool = False) -> ProgressiveHierarchy:
     """Greedy edge collapses down to ``min_faces``, recorded as a progressive hierarchy.
 
     Parameters
@@ -239,6 +239,10 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         the original vertices that a and b stand for from the faces around the new vertex, over the example
         poses) to its cost. ``S`` is computed when the edge reaches the top of the queue and passes the
         guards; if it is not yet in the cost, it is added and the edge queued again.
+    face_distance : bool
+        With ``source_distance``: ``S`` also holds the face-side error ``R``
+        (:func:`rigslim.plugins.decimation.compiled.face_error`: the mean squared distance of the new faces'
+        rest-pose centroids from the source faces of their corners' originals).
     min_normal_cos : float
         A collapse is refused if a surviving face's normal turns by more than
         ``arccos(min_normal_cos)`` in the rest pose or any example pose.
@@ -271,7 +275,8 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         return _simplify_compiled(V, F, W, T, X, model, min_faces=min_faces, keep_boundary=keep_boundary,
                                   border_collapses=border_collapses, normalised=normalised,
                                   min_normal_cos=min_normal_cos, progress=progress, method=method, params=params,
-                                  locked=locked, seams=seams, source_distance=source_distance)
+                                  locked=locked, seams=seams, source_distance=source_distance,
+                                  face_distance=face_distance)
     if backend != "numpy":
         raise ValueError(f"unknown backend {backend!r}")
     st = SimplifyState(V, F, W, T, X)
@@ -279,7 +284,7 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
                               border_collapses=border_collapses)
     loop = _CollapseLoop(st, model, setup, zero=zero_cost(V, st.F, len(T), normalised), normalised=normalised,
                          batch=batch, min_normal_cos=min_normal_cos, tiny=degenerate_area(V),
-                         source=source_distance and normalised)
+                         source=source_distance and normalised, face=face_distance)
     loop.run(min_faces, progress, method)
     return _hierarchy(st.V, st.W, F, loop.collapses, loop.errors, loop.nfaces, method, params)
 
@@ -293,9 +298,10 @@ class _CollapseLoop:
     """
 
     def __init__(self, st: SimplifyState, model: EdgeCostModel, setup: EdgeSetup, *, zero: float,
-                 normalised: bool, batch: int, min_normal_cos: float, tiny: float, source: bool = False):
+                 normalised: bool, batch: int, min_normal_cos: float, tiny: float, source: bool = False,
+                 face: bool = False):
         self.st, self.model, self.normalised, self.batch = st, model, normalised, batch
-        self.source = source
+        self.source, self.face = source, face and source
         # the original vertices each vertex stands for, a linked list (compiled.LoopMembers)
         self.head = np.full(2 * st.m, -1, np.int64)
         self.head[:st.m] = np.arange(st.m)
@@ -308,6 +314,8 @@ class _CollapseLoop:
             self.vf[x].add(i)
             self.vf[y].add(i)
             self.vf[z].add(i)
+        self.F0 = self.Fm.copy()                                   # the source faces, for the face-side error
+        self.vf0 = [sorted(f) for f in self.vf[:st.m]]
         self.boundary, self.along, self.charts = setup.boundary, setup.along, setup.charts
         self.Qw = model.compiled_spec()[1] if normalised else None
         self.Qp = model.compiled_spec()[1] if source else None
@@ -437,7 +445,28 @@ class _CollapseLoop:
         for wi, di in zip(w.ravel().tolist(), d.ravel().tolist(), strict=True):    # the compiled loop's order
             sw += wi
             sd += wi * di
-        return sd / sw if sw > 0 else 0.0
+        out = sd / sw if sw > 0 else 0.0
+        return out + self.face_error(a, b, rem, pc) if self.face else out
+
+    def face_error(self, a: int, b: int, rem: list[int], pc: np.ndarray) -> float:
+        """:func:`rigslim.plugins.decimation.compiled.face_error`: the mean squared distance of the new faces'
+        rest-pose centroids from the source faces of the originals their corners stand for."""
+        C = self.Fm[rem]
+        corners = self.st.pos[C][:, :, 0]                          # (L, 3, 3) rest positions
+        corners[(C == a) | (C == b)] = pc[0]
+        g = (corners[:, 0] + corners[:, 1] + corners[:, 2]) / 3.0
+        found = []
+        for i, row in enumerate(C.tolist()):
+            owners = [a, b] + [x for x in row if x != a and x != b]
+            faces = sorted({f for x in owners for p in self.members(x) for f in self.vf0[p]})
+            if not faces:
+                continue
+            T = self.st.pos[self.F0[faces]][:, :, 0]               # (k, 3, 3)
+            found.append(float(point_triangle_distances2(g[i][None], T[:, 0], T[:, 1], T[:, 2]).min()))
+        total = 0.0
+        for d in sorted(found):                                    # the compiled loop's order: smallest first
+            total += d
+        return total / len(found) if found else 0.0
 
     def _merge(self, a: int, b: int, c: int, fab: set[int], rem: list[int]) -> None:
         """Vertex c replaces a and b: its curve class, the faces around, the face count."""
@@ -587,14 +616,15 @@ def _hierarchy(Vall, Wall, F, collapses, errors, nfaces, method, params) -> Prog
 
 def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_normal_cos, progress, method,
                        params, locked=None, seams=None, border_collapses=True,
-                       normalised=False, source_distance=False) -> ProgressiveHierarchy:
+                       normalised=False, source_distance=False, face_distance=False) -> ProgressiveHierarchy:
     """:func:`simplify` with the compiled loop (:func:`rigslim.plugins.decimation.compiled.collapse_chunk`)."""
     from rigslim.plugins.decimation import compiled as cc
     from rigslim.plugins.decimation import edge_queue as eq
 
     kind, Qv, ip, fp = model.compiled_spec()
     fp = np.append(fp, [zero_cost(V, np.asarray(F, np.int64), len(T), normalised), float(normalised),
-                        float(source_distance and normalised)])
+                        float(source_distance and normalised),
+                        float(face_distance and source_distance and normalised)])
     st = SimplifyState(V, F, W, T, X)
     m, Fm = st.m, st.F
     f = len(Fm)
@@ -611,7 +641,7 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     record = cc.LoopRecord(cnt, np.zeros((m, 2), np.int64), np.zeros(m), np.zeros(m, np.int64))
     cost_model = cc.CostModel(kind, ip, fp, st.T)
     loop_args = (float(min_normal_cos), degenerate_area(V), cost_model, mesh, verts, edges, queue, record,
-                 cc.new_scratch(len(T)), cc.new_members(m))
+                 cc.new_scratch(len(T)), cc.new_members(m, Fm.copy(), _vertex_faces(Fm, m)))
     t0 = time.perf_counter()           # the kernels' first call (compiling or loading them) is not loop work
     cc.collapse_chunk(0, min_faces, *loop_args)
     kernels += time.perf_counter() - t0

@@ -86,7 +86,7 @@ LoopRecord = namedtuple("LoopRecord", ["cnt", "col", "errs", "nfaces"])
 CostModel = namedtuple("CostModel", ["method", "ip", "fp", "T"])
 #: The original vertices each vertex stands for (the merge tree's leaves), as linked lists: ``head[x]`` the first,
 #: ``nxt[p]`` the one after original p (-1: the last), ``tail[x]`` the last.
-LoopMembers = namedtuple("LoopMembers", ["head", "nxt", "tail"])
+LoopMembers = namedtuple("LoopMembers", ["head", "nxt", "tail", "F0", "vf0_start", "vf0_cnt", "vf0_pool"])
 #: Work arrays of one collapse attempt: neighbours of a and b, the union, the surviving and the removed
 #: faces, the new vertex in every pose, and 3x4 / 3x3 temporaries.
 Scratch = namedtuple("Scratch", ["Na", "Nb", "nbr", "uni", "rem", "fab", "pc", "Xw", "q", "o"])
@@ -99,11 +99,14 @@ def new_scratch(n_poses: int) -> Scratch:
                    np.empty((n_poses + 1, 3)), np.empty((3, 4)), np.empty((3, 3)), np.empty((3, 3)))
 
 
-def new_members(m: int) -> LoopMembers:
-    """Every original vertex stands for itself; rows m.. are the merged vertices' lists."""
+def new_members(m: int, F0: np.ndarray, vf0: tuple[np.ndarray, np.ndarray, np.ndarray]) -> LoopMembers:
+    """Every original vertex stands for itself; rows m.. are the merged vertices' lists. ``F0`` and ``vf0``
+    (``vf_start``, ``vf_cnt``, ``pool``): the source faces and each original vertex's faces, kept unchanged
+    for the face-side error (:func:`source_error`)."""
     head = np.full(2 * m, -1, np.int64)
     head[:m] = np.arange(m)
-    return LoopMembers(head, np.full(m, -1, np.int64), head.copy())
+    return LoopMembers(head, np.full(m, -1, np.int64), head.copy(), np.ascontiguousarray(F0, np.int64),
+                       *(np.ascontiguousarray(x, np.int64) for x in vf0))
 
 
 @njit(cache=True)
@@ -153,9 +156,10 @@ def point_triangle_distance2(p0, p1, p2, a0, a1, a2, b0, b1, b2, c0, c1, c2):
 
 
 @njit(cache=True)
-def source_error(a, b, nrem, mesh, vx, mem, s):
+def source_error(a, b, nrem, mesh, vx, mem, s, face):
     """The source-side error of collapsing (a, b): the mean squared distance, weighted by their planes' areas,
-    of the original vertices that a and b stand for from the new faces around the merged vertex.
+    of the original vertices that a and b stand for from the new faces around the merged vertex; with
+    ``face``, plus the face-side error (:func:`face_error`).
 
     ``S = sum_p sum_j w_p^j d_pj^2 / sum_p sum_j w_p^j`` over the originals p of a and b (``mem``) and the
     example poses j, ``w_p^j = tr Q_p^j[:3, :3]`` (the area of p's planes in pose j; DeCoro's one rest-frame
@@ -185,7 +189,57 @@ def source_error(a, b, nrem, mesh, vx, mem, s):
                 sw += w
                 sd += w * best
             p = mem.nxt[p]
-    return sd / sw if sw > 0 else 0.0
+    out = sd / sw if sw > 0 else 0.0
+    if face:
+        out += face_error(a, b, nrem, mesh, vx, mem, s)
+    return out
+
+
+@njit(cache=True)
+def face_error(a, b, nrem, mesh, vx, mem, s):
+    """The face-side error of collapsing (a, b): the mean squared distance of the new faces from the source.
+
+    ``R = (1 / |rem|) sum_f d(g_f, S_f)^2`` over the new faces f around the merged vertex (``s.rem``, with a
+    and b at ``s.pc``), ``g_f`` the centroid of f in the rest pose and ``S_f`` the source faces of the
+    original vertices that f's three corners stand for (``mem``: a's and b's, and the two others'). The
+    quadrics measure the new vertex against unbounded planes and ``S`` the source against the new faces;
+    neither sees a new face that spreads within its plane over empty space (a grip's opening covered), ``R``
+    does. The rest pose only: the example poses would multiply its cost by their number.
+    """
+    F, pos, pc, rem, F0 = mesh.F, vx.pos, s.pc, s.rem, mem.F0
+    found = np.empty(nrem)
+    count = 0
+    for i in range(nrem):
+        f = rem[i]
+        x, y, z = F[f, 0], F[f, 1], F[f, 2]
+        X = pc[0] if (x == a or x == b) else pos[x, 0]
+        Y = pc[0] if (y == a or y == b) else pos[y, 0]
+        Z = pc[0] if (z == a or z == b) else pos[z, 0]
+        g0 = (X[0] + Y[0] + Z[0]) / 3.0
+        g1 = (X[1] + Y[1] + Z[1]) / 3.0
+        g2 = (X[2] + Y[2] + Z[2]) / 3.0
+        best = np.inf
+        for start in (mem.head[a], mem.head[b], -1 if (x == a or x == b) else mem.head[x],
+                      -1 if (y == a or y == b) else mem.head[y], -1 if (z == a or z == b) else mem.head[z]):
+            p = start
+            while p >= 0:
+                for k in range(mem.vf0_start[p], mem.vf0_start[p] + mem.vf0_cnt[p]):
+                    g = mem.vf0_pool[k]
+                    A, B, C = pos[F0[g, 0], 0], pos[F0[g, 1], 0], pos[F0[g, 2], 0]
+                    d = point_triangle_distance2(g0, g1, g2, A[0], A[1], A[2], B[0], B[1], B[2], C[0], C[1], C[2])
+                    if d < best:
+                        best = d
+                p = mem.nxt[p]
+        if best < np.inf:
+            found[count] = best
+            count += 1
+    if count == 0:
+        return 0.0
+    found = np.sort(found[:count])          # summed smallest first: the same sum in any order of the faces
+    total = 0.0
+    for i in range(count):
+        total += found[i]
+    return total / count
 
 
 @njit(cache=True)
@@ -563,7 +617,7 @@ def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, cm, mesh, vx, ed,
                 ed.estate[e] = BLOCKED
                 continue
             if cm.fp[4] != 0.0:              # the source-side error S, added to the quadric cost when first seen
-                h = source_error(a, b, nrem, mesh, vx, mem, s)
+                h = source_error(a, b, nrem, mesh, vx, mem, s, cm.fp[5] != 0.0)
                 if h < cm.fp[2]:
                     h = 0.0
                 if h > ed.esrc[e]:           # not yet in its cost: add it and queue the edge again

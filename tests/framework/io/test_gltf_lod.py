@@ -115,7 +115,7 @@ def test_seams_collapse_only_along_themselves(tube):
 
 @pytest.mark.parametrize("seamed", [False, True], ids=["locked", "seams-along"])
 def test_backends_agree_with_locked_vertices(elephant, monkeypatch, seamed):
-    """The numpy reference and the compiled loop make the same collapses when vertices are locked.
+    """The numpy reference loop and the compiled loop make the same collapses when vertices are locked.
 
     On a real piece of the elephant (as tests/plugins/decimation/test_decimation_compiled.py; the glTF samples
     are mirror symmetric, so equal costs would tie-break by heap order), with a random fifth of the vertices locked.
@@ -150,6 +150,11 @@ def test_backends_agree_with_locked_vertices(elephant, monkeypatch, seamed):
         seams = (seams_along(Fp, charts, locked), charts)
         assert seams[0].sum() > 10
     monkeypatch.setattr(articulated, "seam_lock", lambda asset, along=True, mode="lock": (locked, seams))
+    # the loops are compared with the same per-edge costs: with 4 bones about 1% of the edges take another
+    # branch in the numpy cost path (docs/simplification.md, "Speed"), which the face-side error can rank first
+    from rigslim.plugins.decimation import models
+
+    monkeypatch.setattr(models.QuarticModel, "costs", lambda self, st, ea, eb: models.compiled_costs(self, st, ea, eb))
     from rigslim.plugin import StepContext
     from rigslim.plugin.host import get_host
 

@@ -128,3 +128,25 @@ def test_point_triangle_distances_match_a_brute_force_and_the_compiled_kernel():
     compiled = np.array([point_triangle_distance2(*x[0], *x[1], *x[2], *x[3]) for x in zip(p, a, b, c, strict=True)])
     np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-12)
     np.testing.assert_array_equal(compiled, got)
+
+
+def test_the_face_side_error_is_the_new_faces_distance_from_the_source():
+    """A unit square of two triangles; (1, 2) collapses to (1, 0.5, h): the one new face (0, c, 3) has its
+    centroid (1/3, 1/2, h/3) above the square, so R = (h/3)^2. Placed back in the plane, R = 0."""
+    from rigslim.plugins.decimation import compiled as cc
+    from rigslim.plugins.decimation.collapse import _vertex_faces
+
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    F = np.array([[0, 1, 2], [0, 2, 3]], np.int64)
+    m = len(V)
+    mem = cc.new_members(m, F, _vertex_faces(F, m))
+    z = np.zeros(1, np.int64)
+    mesh = cc.LoopMesh(F.copy(), z, z, z, np.zeros(1, bool), z, z, z)
+    pos = np.zeros((2 * m, 2, 3))
+    pos[:m, 0] = pos[:m, 1] = V
+    vx = cc.LoopVertices(pos[:, 0].copy(), np.ones((2 * m, 1)), np.zeros((2 * m, 1, 4, 4)), pos)
+    s = cc.new_scratch(1)
+    s.rem[0] = 1
+    for h, want in ((0.3, (0.3 / 3) ** 2), (0.0, 0.0)):
+        s.pc[:] = [1.0, 0.5, h]
+        assert cc.face_error(1, 2, 1, mesh, vx, mem, s) == pytest.approx(want, rel=1e-12, abs=1e-15)
