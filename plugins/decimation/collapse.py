@@ -240,9 +240,8 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         poses) to its cost. ``S`` is computed when the edge reaches the top of the queue and passes the
         guards; if it is not yet in the cost, it is added and the edge queued again.
     face_distance : bool
-        With ``source_distance``: ``S`` also holds the face-side error ``R``
-        (:func:`rigslim.plugins.decimation.compiled.face_error`: the mean squared distance of the new faces'
-        rest-pose centroids from the source faces of their corners' originals).
+        With ``source_distance``: ``S`` also holds the face-side error
+        (:func:`rigslim.plugins.decimation.compiled.face_error`).
     min_normal_cos : float
         A collapse is refused if a surviving face's normal turns by more than
         ``arccos(min_normal_cos)`` in the rest pose or any example pose.
@@ -251,10 +250,9 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     batch : int
         Edges per batched cost evaluation (numpy backend).
     backend : {"numpy", "numba"}
-        ``"numpy"``: this module's Python loop with the model's batched numpy
-        costs (the reference); ``"numba"``: the compiled loop and per-edge
-        costs of :mod:`rigslim.plugins.decimation.compiled` (same collapses;
-        the model must provide ``compiled_spec()``).
+        ``"numpy"``: this module's Python loop with the model's batched numpy costs (the reference);
+        ``"numba"``: the compiled loop and per-edge costs of :mod:`rigslim.plugins.decimation.compiled`
+        (same collapses; the model must provide ``compiled_spec()``).
     locked : (m,) bool array, optional
         Vertices no collapse may move (like boundary vertices, whatever
         ``keep_boundary`` says): e.g. a glTF file's UV seams and material
