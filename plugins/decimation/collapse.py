@@ -240,8 +240,7 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         poses) to its cost. ``S`` is computed when the edge reaches the top of the queue and passes the
         guards; if it is not yet in the cost, it is added and the edge queued again.
     face_distance : bool
-        With ``source_distance``: ``S`` also holds the face-side error
-        (:func:`rigslim.plugins.decimation.compiled.face_error`).
+        With ``source_distance``: ``S`` adds the face error :func:`rigslim.plugins.decimation.compiled.face_error`.
     min_normal_cos : float
         A collapse is refused if a surviving face's normal turns by more than
         ``arccos(min_normal_cos)`` in the rest pose or any example pose.
