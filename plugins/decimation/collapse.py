@@ -638,7 +638,7 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     record = cc.LoopRecord(cnt, np.zeros((m, 2), np.int64), np.zeros(m), np.zeros(m, np.int64))
     cost_model = cc.CostModel(kind, ip, fp, st.T)
     loop_args = (float(min_normal_cos), degenerate_area(V), cost_model, mesh, verts, edges, queue, record,
-                 cc.new_scratch(len(T)), cc.new_members(m, Fm.copy(), _vertex_faces(Fm, m)))
+                 cc.new_scratch(len(T)), cc.new_members(m, Fm.copy(), _vertex_faces(Fm, m), st.pos[:m, 0]))
     t0 = time.perf_counter()           # the kernels' first call (compiling or loading them) is not loop work
     cc.collapse_chunk(0, min_faces, *loop_args)
     kernels += time.perf_counter() - t0

@@ -139,7 +139,7 @@ def test_the_face_side_error_is_the_new_faces_distance_from_the_source():
     V = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
     F = np.array([[0, 1, 2], [0, 2, 3]], np.int64)
     m = len(V)
-    mem = cc.new_members(m, F, _vertex_faces(F, m))
+    mem = cc.new_members(m, F, _vertex_faces(F, m), V)
     z = np.zeros(1, np.int64)
     mesh = cc.LoopMesh(F.copy(), z, z, z, np.zeros(1, bool), z, z, z)
     pos = np.zeros((2 * m, 2, 3))
