@@ -21,8 +21,8 @@ import threading
 
 import numpy as np
 
-__all__ = ["degenerate_distance", "exact_sampled_distance", "is_degenerate", "metro_distance", "pymeshlab_available",
-           "exact_sampled_distances", "referenced", "surface_samples"]
+__all__ = ["degenerate_distance", "exact_sampled_distance", "exact_sampled_distances", "is_degenerate",
+           "metro_distance", "pymeshlab_available", "referenced", "surface_samples"]
 
 
 def pymeshlab_available() -> bool:
@@ -297,15 +297,10 @@ def exact_sampled_distances(jobs, *, meshlab: bool = True) -> list[dict]:
     P2)``, pipelined: while MeshLab measures one job on the pymeshlab thread (its filter runs without the
     interpreter lock), this thread samples the next."""
     pool = _pymeshlab_thread() if meshlab and pymeshlab_available() else None
-    queued: list[list[tuple[dict, threading.Event]]] = []
-    done: list[list[np.ndarray]] = []
+    pending: list[list] = []        # per job, its two sides: MeshLab's queued calls or libigl's figures
     for args in jobs:
         V1, F1, V2, F2, samples, P1, P2 = args
         on_meshlab, sides = _sides(V1, F1, V2, F2, samples, P1, P2, pool is not None)
-        if on_meshlab and pool is not None:
-            queued.append([pool.submit(_pymeshlab_cloud, *side) for side in sides])
-            done.append([])
-        else:
-            queued.append([])
-            done.append([_libigl_side(*side) for side in sides])
-    return [_combined(*(d or [_Worker.result(*x) for x in q])) for q, d in zip(queued, done, strict=True)]
+        pending.append([pool.submit(_pymeshlab_cloud, *side) if on_meshlab and pool is not None
+                        else _libigl_side(*side) for side in sides])
+    return [_combined(*(_Worker.result(*x) if isinstance(x, tuple) else x for x in sides)) for sides in pending]
