@@ -38,6 +38,7 @@ from rigslim.plugins.decimation.setup import (
     FREE,
     KEEP_B,
     NONE,
+    SOURCE_SAMPLES,
     EdgeSetup,
     collapsible_edges,
     degenerate_area,
@@ -428,6 +429,7 @@ class _CollapseLoop:
         assert self.Qp is not None
         P = self.st.pos.shape[1] - 1
         pts = np.array(self.members(a) + self.members(b), dtype=np.int64)
+        pts = pts[::-(-len(pts) // SOURCE_SAMPLES)]               # a spread sample of a large set, as compiled
         C = self.Fm[rem]
         corners = self.st.pos[C][:, :, 1:P + 1]                  # (L, 3, P, 3)
         corners[(C == a) | (C == b)] = pc[1:P + 1]
@@ -632,7 +634,8 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     kernels, first_costs = _first_costs(edges, setup, kind, st, Qv, ip, fp)
     cnt = np.zeros(eq.N_COUNTERS, np.int64)
     cnt[eq.C_FACES], cnt[eq.C_HEAP], cnt[eq.C_SIZE], cnt[eq.C_POOL] = f, n_edges, n_edges, 3 * f
-    mesh = cc.LoopMesh(Fm, *_vertex_faces(Fm, m), setup.boundary, setup.along, setup.charts, np.zeros(2 * m, np.int64))
+    mesh = cc.LoopMesh(Fm, *_vertex_faces(Fm, m), setup.boundary, setup.along, setup.charts, np.zeros(2 * m, np.int64),
+                       np.zeros(2 * m, np.int64))
     verts = cc.LoopVertices(st.V, st.W, Qv, st.pos)
     queue = _sorted_queue(edges, n_edges)
     record = cc.LoopRecord(cnt, np.zeros((m, 2), np.int64), np.zeros(m), np.zeros(m, np.int64))
@@ -685,7 +688,8 @@ def _compiled_edges(edges: np.ndarray, N: int, n: int, cap: int):
     hk, hv = np.full(hsize, -1, np.int64), np.zeros(hsize, np.int64)
     eq.init_table(edges, N, ea, eb, estamp, hk, hv)
     free, in_dirty, dirty = np.zeros(cap, np.int64), np.zeros(cap, bool), np.zeros(2 * cap, np.int64)
-    return cc.LoopEdges(ea, eb, ecost, ev, ew, estamp, estate, free, in_dirty, dirty, hk, hv, np.zeros(cap))
+    return cc.LoopEdges(ea, eb, ecost, ev, ew, estamp, estate, free, in_dirty, dirty, hk, hv, np.zeros(cap),
+                        np.full(cap, -1, np.int64))
 
 
 def _first_costs(table, setup: EdgeSetup, kind, st: SimplifyState, Qv, ip, fp) -> tuple[float, float]:

@@ -62,6 +62,7 @@ from rigslim.plugins.decimation.setup import (
     KEEP_B,
     NONE,
     SEAM,
+    SOURCE_SAMPLES,
 )
 
 __all__ = ["CostModel", "LoopEdges", "LoopMembers", "LoopMesh", "LoopQueue", "LoopRecord", "LoopVertices", "Scratch",
@@ -69,15 +70,18 @@ __all__ = ["CostModel", "LoopEdges", "LoopMembers", "LoopMesh", "LoopQueue", "Lo
            "point_triangle_distance2", "requeue", "source_error"]
 
 #: The mesh as the loop edits it: faces (vertices renamed as they merge), vertex-face lists (``pool`` slices
-#: ``vf_start[x]:vf_start[x] + vf_cnt[x]``), fixed and seam vertices, face charts, and a marker array.
-LoopMesh = namedtuple("LoopMesh", ["F", "vf_start", "vf_cnt", "pool", "boundary", "along", "charts", "mark"])
+#: ``vf_start[x]:vf_start[x] + vf_cnt[x]``), fixed and seam vertices, face charts, a marker array, and
+#: ``changed[x]``: the number of collapses made when x's faces last changed (0: never).
+LoopMesh = namedtuple("LoopMesh", ["F", "vf_start", "vf_cnt", "pool", "boundary", "along", "charts", "mark",
+                                   "changed"])
 #: Per-vertex tables (2m rows: the originals, then one per collapse): rest position, weights, quadrics,
 #: positions in the rest pose and every example pose.
 LoopVertices = namedtuple("LoopVertices", ["V", "W", "Qv", "pos"])
 #: Edge slots (ends, cost, the new vertex and weights, stamp, state), the free list, the dirty list, the
-#: key hash and the source-side error already in each edge's cost (:func:`source_error`).
+#: key hash, the source-side error already in each edge's cost (:func:`source_error`) and ``stime``, the number of
+#: collapses made when it was added (-1: not since the edge's last evaluation).
 LoopEdges = namedtuple("LoopEdges", ["ea", "eb", "ecost", "ev", "ew", "estamp", "estate", "free", "in_dirty", "dirty",
-                                     "hk", "hv", "esrc"])
+                                     "hk", "hv", "esrc", "stime"])
 #: The heap of ``(cost, stamp, edge)`` entries.
 LoopQueue = namedtuple("LoopQueue", ["hc", "hs", "he"])
 #: Counters (:mod:`rigslim.plugins.decimation.edge_queue`) and the recorded collapses, errors and face counts.
@@ -86,8 +90,10 @@ LoopRecord = namedtuple("LoopRecord", ["cnt", "col", "errs", "nfaces"])
 CostModel = namedtuple("CostModel", ["method", "ip", "fp", "T"])
 #: The original vertices each vertex stands for (the merge tree's leaves), as linked lists: ``head[x]`` the first,
 #: ``nxt[p]`` the one after original p (-1: the last), ``tail[x]`` the last.
-LoopMembers = namedtuple("LoopMembers", ["head", "nxt", "tail", "F0", "vf0_start", "vf0_cnt", "vf0_pool",
-                                         "reach0"])
+#: ``kid[c]``: the two vertices merged into c (-1 for an original); ``ball[x]``: a sphere (centre, radius) holding
+#: every source face of x's originals, so the merge tree is a bounding-volume hierarchy (:func:`_nearest_source`).
+LoopMembers = namedtuple("LoopMembers", ["head", "nxt", "tail", "size", "tri0", "vf0_start", "vf0_cnt",
+                                         "vf0_pool", "kid", "ball", "stack"])
 #: Work arrays of one collapse attempt: neighbours of a and b, the union, the surviving and the removed
 #: faces, the new vertex in every pose, and 3x4 / 3x3 temporaries.
 Scratch = namedtuple("Scratch", ["Na", "Nb", "nbr", "uni", "rem", "fab", "pc", "Xw", "q", "o"])
@@ -104,16 +110,44 @@ def new_members(m: int, F0: np.ndarray, vf0: tuple[np.ndarray, np.ndarray, np.nd
                 V0: np.ndarray) -> LoopMembers:
     """Every original vertex stands for itself; rows m.. are the merged vertices' lists. ``F0`` and ``vf0``
     (``vf_start``, ``vf_cnt``, ``pool``): the source faces and each original vertex's faces, kept unchanged
-    for the face-side error (:func:`face_error`); ``reach0``: each source face's reach from its first corner
-    in the rest pose ``V0``, ``max(|B - A|, |C - A|)``."""
+    for the face-side error (:func:`face_error`): ``tri0`` holds each source face in the rest pose ``V0`` as
+    one row ``(A, reach, B, C)``, its corners and its reach from the first, ``max(|B - A|, |C - A|)``.
+    An original's ``ball`` is centred on it, with the radius of its farthest face corner."""
     head = np.full(2 * m, -1, np.int64)
     head[:m] = np.arange(m)
-    F0 = np.ascontiguousarray(F0, np.int64)
+    F0 = np.asarray(F0, np.int64)
     V0 = np.asarray(V0, np.float64)
-    A = V0[F0[:, 0]]
-    reach = np.maximum(np.linalg.norm(V0[F0[:, 1]] - A, axis=1), np.linalg.norm(V0[F0[:, 2]] - A, axis=1))
-    return LoopMembers(head, np.full(m, -1, np.int64), head.copy(), F0,
-                       *(np.ascontiguousarray(x, np.int64) for x in vf0), np.ascontiguousarray(reach))
+    A, B, C = V0[F0[:, 0]], V0[F0[:, 1]], V0[F0[:, 2]]
+    reach = np.maximum(np.linalg.norm(B - A, axis=1), np.linalg.norm(C - A, axis=1))
+    tri0 = np.ascontiguousarray(np.concatenate([A, reach[:, None], B, C], axis=1))
+    vf_start, vf_cnt, pool = (np.ascontiguousarray(x, np.int64) for x in vf0)
+    ball = np.zeros((2 * m, 4))
+    ball[:m, :3] = V0[:m]
+    owner = np.repeat(np.arange(m), vf_cnt[:m])
+    faces = np.concatenate([pool[s:s + c] for s, c in zip(vf_start[:m], vf_cnt[:m], strict=True)]) if m else pool[:0]
+    if len(faces):
+        corner = np.linalg.norm(V0[F0[faces]] - V0[owner][:, None, :], axis=2).max(axis=1)
+        np.maximum.at(ball[:, 3], owner, corner)
+    return LoopMembers(head, np.full(m, -1, np.int64), head.copy(), np.ones(2 * m, np.int64), tri0, vf_start,
+                       vf_cnt, pool,
+                       np.full((2 * m, 2), -1, np.int64), ball, np.empty(2 * m + 8, np.int64))
+
+
+@njit(cache=True)
+def merge_ball(ball, a, b, c):
+    """``ball[c]``: the smallest sphere holding the spheres of a and b."""
+    d0, d1, d2 = ball[b, 0] - ball[a, 0], ball[b, 1] - ball[a, 1], ball[b, 2] - ball[a, 2]
+    d = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    ra, rb = ball[a, 3], ball[b, 3]
+    if d + rb <= ra:
+        ball[c] = ball[a]
+    elif d + ra <= rb:
+        ball[c] = ball[b]
+    else:
+        r = 0.5 * (d + ra + rb)
+        t = (r - ra) / d
+        ball[c, 0], ball[c, 1], ball[c, 2] = ball[a, 0] + t * d0, ball[a, 1] + t * d1, ball[a, 2] + t * d2
+        ball[c, 3] = r
 
 
 @njit(cache=True)
@@ -163,6 +197,59 @@ def point_triangle_distance2(p0, p1, p2, a0, a1, a2, b0, b1, b2, c0, c1, c2):
 
 
 @njit(cache=True)
+def _posed_new_faces(a, b, nrem, F, pos, pc, rem):
+    """The new faces around the merged vertex (``rem``, with a and b at ``pc``) in every example pose j, as rows
+    ``(A, reach, B, C)`` of a ``(poses, nrem, 10)`` array: corners and ``max(|B - A|, |C - A|)``."""
+    P = pos.shape[1] - 1
+    out = np.empty((P, nrem, 10))
+    for i in range(nrem):
+        f = rem[i]
+        for j in range(P):
+            for c in range(3):
+                x = F[f, c]
+                X = pc[j + 1] if (x == a or x == b) else pos[x, j + 1]
+                o = 0 if c == 0 else 1 + 3 * c
+                out[j, i, o], out[j, i, o + 1], out[j, i, o + 2] = X[0], X[1], X[2]
+            out[j, i, 3] = _reach(out[j, i])
+    return out
+
+
+@njit(cache=True)
+def _reach(t):
+    """``max(|B - A|, |C - A|)`` of a row ``(A, reach, B, C)``: the triangle lies within it of A."""
+    b0, b1, b2 = t[4] - t[0], t[5] - t[1], t[6] - t[2]
+    c0, c1, c2 = t[7] - t[0], t[8] - t[1], t[9] - t[2]
+    return max(np.sqrt(b0 * b0 + b1 * b1 + b2 * b2), np.sqrt(c0 * c0 + c1 * c1 + c2 * c2))
+
+
+@njit(cache=True)
+def _nearest2(q0, q1, q2, tri, n, first):
+    """The squared distance from q to the nearest of the triangles ``tri[:n]`` (rows ``(A, reach, B, C)``) and
+    its index, trying ``first`` first. A triangle is skipped when it cannot be nearer than the nearest so far:
+    its distance is at least ``|q - A| - reach``, so the minimum is the same as without the test."""
+    if n == 0:
+        return np.inf, first
+    t = tri[first]
+    best = point_triangle_distance2(q0, q1, q2, t[0], t[1], t[2], t[4], t[5], t[6], t[7], t[8], t[9])
+    far = np.sqrt(best)
+    arg = first
+    for i in range(n):
+        if i == first:
+            continue
+        t = tri[i]
+        e0, e1, e2 = q0 - t[0], q1 - t[1], q2 - t[2]
+        lim = (1.0 + 1e-9) * (far + t[3])
+        if e0 * e0 + e1 * e1 + e2 * e2 > lim * lim:
+            continue
+        d = point_triangle_distance2(q0, q1, q2, t[0], t[1], t[2], t[4], t[5], t[6], t[7], t[8], t[9])
+        if d < best:
+            best = d
+            far = np.sqrt(d)
+            arg = i
+    return best, arg
+
+
+@njit(cache=True)
 def source_error(a, b, nrem, mesh, vx, mem, s, face):
     """The source-side error of collapsing (a, b): the mean squared distance, weighted by their planes' areas,
     of the original vertices that a and b stand for from the new faces around the merged vertex; with
@@ -171,27 +258,32 @@ def source_error(a, b, nrem, mesh, vx, mem, s, face):
     ``S = sum_p sum_j w_p^j d_pj^2 / sum_p sum_j w_p^j`` over the originals p of a and b (``mem``) and the
     example poses j, ``w_p^j = tr Q_p^j[:3, :3]`` (the area of p's planes in pose j; DeCoro's one rest-frame
     quadric weighs every pose alike), ``d_pj`` the distance
-    from p in pose j to the nearest face of ``s.rem`` with a and b at the new vertex (``s.pc``).
+    from p in pose j to the nearest face of ``s.rem`` with a and b at the new vertex (``s.pc``). The new faces
+    are posed once (:func:`_posed_new_faces`), and the search starts from the face nearest to the previous
+    original (:func:`_nearest2`): the same minima, so the same sum, as a search of every face.
+
+    When a and b stand for more than :data:`SOURCE_SAMPLES` originals together, every s-th of their list
+    enters, ``s = ceil(n / SOURCE_SAMPLES)``: a mean over a spread sample (the list follows the merge tree,
+    so it is spatially ordered). That happens only far down a large mesh's hierarchy (below about 750 faces
+    of the 193k-face elephant), where each collapse would otherwise measure thousands of originals.
     """
-    F, pos, pc, rem, Qv = mesh.F, vx.pos, s.pc, s.rem, vx.Qv
+    pos, Qv = vx.pos, vx.Qv
+    posed = _posed_new_faces(a, b, nrem, mesh.F, pos, s.pc, s.rem)
+    stride = -(-(mem.size[a] + mem.size[b]) // SOURCE_SAMPLES)
     sw = 0.0
     sd = 0.0
+    near = 0
+    i = -1
     for start in (mem.head[a], mem.head[b]):
         p = start
         while p >= 0:
+            i += 1
+            if i % stride != 0:
+                p = mem.nxt[p]
+                continue
             for j in range(pos.shape[1] - 1):
                 jq = j if Qv.shape[1] > 1 else 0        # one rest-frame quadric (DeCoro): the same weight
-                q0, q1, q2 = pos[p, j + 1, 0], pos[p, j + 1, 1], pos[p, j + 1, 2]
-                best = np.inf
-                for i in range(nrem):
-                    f = rem[i]
-                    x, y, z = F[f, 0], F[f, 1], F[f, 2]
-                    X = pc[j + 1] if (x == a or x == b) else pos[x, j + 1]
-                    Y = pc[j + 1] if (y == a or y == b) else pos[y, j + 1]
-                    Z = pc[j + 1] if (z == a or z == b) else pos[z, j + 1]
-                    d = point_triangle_distance2(q0, q1, q2, X[0], X[1], X[2], Y[0], Y[1], Y[2], Z[0], Z[1], Z[2])
-                    if d < best:
-                        best = d
+                best, near = _nearest2(pos[p, j + 1, 0], pos[p, j + 1, 1], pos[p, j + 1, 2], posed[j], nrem, near)
                 w = Qv[p, jq, 0, 0] + Qv[p, jq, 1, 1] + Qv[p, jq, 2, 2]
                 sw += w
                 sd += w * best
@@ -200,6 +292,50 @@ def source_error(a, b, nrem, mesh, vx, mem, s, face):
     if face:
         out += face_error(a, b, nrem, mesh, vx, mem, s)
     return out
+
+
+@njit(cache=True)
+def _nearest_source(g0, g1, g2, root, mem, tri, best):
+    """``min(best, d(g, S)^2)``, S the source faces of the originals under ``root`` in the merge tree.
+
+    Depth first, the nearer child first; a subtree is skipped when g is farther from its ball than the
+    nearest face so far (``|g - centre| - radius > sqrt(best)``, with a relative margin of 1e-9 for round-off),
+    a face when ``|g - A| - reach`` is (``tri`` rows ``(A, reach, B, C)``). No face that could be nearer is
+    skipped, so the minimum is exact.
+    """
+    ball, kid, stack, m = mem.ball, mem.kid, mem.stack, len(mem.nxt)
+    far = np.sqrt(best)
+    top = 0
+    stack[0] = root
+    while top >= 0:
+        x = stack[top]
+        top -= 1
+        e0, e1, e2 = g0 - ball[x, 0], g1 - ball[x, 1], g2 - ball[x, 2]
+        if far < np.inf:
+            lim = (1.0 + 1e-9) * (far + ball[x, 3])
+            if e0 * e0 + e1 * e1 + e2 * e2 > lim * lim:
+                continue
+        if x >= m:
+            u, v = kid[x, 0], kid[x, 1]
+            du = (g0 - ball[u, 0]) ** 2 + (g1 - ball[u, 1]) ** 2 + (g2 - ball[u, 2]) ** 2
+            dv = (g0 - ball[v, 0]) ** 2 + (g1 - ball[v, 1]) ** 2 + (g2 - ball[v, 2]) ** 2
+            if du < dv:
+                u, v = v, u
+            stack[top + 1], stack[top + 2] = u, v            # the nearer (v) on top
+            top += 2
+            continue
+        for k in range(mem.vf0_start[x], mem.vf0_start[x] + mem.vf0_cnt[x]):
+            t = tri[mem.vf0_pool[k]]
+            e0, e1, e2 = g0 - t[0], g1 - t[1], g2 - t[2]
+            if far < np.inf:
+                lim = (1.0 + 1e-9) * (far + t[3])
+                if e0 * e0 + e1 * e1 + e2 * e2 > lim * lim:
+                    continue
+            d = point_triangle_distance2(g0, g1, g2, t[0], t[1], t[2], t[4], t[5], t[6], t[7], t[8], t[9])
+            if d < best:
+                best = d
+                far = np.sqrt(d)
+    return best
 
 
 @njit(cache=True)
@@ -213,9 +349,10 @@ def face_error(a, b, nrem, mesh, vx, mem, s):
     neither sees a new face that spreads within its plane over empty space (a grip's opening covered), ``R``
     does. The rest pose only: the example poses would multiply its cost by their number. A source face is
     skipped when it cannot be nearer than the nearest so far: a triangle lies within ``reach`` of its first
-    corner A, so its distance is at least ``|g - A| - reach`` (the minimum is the same as without the test).
+    corner A, so its distance is at least ``|g - A| - reach``, and a whole subtree of the merge tree when g is
+    farther than ``best`` from its ball (:func:`_nearest_source`): the minimum is the same as without the tests.
     """
-    F, pos, pc, rem, F0 = mesh.F, vx.pos, s.pc, s.rem, mem.F0
+    F, pos, pc, rem, tri = mesh.F, vx.pos, s.pc, s.rem, mem.tri0
     found = np.empty(nrem)
     count = 0
     for i in range(nrem):
@@ -228,25 +365,10 @@ def face_error(a, b, nrem, mesh, vx, mem, s):
         g1 = (X[1] + Y[1] + Z[1]) / 3.0
         g2 = (X[2] + Y[2] + Z[2]) / 3.0
         best = np.inf
-        far = np.inf                     # a face whose first corner is farther than this cannot be nearer
-        for start in (mem.head[a], mem.head[b], -1 if (x == a or x == b) else mem.head[x],
-                      -1 if (y == a or y == b) else mem.head[y], -1 if (z == a or z == b) else mem.head[z]):
-            p = start
-            while p >= 0:
-                for k in range(mem.vf0_start[p], mem.vf0_start[p] + mem.vf0_cnt[p]):
-                    g = mem.vf0_pool[k]
-                    A = pos[F0[g, 0], 0]
-                    e0, e1, e2 = g0 - A[0], g1 - A[1], g2 - A[2]
-                    if far < np.inf:
-                        lim = (1.0 + 1e-9) * (far + mem.reach0[g])
-                        if e0 * e0 + e1 * e1 + e2 * e2 > lim * lim:
-                            continue
-                    B, C = pos[F0[g, 1], 0], pos[F0[g, 2], 0]
-                    d = point_triangle_distance2(g0, g1, g2, A[0], A[1], A[2], B[0], B[1], B[2], C[0], C[1], C[2])
-                    if d < best:
-                        best = d
-                        far = np.sqrt(d)
-                p = mem.nxt[p]
+        for root in (a, b, -1 if (x == a or x == b) else x, -1 if (y == a or y == b) else y,
+                     -1 if (z == a or z == b) else z):
+            if root >= 0:
+                best = _nearest_source(g0, g1, g2, root, mem, tri, best)
         if best < np.inf:
             found[count] = best
             count += 1
@@ -369,6 +491,7 @@ def evaluate_dirty(cm, vx, ed, qu, cnt, fixed, along):
                                     ed.ev[d], ed.ew[d])
         ed.estate[d] = CLEAN
         ed.esrc[d] = 0.0
+        ed.stime[d] = -1
         ed.estamp[d] += 1
         push(qu.hc, qu.hs, qu.he, cnt, ed.ecost[d], ed.estamp[d], d, ed.estamp, ed.estate)
 
@@ -429,15 +552,10 @@ def link_ok(a, b, mesh, cnt, s):
 
 
 @njit(cache=True)
-def folds(a, b, v, w, nrem, mesh, vx, cm, s, tiny, min_normal_cos):
-    """Whether moving a and b to the new vertex folds a surviving face, in the rest pose or any example pose.
-
-    Fills ``s.pc`` with the new vertex's positions (rest, then each pose: ``sum_k w_k T_k^j [v; 1]``). A face
-    folds when its normal turns by more than ``arccos(min_normal_cos)``, or degenerates (``|n| <= tiny``).
-    """
-    F, pos, T, pc, Xw, q, o, rem = mesh.F, vx.pos, cm.T, s.pc, s.Xw, s.q, s.o, s.rem
+def posed_vertex(v, w, T, s):
+    """``s.pc``: the new vertex at rest (v) and in each example pose j, ``sum_k w_k T_k^j [v; 1]``."""
+    pc, Xw = s.pc, s.Xw
     P, n = T.shape[0], T.shape[1]
-    P1 = pos.shape[1]
     for t in range(3):
         pc[0, t] = v[t]
     for j in range(P):
@@ -449,6 +567,18 @@ def folds(a, b, v, w, nrem, mesh, vx, cm, s, tiny, min_normal_cos):
                 Xw[r, c] = acc
         for r in range(3):
             pc[j + 1, r] = Xw[r, 0] * v[0] + Xw[r, 1] * v[1] + Xw[r, 2] * v[2] + Xw[r, 3]
+
+
+@njit(cache=True)
+def folds(a, b, v, w, nrem, mesh, vx, cm, s, tiny, min_normal_cos):
+    """Whether moving a and b to the new vertex folds a surviving face, in the rest pose or any example pose.
+
+    Fills ``s.pc`` with the new vertex's positions (:func:`posed_vertex`). A face
+    folds when its normal turns by more than ``arccos(min_normal_cos)``, or degenerates (``|n| <= tiny``).
+    """
+    F, pos, pc, q, o, rem = mesh.F, vx.pos, s.pc, s.q, s.o, s.rem
+    P1 = pos.shape[1]
+    posed_vertex(v, w, cm.T, s)
     for i in range(nrem):
         f = rem[i]
         for j in range(P1):
@@ -492,6 +622,9 @@ def apply_collapse(e, a, b, nrem, nfab, mesh, vx, ed, cnt, s, mem):
     mem.head[c] = mem.head[a]             # c stands for the originals of a, then those of b
     mem.nxt[mem.tail[a]] = mem.head[b]
     mem.tail[c] = mem.tail[b]
+    mem.kid[c, 0], mem.kid[c, 1] = a, b
+    mem.size[c] = mem.size[a] + mem.size[b]
+    merge_ball(mem.ball, a, b, c)
     # along its curve c stays on it; onto a corner or a fixed end it takes that end's class
     if boundary[a] and boundary[b]:
         along[c] = along[a] if along[a] == along[b] else 0
@@ -560,6 +693,7 @@ def requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s, Qv, normalised):
     wb = quadric_weight(Qv, b) if normalised else 1.0
     for i in range(nu):
         x = uni[i]
+        mesh.changed[x] = cnt[C_COLLAPSES] + 1       # x's faces now have c for a or b
         wx = quadric_weight(Qv, x) if normalised else 0.0
         lb = cost_ab * (wa + wb) if normalised else cost_ab
         for y in (a, b):
@@ -573,6 +707,7 @@ def requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s, Qv, normalised):
         if not _collapsible(x, c, boundary, along, F, vf_start, vf_cnt, pool, charts):
             continue
         en = edge_add(x, c, N, ea, eb, estamp, free, cnt, hk, hv)
+        ed.stime[en] = -1
         ecost[en] = lb
         estate[en] = DIRTY
         if not in_dirty[en]:
@@ -628,18 +763,23 @@ def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, cm, mesh, vx, ed,
             cnt[C_TRIES] += 1
             a, b = ed.ea[e], ed.eb[e]
             ok, nrem, nu, nfab = link_ok(a, b, mesh, cnt, s)
-            if ok:                           # fold-over guard in the rest pose and every example pose
+            # S was added with nothing around a and b changed since: the guards and S would give what they gave
+            same = ed.stime[e] >= 0 and mesh.changed[a] <= ed.stime[e] and mesh.changed[b] <= ed.stime[e]
+            if ok and not same:              # fold-over guard in the rest pose and every example pose
                 ok = not folds(a, b, ed.ev[e], ed.ew[e], nrem, mesh, vx, cm, s, tiny, min_normal_cos)
+            elif ok:
+                posed_vertex(ed.ev[e], ed.ew[e], cm.T, s)
             if not ok:
                 ed.estate[e] = BLOCKED
                 continue
-            if cm.fp[4] != 0.0:              # the source-side error S, added to the quadric cost when first seen
+            if cm.fp[4] != 0.0 and not same:  # the source-side error S, added to the quadric cost when first seen
                 h = source_error(a, b, nrem, mesh, vx, mem, s, cm.fp[5] != 0.0)
                 if h < cm.fp[2]:
                     h = 0.0
                 if h > ed.esrc[e]:           # not yet in its cost: add it and queue the edge again
                     ed.ecost[e] += h - ed.esrc[e]
                     ed.esrc[e] = h
+                    ed.stime[e] = cnt[C_COLLAPSES]
                     ed.estamp[e] += 1
                     push(qu.hc, qu.hs, qu.he, cnt, ed.ecost[e], ed.estamp[e], e, ed.estamp, ed.estate)
                     continue

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["BEST", "BLOCKED", "BORDER", "CLEAN", "DEAD", "DECORO", "DIRTY", "FREE", "KEEP_A", "KEEP_B", "MOHR_GLEICHER",
-           "NONE", "QUARTIC", "SEAM", "EdgeSetup", "border_vertices", "collapsible_edges", "degenerate_area",
-           "placement", "placements", "seam_arrays", "zero_cost"]
+           "NONE", "QUARTIC", "SEAM", "SOURCE_SAMPLES", "EdgeSetup", "border_vertices", "collapsible_edges",
+           "degenerate_area", "placement", "placements", "seam_arrays", "zero_cost"]
 
 #: Edge states: queued with its true cost, queued with a lower bound, removed, refused by a guard.
 CLEAN, DIRTY, DEAD, BLOCKED = 0, 1, 2, 3
@@ -24,6 +24,9 @@ SEAM, BORDER = 1, 2
 #: Where a collapse puts the merged vertex (:func:`placement`): not at all, where the cost model says,
 #: at a (half-edge collapse onto a), at b, at whichever end costs less.
 NONE, FREE, KEEP_A, KEEP_B, BEST = -1, 0, 1, 2, 3
+#: At most about this many of the originals that a collapse's two vertices stand for enter its source-side
+#: error (:func:`rigslim.plugins.decimation.compiled.source_error`): every s-th beyond it.
+SOURCE_SAMPLES = 512
 
 
 def placement(fixed_a: bool, fixed_b: bool, along_a: int, along_b: int) -> int:

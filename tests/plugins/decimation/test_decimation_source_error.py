@@ -141,7 +141,7 @@ def test_the_face_side_error_is_the_new_faces_distance_from_the_source():
     m = len(V)
     mem = cc.new_members(m, F, _vertex_faces(F, m), V)
     z = np.zeros(1, np.int64)
-    mesh = cc.LoopMesh(F.copy(), z, z, z, np.zeros(1, bool), z, z, z)
+    mesh = cc.LoopMesh(F.copy(), z, z, z, np.zeros(1, bool), z, z, z, z)
     pos = np.zeros((2 * m, 2, 3))
     pos[:m, 0] = pos[:m, 1] = V
     vx = cc.LoopVertices(pos[:, 0].copy(), np.ones((2 * m, 1)), np.zeros((2 * m, 1, 4, 4)), pos)
@@ -150,3 +150,109 @@ def test_the_face_side_error_is_the_new_faces_distance_from_the_source():
     for h, want in ((0.3, (0.3 / 3) ** 2), (0.0, 0.0)):
         s.pc[:] = [1.0, 0.5, h]
         assert cc.face_error(1, 2, 1, mesh, vx, mem, s) == pytest.approx(want, rel=1e-12, abs=1e-15)
+
+
+def merged_members(V, F, order):
+    """``new_members`` of (V, F), then the vertices merged pairwise in ``order`` (pairs of current vertex ids;
+    the i-th merge makes vertex m + i), as the compiled loop's ``apply_collapse`` links them."""
+    from rigslim.plugins.decimation import compiled as cc
+    from rigslim.plugins.decimation.collapse import _vertex_faces
+
+    m = len(V)
+    mem = cc.new_members(m, F, _vertex_faces(F, m), V)
+    for i, (a, b) in enumerate(order):
+        c = m + i
+        mem.head[c] = mem.head[a]
+        mem.nxt[mem.tail[a]] = mem.head[b]
+        mem.tail[c] = mem.tail[b]
+        mem.kid[c] = a, b
+        mem.size[c] = mem.size[a] + mem.size[b]
+        cc.merge_ball(mem.ball, a, b, c)
+    return mem
+
+
+def random_merges(m: int, rng, n: int) -> list[tuple[int, int]]:
+    """``n`` merges of random pairs of live vertices."""
+    live, out = list(range(m)), []
+    for i in range(n):
+        a, b = rng.choice(len(live), 2, replace=False)
+        out.append((live[a], live[b]))
+        live = [x for j, x in enumerate(live) if j not in (a, b)] + [m + i]
+    return out
+
+
+def test_the_merge_tree_search_finds_the_nearest_source_face_of_a_brute_force():
+    """Every merged vertex's ball holds its originals' faces, and the pruned depth-first search returns the
+    exact minimum over them (the face-side error's nearest source face)."""
+    from rigslim.plugins.decimation import compiled as cc
+
+    rng = np.random.default_rng(5)
+    V, F, _ = finned_ring(n_around=16, n_edge=2)
+    m = len(V)
+    mem = merged_members(V, F, random_merges(m, rng, m - 4))
+    faces_of = [set() for _ in range(2 * m)]
+    for p in range(m):
+        faces_of[p] = {int(f) for f in mem.vf0_pool[mem.vf0_start[p]:mem.vf0_start[p] + mem.vf0_cnt[p]]}
+    for c in range(m, 2 * m - 4):
+        faces_of[c] = faces_of[mem.kid[c, 0]] | faces_of[mem.kid[c, 1]]
+        corners = V[F[sorted(faces_of[c])]].reshape(-1, 3)
+        assert np.linalg.norm(corners - mem.ball[c, :3], axis=1).max() <= mem.ball[c, 3] * (1 + 1e-12)
+    for c in rng.choice(np.arange(m, 2 * m - 4), 40, replace=False):
+        fs = sorted(faces_of[c])
+        for g in V.min(0) + rng.uniform(size=(5, 3)) * np.ptp(V, axis=0):
+            want = point_triangle_distances2(g[None], V[F[fs, 0]], V[F[fs, 1]], V[F[fs, 2]]).min()
+            got = cc._nearest_source(g[0], g[1], g[2], c, mem, mem.tri0, np.inf)
+            assert got == pytest.approx(want, rel=1e-12, abs=1e-300)
+
+
+def test_a_large_source_set_enters_the_source_error_as_a_spread_sample():
+    """With more than SOURCE_SAMPLES originals under a and b, every s-th of their list is measured: the
+    compiled error equals the weighted mean over that sample, computed by brute force."""
+    from rigslim.plugins.decimation import compiled as cc
+    from rigslim.plugins.decimation.setup import SOURCE_SAMPLES
+
+    rng = np.random.default_rng(2)
+    m = 3 * SOURCE_SAMPLES + 7
+    V = rng.normal(size=(m, 3))
+    F = np.array([[0, 1, 2], [1, 2, 3]], np.int64)
+    order, ends = [], []
+    for lo, hi in ((0, m // 2), (m // 2, m)):                                # a and b: two long chains
+        x = lo
+        for y in range(lo + 1, hi):
+            order.append((x, y))
+            x = m + len(order) - 1
+        ends.append(x)
+    mem = merged_members(V, F, order)
+    a, b = ends
+    pts = []
+    for x in (a, b):
+        p = mem.head[x]
+        while p >= 0:
+            pts.append(p)
+            p = mem.nxt[p]
+    assert sorted(pts) == list(range(m))
+    P = 2
+    pos = np.zeros((2 * m, P + 1, 3))
+    pos[:m, 0] = V
+    for j in range(P):
+        pos[:m, j + 1] = V + 0.1 * (j + 1)
+    Qv = np.zeros((2 * m, P, 4, 4))
+    Qv[:m, :, 0, 0] = rng.uniform(0.5, 2.0, (m, P))
+    vx = cc.LoopVertices(pos[:, 0].copy(), np.ones((2 * m, 1)), Qv, pos)
+    Fl = np.array([[a, 10, 11], [a, 11, 12], [b, 12, 13]], np.int64)       # faces around the merged vertex
+    z = np.zeros(1, np.int64)
+    mesh = cc.LoopMesh(Fl, z, z, z, np.zeros(1, bool), z, z, z, z)
+    s = cc.new_scratch(P)
+    s.rem[:3] = [0, 1, 2]
+    s.pc[:] = rng.normal(size=(P + 1, 3))
+    got = cc.source_error(a, b, 3, mesh, vx, mem, s, False)
+    sample = np.array(pts)[::-(-m // SOURCE_SAMPLES)]
+    assert 300 < len(sample) <= SOURCE_SAMPLES
+    num = den = 0.0
+    for p in sample:
+        for j in range(P):
+            T = np.where(np.isin(Fl, [a, b])[..., None], s.pc[j + 1], pos[Fl, j + 1])
+            d = point_triangle_distances2(np.repeat(pos[p, j + 1][None], 3, 0), T[:, 0], T[:, 1], T[:, 2]).min()
+            num += Qv[p, j, 0, 0] * d
+            den += Qv[p, j, 0, 0]
+    assert got == pytest.approx(num / den, rel=1e-12)
