@@ -4,7 +4,8 @@ For test pose ``j`` (never an example pose), the full mesh is posed with the inp
 ``x_v^j = sum_i a_vi T_i^j [v; 1]``, and level ``l`` with its own weights; the two-sided surface
 distance between them (Metro's principle, Cignoni et al. 1998: the vertices and ``samples`` area-uniform
 points of each surface, each one's exact distance to the other surface,
-:func:`rigslim.numerics.surface_distance.exact_sampled_distance`) gives ``rms_j`` and ``max_j``. A level's
+:func:`rigslim.numerics.surface_distance.exact_sampled_distance`; each mesh's bounding-volume hierarchy is
+built once and refitted to every frame) gives ``rms_j`` and ``max_j``. A level's
 error is
 
     error_rms = mean_j rms_j,   error_max = max_j max_j      (the units of the poses: metres for glTF),
@@ -33,7 +34,7 @@ def bounding_radius(V: np.ndarray, weights, T: np.ndarray) -> float:
     return 0.5 * float(np.linalg.norm(X.max(axis=0) - X.min(axis=0))) if len(X) else 0.0
 
 
-def level_errors(mesh, weights, T: np.ndarray, levels, samples: int = 20000) -> list[dict]:
+def level_errors(mesh, weights, T: np.ndarray, levels, samples: int = 20000, backend: str = "bvh") -> list[dict]:
     """Per level ``{"label", "error_max", "error_rms", "per_frame_max", "per_frame_rms"}`` over the poses ``T``.
 
     Parameters
@@ -45,12 +46,14 @@ def level_errors(mesh, weights, T: np.ndarray, levels, samples: int = 20000) -> 
     levels : list of SimplifiedLevel
     samples : int
         Area-uniform samples per surface and frame (besides the vertices).
+    backend : {"bvh", "meshlab", "libigl"}
+        Who measures the exact distances (:func:`rigslim.numerics.surface_distance.exact_sampled_distance`).
     """
     full = [linear_blend(mesh.V, weights, T[j]) for j in range(len(T))]
     full_samples = [surface_samples(X, mesh.F, samples, seed=1) for X in full]     # shared by every level
     jobs = ((linear_blend(level.mesh.V, level.weights, T[j]), level.mesh.F, full[j], mesh.F, samples, None,
              full_samples[j]) for level in levels for j in range(len(T)))          # posed as they are measured
-    d = exact_sampled_distances(jobs)
+    d = exact_sampled_distances(jobs, backend=backend)
     out = []
     for i, level in enumerate(levels):
         rms = [x["rms"] for x in d[i * len(T):(i + 1) * len(T)]]

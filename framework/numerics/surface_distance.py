@@ -177,7 +177,7 @@ def _distances(P: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
 def degenerate_distance(V1, F1, V2, F2, samples: int = 20000) -> dict:
     """:func:`metro_distance` for meshes pymeshlab must not see: the same two-sided RMS and max over
     :func:`surface_samples` of each mesh, each distance exact (:func:`_distances`)."""
-    return exact_sampled_distance(V1, F1, V2, F2, samples, meshlab=False)
+    return exact_sampled_distance(V1, F1, V2, F2, samples, backend="libigl")
 
 
 class _Worker:
@@ -279,24 +279,38 @@ def _combined(a: np.ndarray, b: np.ndarray) -> dict:
     return {"rms": float(np.sqrt((a[0] + b[0]) / n)), "max": float(max(a[1], b[1])), "n_samples": int(n)}
 
 
-def exact_sampled_distance(V1, F1, V2, F2, samples: int = 5000, P1=None, P2=None, *, meshlab: bool = True) -> dict:
+def exact_sampled_distance(V1, F1, V2, F2, samples: int = 5000, P1=None, P2=None, *,
+                           backend: str = "bvh") -> dict:
     """:func:`degenerate_distance`'s figures for any two surfaces, repeatable.
 
     Each side's :func:`surface_samples` (seeds 0 and 1; ``P1``, ``P2``: the same, computed before) and each
-    sample's exact distance to the other surface: MeshLab's grid (:func:`_pymeshlab_cloud`) for regular
-    surfaces when pymeshlab is installed (and ``meshlab``), else libigl's AABB (:func:`_distances`); the two
-    agree to round-off. Then ``rms = sqrt(sum_i d_i^2 / n)`` over both sides' ``n`` samples and
-    ``max = max_i d_i``. Unlike :func:`metro_distance` every vertex is a sample and no sample comes from
-    MeshLab's random generator, so the figures do not depend on what ran before.
+    sample's exact distance to the other surface. ``backend``: ``"bvh"`` (default) rigslim's compiled,
+    threaded bounding-volume hierarchy (:mod:`rigslim.numerics.point_mesh_distance`), ``"meshlab"`` MeshLab's
+    grid (:func:`_pymeshlab_cloud`; regular surfaces only, others go to libigl), ``"libigl"`` libigl's AABB
+    (:func:`_distances`); the three agree to round-off (float32's for MeshLab). Then
+    ``rms = sqrt(sum_i d_i^2 / n)`` over both sides' ``n`` samples and ``max = max_i d_i``. Unlike
+    :func:`metro_distance` every vertex is a sample and no sample comes from MeshLab's random generator, so
+    the figures do not depend on what ran before.
     """
-    return exact_sampled_distances([(V1, F1, V2, F2, samples, P1, P2)], meshlab=meshlab)[0]
+    return exact_sampled_distances([(V1, F1, V2, F2, samples, P1, P2)], backend=backend)[0]
 
 
-def exact_sampled_distances(jobs, *, meshlab: bool = True) -> list[dict]:
+def exact_sampled_distances(jobs, *, backend: str = "bvh") -> list[dict]:
     """``[exact_sampled_distance(*args) for args in jobs]``, each ``args`` ``(V1, F1, V2, F2, samples, P1,
-    P2)``, pipelined: while MeshLab measures one job on the pymeshlab thread (its filter runs without the
+    P2)``. With ``bvh`` each triangle list (by identity: a level's faces, the full mesh's) gets one hierarchy,
+    refitted to each job's positions (the posed frames of one mesh share it). With ``meshlab`` the jobs are
+    pipelined: while MeshLab measures one job on the pymeshlab thread (its filter runs without the
     interpreter lock), this thread samples the next."""
-    pool = _pymeshlab_thread() if meshlab and pymeshlab_available() else None
+    if backend not in ("bvh", "meshlab", "libigl"):
+        raise ValueError(f"backend {backend!r}: use 'bvh', 'meshlab' or 'libigl'")
+    if backend == "bvh":
+        trees = _Trees()
+        figures = []
+        for V1, F1, V2, F2, samples, P1, P2 in jobs:
+            (Q1, W2, G2), (Q2, W1, G1) = _sides(V1, F1, V2, F2, samples, P1, P2, False)[1]
+            figures.append(_combined(trees.side(Q1, W2, G2, F2), trees.side(Q2, W1, G1, F1)))
+        return figures
+    pool = _pymeshlab_thread() if backend == "meshlab" and pymeshlab_available() else None
     pending: list[list] = []        # per job, its two sides: MeshLab's queued calls or libigl's figures
     for args in jobs:
         V1, F1, V2, F2, samples, P1, P2 = args
@@ -304,3 +318,30 @@ def exact_sampled_distances(jobs, *, meshlab: bool = True) -> list[dict]:
         pending.append([pool.submit(_pymeshlab_cloud, *side) if on_meshlab and pool is not None
                         else _libigl_side(*side) for side in sides])
     return [_combined(*(_Worker.result(*x) if isinstance(x, tuple) else x for x in sides)) for sides in pending]
+
+
+class _Trees:
+    """The bounding-volume hierarchies of one run of jobs, one per triangle list (kept by identity, with a
+    reference so the identity stays that list's), refitted when the positions change; and the nearest
+    triangles found for the last point set of each size measured against each list, the first guesses of the
+    next (the same samples in the next frame: the search then mostly confirms the guess)."""
+
+    def __init__(self) -> None:
+        self._by: dict[int, tuple] = {}
+        self._guess: dict[tuple[int, int], np.ndarray] = {}     # nearest triangles found last, by target, count
+
+    def side(self, P: np.ndarray, V: np.ndarray, F: np.ndarray, key) -> np.ndarray:
+        """:func:`_libigl_side`'s figures from the hierarchy of ``F`` (``key``: the caller's face array)."""
+        from rigslim.numerics.point_mesh_distance import build_tree, point_mesh_squared_distances, refit_tree
+
+        if not len(F) or not len(P):
+            return _libigl_side(P, V, F)
+        held = self._by.get(id(key))
+        if held is None or held[0] is not key:
+            tree = build_tree(V, F)
+        else:
+            tree = held[1] if held[2] is V else refit_tree(held[1], V, F)
+        self._by[id(key)] = (key, tree, V)
+        guess = self._guess.setdefault((id(key), len(P)), np.full(len(P), -1, np.int64))
+        d2 = np.maximum(point_mesh_squared_distances(P, V, F, tree, guess), 0.0)
+        return np.array([float(d2.sum()), float(np.sqrt(d2.max())), float(len(d2))])

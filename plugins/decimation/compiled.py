@@ -33,6 +33,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
+from rigslim.numerics.point_mesh_distance import point_triangle_distance2
 from rigslim.plugins.decimation.edge_costs import collapse_cost, quadric_weight
 from rigslim.plugins.decimation.edge_queue import (
     C_COLLAPSES,
@@ -148,52 +149,6 @@ def merge_ball(ball, a, b, c):
         t = (r - ra) / d
         ball[c, 0], ball[c, 1], ball[c, 2] = ball[a, 0] + t * d0, ball[a, 1] + t * d1, ball[a, 2] + t * d2
         ball[c, 3] = r
-
-
-@njit(cache=True)
-def point_triangle_distance2(p0, p1, p2, a0, a1, a2, b0, b1, b2, c0, c1, c2):
-    """Squared distance from point p to triangle (a, b, c): the closest point by Voronoi regions
-    (Ericson 2005, *Real-Time Collision Detection*, sec. 5.1.5)."""
-    ab0, ab1, ab2 = b0 - a0, b1 - a1, b2 - a2
-    ac0, ac1, ac2 = c0 - a0, c1 - a1, c2 - a2
-    ap0, ap1, ap2 = p0 - a0, p1 - a1, p2 - a2
-    d1 = ab0 * ap0 + ab1 * ap1 + ab2 * ap2
-    d2 = ac0 * ap0 + ac1 * ap1 + ac2 * ap2
-    if d1 <= 0.0 and d2 <= 0.0:
-        return ap0 * ap0 + ap1 * ap1 + ap2 * ap2
-    bp0, bp1, bp2 = p0 - b0, p1 - b1, p2 - b2
-    d3 = ab0 * bp0 + ab1 * bp1 + ab2 * bp2
-    d4 = ac0 * bp0 + ac1 * bp1 + ac2 * bp2
-    if d3 >= 0.0 and d4 <= d3:
-        return bp0 * bp0 + bp1 * bp1 + bp2 * bp2
-    vc = d1 * d4 - d3 * d2
-    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        t = d1 / (d1 - d3)
-        q0, q1, q2 = ap0 - t * ab0, ap1 - t * ab1, ap2 - t * ab2
-        return q0 * q0 + q1 * q1 + q2 * q2
-    cp0, cp1, cp2 = p0 - c0, p1 - c1, p2 - c2
-    d5 = ab0 * cp0 + ab1 * cp1 + ab2 * cp2
-    d6 = ac0 * cp0 + ac1 * cp1 + ac2 * cp2
-    if d6 >= 0.0 and d5 <= d6:
-        return cp0 * cp0 + cp1 * cp1 + cp2 * cp2
-    vb = d5 * d2 - d1 * d6
-    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-        t = d2 / (d2 - d6)
-        q0, q1, q2 = ap0 - t * ac0, ap1 - t * ac1, ap2 - t * ac2
-        return q0 * q0 + q1 * q1 + q2 * q2
-    va = d3 * d6 - d5 * d4
-    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        q0, q1, q2 = bp0 - t * (c0 - b0), bp1 - t * (c1 - b1), bp2 - t * (c2 - b2)
-        return q0 * q0 + q1 * q1 + q2 * q2
-    den = va + vb + vc
-    if den == 0.0:                   # a degenerate triangle: the nearest of its corners
-        return min(ap0 * ap0 + ap1 * ap1 + ap2 * ap2, min(bp0 * bp0 + bp1 * bp1 + bp2 * bp2,
-                                                         cp0 * cp0 + cp1 * cp1 + cp2 * cp2))
-    v = vb / den
-    w = vc / den
-    q0, q1, q2 = ap0 - v * ab0 - w * ac0, ap1 - v * ab1 - w * ac1, ap2 - v * ab2 - w * ac2
-    return q0 * q0 + q1 * q1 + q2 * q2
 
 
 @njit(cache=True)

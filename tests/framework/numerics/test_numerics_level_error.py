@@ -25,8 +25,8 @@ def _grid(n=12, z=0.0):
 
 def test_parallel_planes_are_their_offset_apart():
     V, F = _grid()
-    for meshlab in (False, True):
-        d = exact_sampled_distance(V, F, V + [0, 0, 0.05], F, samples=3000, meshlab=meshlab)
+    for backend in ("bvh", "libigl", "meshlab"):
+        d = exact_sampled_distance(V, F, V + [0, 0, 0.05], F, samples=3000, backend=backend)
         assert d["max"] == pytest.approx(0.05, rel=1e-6) and d["rms"] == pytest.approx(0.05, rel=1e-6)
 
 
@@ -45,14 +45,17 @@ def test_exact_sampled_distance_agrees_with_metro_on_a_bump():
     assert a["rms"] == pytest.approx(b["rms"], rel=0.05)
 
 
-def test_meshlab_and_libigl_give_the_same_exact_distances():
-    """The same samples, each distance exact either way: the two backends agree to float32 round-off."""
+def test_meshlab_libigl_and_the_hierarchy_give_the_same_exact_distances():
+    """The same samples, each distance exact every way: the hierarchy and libigl agree to double round-off,
+    MeshLab to float32's."""
     pytest.importorskip("pymeshlab")
     W, V, F = _bump()
-    a = exact_sampled_distance(W, F, V, F, 5000, meshlab=True)
-    b = exact_sampled_distance(W, F, V, F, 5000, meshlab=False)
-    assert a["n_samples"] == b["n_samples"]
+    a = exact_sampled_distance(W, F, V, F, 5000, backend="meshlab")
+    b = exact_sampled_distance(W, F, V, F, 5000, backend="libigl")
+    c = exact_sampled_distance(W, F, V, F, 5000, backend="bvh")
+    assert a["n_samples"] == b["n_samples"] == c["n_samples"]
     assert a["max"] == pytest.approx(b["max"], rel=1e-5) and a["rms"] == pytest.approx(b["rms"], rel=1e-5)
+    assert c["max"] == pytest.approx(b["max"], rel=1e-12) and c["rms"] == pytest.approx(b["rms"], rel=1e-12)
 
 
 def test_level_errors_pose_each_level_with_its_own_weights():
@@ -92,7 +95,7 @@ def test_level_errors_are_repeatable_and_agree_with_one_backend():
         for j in range(len(T)):
             X = level.mesh.V + T[j, 0, :, 3]
             ref = exact_sampled_distance(X, level.mesh.F, V, F, 3000, None, surface_samples(V, F, 3000, seed=1),
-                                         meshlab=False)
+                                         backend="libigl")
             assert a[i]["per_frame_max"][j] == pytest.approx(ref["max"], rel=1e-5, abs=1e-9)
             assert a[i]["per_frame_rms"][j] == pytest.approx(ref["rms"], rel=1e-5, abs=1e-9)
     assert a[0]["per_frame_max"][-1] > a[0]["per_frame_max"][0] > 0
