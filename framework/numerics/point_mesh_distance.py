@@ -279,7 +279,9 @@ def point_mesh_squared_distances(P: np.ndarray, V: np.ndarray, F: np.ndarray,
     P = np.ascontiguousarray(P, np.float64).reshape(-1, 3)
     tree = build_tree(V, F) if tree is None else tree
     out = np.empty(len(P))
-    if nearest is None or len(nearest) != len(P):
+    if nearest is None or len(nearest) != len(P) or nearest.dtype != np.int64:
         nearest = np.full(len(P), -1, np.int64)
+    else:                            # a guess beyond these triangles (another mesh's) is no guess
+        nearest[nearest >= len(F)] = -1
     _query(P, V, F, tree.lo, tree.hi, tree.kid, tree.first, tree.count, tree.perm, out, nearest)
     return out

@@ -75,3 +75,19 @@ def test_the_tree_holds_every_triangle_once_and_its_boxes_hold_their_triangles()
     inner = np.flatnonzero(~leaves)
     for k in (tree.kid[inner], tree.kid[inner] + 1):
         assert (tree.lo[k] >= tree.lo[inner]).all() and (tree.hi[k] <= tree.hi[inner]).all()
+
+
+def test_first_guesses_change_no_distance_and_stale_ones_are_ignored():
+    """Guesses found on the same mesh, and guesses of another, larger mesh (indices beyond these triangles),
+    give the same distances as no guess; the guesses are overwritten with the nearest triangles."""
+    rng = np.random.default_rng(2)
+    V, F = _sphere(3)
+    P = rng.normal(size=(200, 3))
+    ref = point_mesh_squared_distances(P, V, F)
+    found = np.full(len(P), -1, np.int64)
+    np.testing.assert_array_equal(point_mesh_squared_distances(P, V, F, nearest=found), ref)
+    assert found.min() >= 0 and found.max() < len(F)
+    np.testing.assert_array_equal(point_mesh_squared_distances(P, V, F, nearest=found), ref)
+    stale = np.full(len(P), len(F) + 1000, np.int64)
+    np.testing.assert_array_equal(point_mesh_squared_distances(P, V, F, nearest=stale), ref)
+    assert stale.max() < len(F)
