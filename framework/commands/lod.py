@@ -14,6 +14,7 @@ from rigslim.commands.gltf_common import (
     _emit_report,
     _gltf_input,
     _header,
+    _joint_count,
     _poses,
     clip_frames,
     command_session,
@@ -128,6 +129,7 @@ def cmd_lod(args) -> int:
         frames, clip, duration = clip_frames(src, args.clip, args.fps, source)
         unnormalised = unnormalised_note("lod", src.name, source)
         if frames < 2:
+            _joint_count(src, source)              # a file without a skin is refused before the note
             print(f"rigslim lod: {no_motion(src.name, clip, duration)}: simplifying for the rest pose only",
                   file=sys.stderr)
         console = _console(args)
@@ -154,8 +156,9 @@ def cmd_lod(args) -> int:
         _emit_report(args, doc)
     faces = ", ".join(f"{r['faces']}" for r in rows)
     if rows:
-        print(f"wrote {', '.join(str(p) for p in outputs)}: {len(rows)} levels ({faces} faces of "
-              f"{doc['input_faces']}), at most {args.max_bones} bones per vertex, {seconds:.2f} s")
+        levels = f"{len(rows)} level{'' if len(rows) == 1 else 's'}"
+        print(f"wrote {', '.join(str(p) for p in outputs)}: {levels} ({faces} faces of {doc['input_faces']}), "
+              f"at most {args.max_bones} bones per vertex, {seconds:.2f} s")
     else:
         wrote = doc.get("sidecar") if args.split else out
         print(f"wrote {wrote}: no level (every target ends at the source's {doc['input_faces']} faces), "

@@ -214,21 +214,38 @@ def test_reduce_defaults_to_best_fit_by_error_fitted_on_every_clip(tmp_path, cap
     assert [c["clip"] for c in doc["run"]["frames"]["clips"]["test"]] == ["Wuson_Walk"]
 
 
-def test_reduce_without_animation_falls_back_to_k_largest(tmp_path, valid, capsys):
-    """RiggedSimple-like input without clips: a file with its animations removed."""
-    src = load_gltf(GLTF / "huesitos.glb")
-    js = dict(src.json)
-    js.pop("animations")
-    f = tmp_path / "still.glb"
+def _without(path: Path, out: Path, *keys: str) -> Path:
+    """A copy of the .glb ``path`` with the top-level JSON ``keys`` removed (its binary chunk unchanged)."""
+    src = load_gltf(path)
+    js = {k: v for k, v in src.json.items() if k not in keys}
+    for node in js.get("nodes", []):
+        if "skins" in keys:
+            node.pop("skin", None)
     text = json.dumps(js).encode()
     text += b" " * ((-len(text)) % 4)
     binary = src.buffers[0]
     binary += b"\0" * ((-len(binary)) % 4)
     body = struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(binary), 0x004E4942) + binary
-    f.write_bytes(struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body)
+    out.write_bytes(struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body)
+    return out
+
+
+def test_reduce_without_animation_falls_back_to_k_largest(tmp_path, valid, capsys):
+    """RiggedSimple-like input without clips: a file with its animations removed."""
+    f = _without(GLTF / "huesitos.glb", tmp_path / "still.glb", "animations")
     assert main(["reduce", str(f), "-o", str(tmp_path / "o.glb"), "-k", "2"]) == 0
     assert "falling back to k-largest" in capsys.readouterr().err
     valid(tmp_path / "o.glb")
+
+
+def test_lod_refuses_a_mesh_without_skin_before_any_note(tmp_path, capsys):
+    """A static prop (no skin, no clip; assimp's Collada duck is one): one error line, not first the note
+    "simplifying for the rest pose only" and then the error."""
+    f = _without(GLTF / "huesitos.glb", tmp_path / "prop.glb", "animations", "skins")
+    assert main(["lod", str(f), "-o", str(tmp_path / "o.glb")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "skins: the file has no skin" in err and "\n" not in err and "rest pose" not in err
+    assert not (tmp_path / "o.glb").exists()
 
 
 @pytest.mark.parametrize("argv, match", [
