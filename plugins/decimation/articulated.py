@@ -19,6 +19,7 @@ from rigslim.errors import StepError
 from rigslim.model.asset import Asset
 from rigslim.plugin import Decimation, Decimator, Params, StepContext
 from rigslim.plugins.decimation.levels import SOURCE, choose_levels, collapse_distances, parse_max_error, target_name
+from rigslim.plugins.decimation.twins import back_faces, with_back_faces
 
 
 class AdaptiveTarget(Params):
@@ -317,11 +318,14 @@ class ArticulatedDecimator(Decimator):
         faces = target_faces(params.targets, asset.mesh.n_faces)
         min_faces = params.min_faces if params.min_faces is not None else (min(faces) if faces else 70)
         with clock("quadrics"):
-            Q, W, T, X, model = self.setup(asset, params)
+            back = back_faces(asset.mesh.F)            # double-sided sheets: simplified once (twins.py)
+            Q, W, T, X, model = self.setup(asset, params, back)
         with clock("seams"):
             locked, seams = seam_lock(asset, params.seams_collapse_along, params.seams)
+            if seams is not None:
+                seams = (seams[0], seams[1][~back])
         with clock("collapses"):
-            hier = self.collapse(asset, params, W, T, X, model, min_faces, locked, seams, ctx)
+            hier = self.collapse(asset, params, W, T, X, model, min_faces, locked, seams, ctx, back)
         with clock("levels"):
             bound = error_bound(asset, params.max_error)
             distances = (np.sqrt(np.maximum(hier.errors, 0.0)) if params.normalised_error
@@ -339,32 +343,41 @@ class ArticulatedDecimator(Decimator):
             ctx.log(f"stopped at {hier.faces_after(hier.n_collapses)} faces: no valid collapse is left")
         return Decimation(levels, hier)
 
-    def setup(self, asset: Asset, params: DecimationParams):
-        """Per-pose quadrics (and the attribute term), bone-limited weights, the edge cost model."""
+    def setup(self, asset: Asset, params: DecimationParams, back: np.ndarray | None = None):
+        """Per-pose quadrics (and the attribute term), bone-limited weights, the edge cost model; ``back``:
+        faces left out of the loop (:func:`rigslim.plugins.decimation.twins.back_faces`)."""
         from rigslim.plugins.decimation.quadrics import border_quadrics, per_pose_quadrics
 
         mesh = asset.mesh
         assert mesh is not None  # decimate() required it
+        front = slice(None) if back is None else ~back
+        F = mesh.F[front]
         T = asset.example_poses().T
-        Q, X = per_pose_quadrics(mesh.V, mesh.F, asset.weights, T, params.area_weighted)
+        Q, X = per_pose_quadrics(mesh.V, F, asset.weights, T, params.area_weighted)
         border = params.border_weight if params.keep_boundary else 0.0
         charts = seam_charts(asset) if params.seams == "move" and params.seam_weight > 0 else None
         if border > 0 or charts is not None:
-            Q = Q + border_quadrics(X, mesh.F, border, charts, params.seam_weight)
+            Q = Q + border_quadrics(X, F, border, None if charts is None else charts[front], params.seam_weight)
         Q, T, X = attribute_term(asset, params.attribute_weights, Q, T, X)
         W = limited_weights(asset.weights, params.max_bones)
         return Q, W, T, X, self.model(Q, W, T, params)
 
-    def collapse(self, asset, params, W, T, X, model, min_faces, locked, seams, ctx):
-        """The greedy collapse loop (:func:`rigslim.plugins.decimation.collapse.simplify`)."""
-        from rigslim.plugins.decimation.collapse import simplify
+    def collapse(self, asset, params, W, T, X, model, min_faces, locked, seams, ctx, back=None):
+        """The greedy collapse loop (:func:`rigslim.plugins.decimation.collapse.simplify`) on the faces but the
+        ``back`` ones, which :func:`rigslim.plugins.decimation.twins.with_back_faces` then puts back: the loop
+        runs until the front faces alone meet ``min_faces`` less the back faces, so that all of them do."""
+        from rigslim.plugins.decimation.collapse import keep_loop_stats, simplify
 
         mesh = asset.mesh
-        return simplify(mesh.V, mesh.F, W, T, X, model, min_faces=min_faces, keep_boundary=params.keep_boundary,
-                        border_collapses=params.border_collapses, min_normal_cos=params.min_normal_cos,
-                        progress=ctx.progress, method=self.name, params=params.model_dump(), backend=params.backend,
-                        locked=locked, seams=seams, normalised=params.normalised_error,
-                        source_distance=params.source_distance, face_distance=params.face_distance)
+        nb = 0 if back is None else int(back.sum())
+        F = mesh.F if not nb else mesh.F[~back]
+        hier = simplify(mesh.V, F, W, T, X, model, min_faces=max(min_faces - nb, 1),
+                        keep_boundary=params.keep_boundary, border_collapses=params.border_collapses,
+                        min_normal_cos=params.min_normal_cos, progress=ctx.progress, method=self.name,
+                        params=params.model_dump(), backend=params.backend, locked=locked, seams=seams,
+                        normalised=params.normalised_error, source_distance=params.source_distance,
+                        face_distance=params.face_distance)
+        return keep_loop_stats(hier, with_back_faces(hier, mesh.F, back)) if nb else hier
 
     def levels(self, asset, params, hier, choices) -> list:
         """The face-target levels (:func:`choose_levels`), error-target and adaptive levels, finest first."""

@@ -198,6 +198,14 @@ class _EdgeTable:
 _LOOP_STATS: weakref.WeakKeyDictionary[ProgressiveHierarchy, dict[str, float]] = weakref.WeakKeyDictionary()
 
 
+def keep_loop_stats(src: ProgressiveHierarchy, dst: ProgressiveHierarchy) -> ProgressiveHierarchy:
+    """``dst``, a hierarchy derived from ``src`` (the same collapses), with ``src``'s :func:`loop_stats`."""
+    stats = _LOOP_STATS.get(src)
+    if stats is not None:
+        _LOOP_STATS[dst] = stats
+    return dst
+
+
 def loop_stats(hier: ProgressiveHierarchy) -> dict[str, float] | None:
     """Collapses, pops, attempts, evaluations and timings of the compiled loop that made ``hier`` (None from
     the numpy loop)."""
