@@ -37,6 +37,7 @@ from rigslim.plugins.decimation.setup import (
     DIRTY,
     FREE,
     KEEP_B,
+    MAX_EDGE_FACES,
     NONE,
     SOURCE_SAMPLES,
     EdgeSetup,
@@ -393,7 +394,8 @@ class _CollapseLoop:
         """The vertices around the edge (a, b) when collapsing it keeps a manifold (two shared faces, or one
         along a border; the link condition; enough left), else None."""
         border = len(fab) == 1 and self.boundary[a] and self.boundary[b]     # a collapse along a border
-        if len(fab) != 2 and not border:
+        junction = 2 < len(fab) <= MAX_EDGE_FACES                            # a fin meeting a body
+        if len(fab) != 2 and not border and not junction:
             return None
         Na, Nb = self.neighbours(a), self.neighbours(b)
         if len((Na & Nb) - {a, b}) != len(fab):        # link condition

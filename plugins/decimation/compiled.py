@@ -61,6 +61,7 @@ from rigslim.plugins.decimation.setup import (
     FREE,
     KEEP_A,
     KEEP_B,
+    MAX_EDGE_FACES,
     NONE,
     SEAM,
     SOURCE_SAMPLES,
@@ -103,7 +104,7 @@ Scratch = namedtuple("Scratch", ["Na", "Nb", "nbr", "uni", "rem", "fab", "pc", "
 def new_scratch(n_poses: int) -> Scratch:
     """Work arrays for a loop over ``n_poses`` example poses."""
     return Scratch(np.empty(4096, np.int64), np.empty(4096, np.int64), np.empty(4096, np.int64),
-                   np.empty(8192, np.int64), np.empty(8192, np.int64), np.empty(2, np.int64),
+                   np.empty(8192, np.int64), np.empty(8192, np.int64), np.empty(MAX_EDGE_FACES, np.int64),
                    np.empty((n_poses + 1, 3)), np.empty((3, 4)), np.empty((3, 3)), np.empty((3, 3)))
 
 
@@ -467,14 +468,15 @@ def link_ok(a, b, mesh, cnt, s):
     for i in range(vf_start[a], vf_start[a] + vf_cnt[a]):
         f = pool[i]
         if F[f, 0] == b or F[f, 1] == b or F[f, 2] == b:
-            if nfab < 2:
+            if nfab < len(fab):
                 fab[nfab] = f
             nfab += 1
         else:
             rem[nrem] = f
             nrem += 1
     border = nfab == 1 and mesh.boundary[a] and mesh.boundary[b]
-    if nfab != 2 and not border:
+    junction = 2 < nfab <= len(fab)                 # a non-manifold edge: a fin or flap meeting a body
+    if nfab != 2 and not border and not junction:
         return False, nrem, nu, nfab
     for i in range(vf_start[b], vf_start[b] + vf_cnt[b]):
         f = pool[i]
@@ -503,7 +505,7 @@ def link_ok(a, b, mesh, cnt, s):
         else:
             uni[nu] = y
             nu += 1
-    return common == (1 if border else 2) and nu >= 3 and cnt[C_FACES] - nfab >= 4, nrem, nu, nfab
+    return common == nfab and nu >= 3 and cnt[C_FACES] - nfab >= 4, nrem, nu, nfab
 
 
 @njit(cache=True)

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["BEST", "BLOCKED", "BORDER", "CLEAN", "DEAD", "DECORO", "DIRTY", "FREE", "KEEP_A", "KEEP_B", "MOHR_GLEICHER",
-           "NONE", "QUARTIC", "SEAM", "SOURCE_SAMPLES", "EdgeSetup", "border_vertices", "collapsible_edges",
-           "degenerate_area", "placement", "placements", "seam_arrays", "zero_cost"]
+__all__ = ["BEST", "BLOCKED", "BORDER", "CLEAN", "DEAD", "DECORO", "DIRTY", "EdgeSetup", "FREE", "KEEP_A", "KEEP_B",
+           "MAX_EDGE_FACES", "MOHR_GLEICHER", "NONE", "QUARTIC", "SEAM", "SOURCE_SAMPLES", "border_vertices",
+           "collapsible_edges", "degenerate_area", "placement", "placements", "seam_arrays", "zero_cost"]
 
 #: Edge states: queued with its true cost, queued with a lower bound, removed, refused by a guard.
 CLEAN, DIRTY, DEAD, BLOCKED = 0, 1, 2, 3
@@ -21,6 +21,8 @@ QUARTIC, MOHR_GLEICHER, DECORO = 0, 1, 2
 #: The curve a fixed vertex may slide along (``along``): none (a corner or a locked vertex), a UV/material
 #: seam (two charts, two seam edges), a mesh border (two border edges).
 SEAM, BORDER = 1, 2
+#: The most faces a non-manifold edge (a fin or flap meeting a body: three) may have and still collapse.
+MAX_EDGE_FACES = 8
 #: Where a collapse puts the merged vertex (:func:`placement`): not at all, where the cost model says,
 #: at a (half-edge collapse onto a), at b, at whichever end costs less.
 NONE, FREE, KEEP_A, KEEP_B, BEST = -1, 0, 1, 2, 3
