@@ -82,3 +82,29 @@ def test_lod_chain_is_valid_honest_and_bounded(character, tmp_path, capsys):
     assert len(files) == len(levels)
     for f in files:
         assert set(_errors(f)) <= known, f.name
+
+
+def test_wolf_far_level_keeps_its_double_sided_sheets_paired(tmp_path):
+    """wolf.glb stores 20 triangles twice, once per side (its ears): at 10 % (70 faces) they were left whole
+    (no edge of such a sheet could collapse) and its max error was 13.05 %. Now the sheets are simplified once
+    (plugins/decimation/twins.py): the level reaches its target, the sheets are simplified (fewer than their 40
+    faces), every triangle it keeps from a sheet is there with its back face, and the file validates."""
+    import numpy as np
+
+    from rigslim.io.gltf.skin import read_gltf_skin
+    from rigslim.plugins.decimation.twins import back_faces
+
+    wolf = next(c for c in suite(group="all") if c.name == "wolf")
+    src = read_gltf_skin(wolf.path, weld=True).mesh
+    assert back_faces(src.F).sum() == 20
+    out = tmp_path / "w.glb"
+    assert rigslim(["lod", str(wolf.path), "-o", str(out), "--ratios", "0.1", "--split", "--max-error", "none"]) == 0
+    (level,) = sorted(tmp_path.glob("w-*.glb"))
+    mesh = read_gltf_skin(level, weld=True).mesh
+    assert abs(mesh.n_faces - 70) <= 2
+    key = np.sort(mesh.F, axis=1)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    twice = counts[inv.ravel()] == 2
+    assert 0 < twice.sum() < 40 and (counts <= 2).all()
+    assert back_faces(mesh.F).sum() == twice.sum() // 2                 # every pair has opposite windings
+    assert not set(_errors(level)) - set(_errors(wolf.path))
