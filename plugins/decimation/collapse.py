@@ -391,8 +391,9 @@ class _CollapseLoop:
         return out
 
     def _topology(self, a: int, b: int, fab: set[int]) -> set[int] | None:
-        """The vertices around the edge (a, b) when collapsing it keeps a manifold (two shared faces, or one
-        along a border; the link condition; enough left), else None."""
+        """The vertices around the edge (a, b) when collapsing it keeps the topology (two shared faces, one
+        along a border, or 3 to ``MAX_EDGE_FACES`` at a non-manifold edge; the link condition, the common
+        neighbours being exactly the apexes of those faces; enough left), else None."""
         border = len(fab) == 1 and self.boundary[a] and self.boundary[b]     # a collapse along a border
         junction = 2 < len(fab) <= MAX_EDGE_FACES                            # a fin meeting a body
         if len(fab) != 2 and not border and not junction:

@@ -459,8 +459,9 @@ def link_ok(a, b, mesh, cnt, s):
     Fills ``s.fab`` (the faces of the edge), ``s.rem`` (the faces that survive, around a or b) and
     ``s.uni`` (the union of the neighbours of a and b, without them). Returns ``(ok, nrem, nu, nfab)``: ok
     when the edge has two faces and a and b have exactly two common neighbours (or, for a collapse along
-    a border, both ends fixed: one face and one common neighbour), the union has three or more vertices
-    and at least four faces would be left.
+    a border, both ends fixed: one face and one common neighbour; or, at a non-manifold edge, 3 to
+    ``MAX_EDGE_FACES`` faces and as many common neighbours: Dey et al. 1999's link condition), the union has
+    three or more vertices and at least four faces would be left.
     """
     F, vf_start, vf_cnt, pool, mark = mesh.F, mesh.vf_start, mesh.vf_cnt, mesh.pool, mesh.mark
     fab, rem, uni, Na, Nb = s.fab, s.rem, s.uni, s.Na, s.Nb
