@@ -48,7 +48,8 @@ def back_faces(F: np.ndarray) -> np.ndarray:
 
     Within a group of faces on the same vertices, the faces of the first face's winding are fronts and
     each face of the other winding is the back of one front, in index order, while fronts are left;
-    faces of a group left unpaired (the same winding twice) are not backs.
+    faces of a group left unpaired (the same winding twice) are not backs, nor is a face that repeats a
+    vertex (it has no winding).
     """
     F = np.asarray(F, np.int64).reshape(-1, 3)
     back = np.zeros(len(F), bool)
@@ -65,6 +66,8 @@ def back_faces(F: np.ndarray) -> np.ndarray:
     orient = _orientation(F)
     for s, n in zip(starts[sizes > 1].tolist(), sizes[sizes > 1].tolist(), strict=True):
         group = order[s:s + n]
+        if k[s, 0] == k[s, 1] or k[s, 1] == k[s, 2]:
+            continue
         first = orient[group[0]]
         fronts = group[orient[group] == first]
         backs = group[orient[group] != first]

@@ -26,6 +26,8 @@ def test_back_faces_pairs_opposite_windings_only():
     F2 = np.vstack([F, [[1, 2, 0]]])
     assert back_faces(F2).tolist() == [False, False, True, False, True, False, False]
     assert not back_faces(np.zeros((0, 3), np.int64)).any()
+    # faces that repeat a vertex have no winding: never a pair
+    assert not back_faces(np.array([[0, 0, 1], [0, 1, 0], [1, 0, 0]])).any()
 
 
 def finned_tube(back_first: bool = False) -> Asset:
