@@ -5,8 +5,8 @@ with ``backend="numpy"``; tests check that both make the same collapses.
 Like meshoptimizer's simplifier, the loop is a sequence of small phases,
 each a function over named groups of arrays:
 
-- :func:`evaluate_dirty`: when a dirty edge reaches the top of the queue,
-  every dirty edge gets its true cost (:func:`rigslim.plugins.decimation.edge_costs.edge_cost`)
+- :func:`evaluate_edge`: when a dirty edge reaches the top of the queue,
+  it gets its true cost (:func:`rigslim.plugins.decimation.edge_costs.edge_cost`)
   and is queued again;
 - :func:`link_ok`: the faces around the edge and the link condition (exactly
   two common neighbours, so the result stays manifold);
@@ -37,7 +37,6 @@ from rigslim.numerics.point_mesh_distance import point_triangle_distance2
 from rigslim.plugins.decimation.edge_costs import collapse_cost, quadric_weight
 from rigslim.plugins.decimation.edge_queue import (
     C_COLLAPSES,
-    C_DIRTY,
     C_EVALS,
     C_FACES,
     C_HEAP,
@@ -68,7 +67,7 @@ from rigslim.plugins.decimation.setup import (
 )
 
 __all__ = ["CostModel", "LoopEdges", "LoopMembers", "LoopMesh", "LoopQueue", "LoopRecord", "LoopVertices", "Scratch",
-           "apply_collapse", "collapse_chunk", "evaluate_dirty", "folds", "link_ok", "new_members", "new_scratch",
+           "apply_collapse", "collapse_chunk", "evaluate_edge", "folds", "link_ok", "new_members", "new_scratch",
            "point_triangle_distance2", "requeue", "source_error"]
 
 #: The mesh as the loop edits it: faces (vertices renamed as they merge), vertex-face lists (``pool`` slices
@@ -79,11 +78,11 @@ LoopMesh = namedtuple("LoopMesh", ["F", "vf_start", "vf_cnt", "pool", "boundary"
 #: Per-vertex tables (2m rows: the originals, then one per collapse): rest position, weights, quadrics,
 #: positions in the rest pose and every example pose.
 LoopVertices = namedtuple("LoopVertices", ["V", "W", "Qv", "pos"])
-#: Edge slots (ends, cost, the new vertex and weights, stamp, state), the free list, the dirty list, the
-#: key hash, the source-side error already in each edge's cost (:func:`source_error`) and ``stime``, the number of
-#: collapses made when it was added (-1: not since the edge's last evaluation).
-LoopEdges = namedtuple("LoopEdges", ["ea", "eb", "ecost", "ev", "ew", "estamp", "estate", "free", "in_dirty", "dirty",
-                                     "hk", "hv", "esrc", "stime"])
+#: Edge slots (ends, cost, the new vertex and weights, stamp, state), the free list, the key hash, the
+#: source-side error already in each edge's cost (:func:`source_error`) and ``stime``, the number of collapses
+#: made when it was added (-1: not since the edge's last evaluation).
+LoopEdges = namedtuple("LoopEdges", ["ea", "eb", "ecost", "ev", "ew", "estamp", "estate", "free", "hk", "hv", "esrc",
+                                     "stime"])
 #: The heap of ``(cost, stamp, edge)`` entries.
 LoopQueue = namedtuple("LoopQueue", ["hc", "hs", "he"])
 #: Counters (:mod:`rigslim.plugins.decimation.edge_queue`) and the recorded collapses, errors and face counts.
@@ -426,30 +425,18 @@ def _collapsible(x, y, boundary, along, F, vf_start, vf_cnt, pool, charts):
 
 
 @njit(cache=True)
-def evaluate_dirty(cm, vx, ed, qu, cnt, fixed, along):
-    """Give every dirty edge its true cost (:func:`collapse_cost` with the edge's :func:`placement`) and
-    queue it again (one entry per edge)."""
-    dirty, in_dirty = ed.dirty, ed.in_dirty
-    nd = cnt[C_DIRTY]
-    cnt[C_DIRTY] = 0
-    nt = 0
-    for i in range(nd):
-        d = dirty[i]
-        if in_dirty[d]:
-            in_dirty[d] = False
-            dirty[nt] = d
-            nt += 1
-    cnt[C_EVALS] += nt
-    for i in range(nt):
-        d = dirty[i]
-        ed.ecost[d] = collapse_cost(cm.method, ed.ea[d], ed.eb[d], placement(fixed[ed.ea[d]], fixed[ed.eb[d]],
-                                    along[ed.ea[d]], along[ed.eb[d]]), vx.V, vx.W, vx.Qv, cm.T, cm.ip, cm.fp,
-                                    ed.ev[d], ed.ew[d])
-        ed.estate[d] = CLEAN
-        ed.esrc[d] = 0.0
-        ed.stime[d] = -1
-        ed.estamp[d] += 1
-        push(qu.hc, qu.hs, qu.he, cnt, ed.ecost[d], ed.estamp[d], d, ed.estamp, ed.estate)
+def evaluate_edge(e, cm, vx, ed, qu, cnt, fixed, along):
+    """Give the dirty edge e its true cost (:func:`collapse_cost` with the edge's :func:`placement`) and queue
+    it again."""
+    a, b = ed.ea[e], ed.eb[e]
+    cnt[C_EVALS] += 1
+    ed.ecost[e] = collapse_cost(cm.method, a, b, placement(fixed[a], fixed[b], along[a], along[b]), vx.V, vx.W,
+                                vx.Qv, cm.T, cm.ip, cm.fp, ed.ev[e], ed.ew[e])
+    ed.estate[e] = CLEAN
+    ed.esrc[e] = 0.0
+    ed.stime[e] = -1
+    ed.estamp[e] += 1
+    push(qu.hc, qu.hs, qu.he, cnt, ed.ecost[e], ed.estamp[e], e, ed.estamp, ed.estate)
 
 
 @njit(cache=True)
@@ -620,7 +607,7 @@ def apply_collapse(e, a, b, nrem, nfab, mesh, vx, ed, cnt, s, mem):
     cnt[C_POOL] += nrem
     cnt[C_FACES] -= nfab
     cost_ab = ed.ecost[e]
-    edge_kill(e, N, ed.ea, ed.eb, ed.estate, ed.free, cnt, ed.hk, ed.hv, ed.in_dirty)
+    edge_kill(e, N, ed.ea, ed.eb, ed.estate, ed.free, cnt, ed.hk, ed.hv)
     return c, cost_ab
 
 
@@ -637,7 +624,7 @@ def requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s, Qv, normalised):
     F, vf_start, vf_cnt, pool, mark = mesh.F, mesh.vf_start, mesh.vf_cnt, mesh.pool, mesh.mark
     boundary, along, charts = mesh.boundary, mesh.along, mesh.charts
     ea, eb, ecost, estamp, estate, free, hk, hv = ed.ea, ed.eb, ed.ecost, ed.estamp, ed.estate, ed.free, ed.hk, ed.hv
-    in_dirty, dirty, uni, nbr = ed.in_dirty, ed.dirty, s.uni, s.nbr
+    uni, nbr = s.uni, s.nbr
     N = len(mark)
     # union in increasing order (the Python loop does the same)
     for i in range(1, nu):
@@ -659,7 +646,7 @@ def requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s, Qv, normalised):
             if eo >= 0:
                 wy = wa if y == a else wb
                 lb = max(lb, ecost[eo] * (wy + wx) if normalised else ecost[eo])
-                edge_kill(eo, N, ea, eb, estate, free, cnt, hk, hv, in_dirty)
+                edge_kill(eo, N, ea, eb, estate, free, cnt, hk, hv)
         if normalised:
             lb = lb / (wa + wb + wx) if wa + wb + wx > 0 else lb
         if not _collapsible(x, c, boundary, along, F, vf_start, vf_cnt, pool, charts):
@@ -668,21 +655,6 @@ def requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s, Qv, normalised):
         ed.stime[en] = -1
         ecost[en] = lb
         estate[en] = DIRTY
-        if not in_dirty[en]:
-            in_dirty[en] = True
-            if cnt[C_DIRTY] == len(dirty):       # compact: keep each dirty edge once
-                k = 0
-                for t in range(cnt[C_DIRTY]):
-                    d = dirty[t]
-                    if in_dirty[d] and d != en:
-                        dirty[k] = d
-                        in_dirty[d] = False
-                        k += 1
-                for t in range(k):
-                    in_dirty[dirty[t]] = True
-                cnt[C_DIRTY] = k
-            dirty[cnt[C_DIRTY]] = en
-            cnt[C_DIRTY] += 1
         push(qu.hc, qu.hs, qu.he, cnt, lb, estamp[en], en, estamp, estate)
         # edges at x blocked earlier may collapse now
         cnt[C_TAG] += 1
@@ -700,7 +672,7 @@ def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, cm, mesh, vx, ed,
 
     Every array is the loop's state and is updated in place (see
     :func:`rigslim.plugins.decimation.collapse.simplify`): pop the cheapest edge, skip stale entries,
-    re-evaluate the dirty edges when one is on top, else try the collapse (:func:`link_ok`,
+    re-evaluate a dirty edge, else try the collapse (:func:`link_ok`,
     :func:`folds`), block the edge if a guard refuses it, or :func:`apply_collapse`, :func:`requeue`
     and record it.
     """
@@ -715,8 +687,8 @@ def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, cm, mesh, vx, ed,
             state = ed.estate[e]
             if stamp != ed.estamp[e] or state == DEAD or state == BLOCKED:
                 continue
-            if state == DIRTY:               # evaluate every dirty edge, queue their true costs
-                evaluate_dirty(cm, vx, ed, qu, cnt, mesh.boundary, mesh.along)
+            if state == DIRTY:               # its true cost, queued again
+                evaluate_edge(e, cm, vx, ed, qu, cnt, mesh.boundary, mesh.along)
                 continue
             cnt[C_TRIES] += 1
             a, b = ed.ea[e], ed.eb[e]

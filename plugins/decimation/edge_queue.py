@@ -16,14 +16,13 @@ from numba import njit
 
 from rigslim.plugins.decimation.setup import BLOCKED, DEAD
 
-__all__ = ["C_COLLAPSES", "C_DIRTY", "C_EVALS", "C_FACES", "C_FREE", "C_HEAP", "C_POOL", "C_POPS", "C_SIZE", "C_TAG",
+__all__ = ["C_COLLAPSES", "C_EVALS", "C_FACES", "C_FREE", "C_HEAP", "C_POOL", "C_POPS", "C_SIZE", "C_TAG",
            "C_TRIES", "N_COUNTERS", "edge_add", "edge_kill", "edge_of", "init_table", "pop", "push"]
 
 #: Counters of the loop state (one int64 array, ``cnt``): faces left, collapses made, heap size, free edge
-#: slots, edge slots used, dirty edges, vertex-face pool use, marker tag, heap pops, collapse attempts and
-#: edge evaluations.
-C_FACES, C_COLLAPSES, C_HEAP, C_FREE, C_SIZE, C_DIRTY, C_POOL, C_TAG, C_POPS, C_TRIES, C_EVALS = range(11)
-N_COUNTERS = 11
+#: slots, edge slots used, vertex-face pool use, marker tag, heap pops, collapse attempts and edge evaluations.
+C_FACES, C_COLLAPSES, C_HEAP, C_FREE, C_SIZE, C_POOL, C_TAG, C_POPS, C_TRIES, C_EVALS = range(10)
+N_COUNTERS = 10
 
 
 @njit(cache=True)
@@ -144,9 +143,8 @@ def edge_add(x, y, N, ea, eb, estamp, free, cnt, hk, hv):
 
 
 @njit(cache=True)
-def edge_kill(e, N, ea, eb, estate, free, cnt, hk, hv, in_dirty):
+def edge_kill(e, N, ea, eb, estate, free, cnt, hk, hv):
     estate[e] = DEAD
-    in_dirty[e] = False
     _hdelete(hk, hv, _hfind(hk, hv, ea[e] * N + eb[e]))
     free[cnt[C_FREE]] = e
     cnt[C_FREE] += 1

@@ -1,8 +1,10 @@
 """Per-pose quadrics and the quartic error of articulated simplification ([S09], docs/algorithms.md sec. 4).
 
-The functions are batched over edges: the hot parts of the simplifier (the
-initial quadrics of every vertex and the alternating position / weight
-solves of many edges at once) are plain numpy array programs.
+The functions are batched over edges: the alternating position / weight
+solves of many edges at once are plain numpy array programs (the numpy
+backend's, and the reference of :mod:`rigslim.plugins.decimation.edge_costs`);
+the initial quadrics of every vertex in every pose are one compiled pass
+over the faces (:func:`vertex_quadrics`, with :func:`vertex_quadrics_reference`).
 
 Notation: ``P`` example poses, ``n`` bones, ``B`` edges in a batch, ``K``
 bones in an edge's restricted set (padded to the batch's largest).
@@ -12,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from numba import njit
 
 from rigslim.numerics.blend import linear_blend
 
@@ -69,7 +72,44 @@ def vertex_quadrics(X: np.ndarray, F: np.ndarray, area_weighted: bool = True) ->
     ``Q_v = sum_{faces f at v} w_f [n_f; d_f][n_f; d_f]^T`` with ``w_f`` the
     face area (or 1), so ``p^T Q_v p`` is the (weighted) sum of squared
     distances of the homogeneous point p to the planes of v's faces.
+    Compiled (:func:`_vertex_quadrics`: one pass over the faces per pose);
+    :func:`vertex_quadrics_reference` is the numpy reference.
     """
+    single = X.ndim == 2
+    Xs = np.ascontiguousarray(X[None] if single else X, dtype=np.float64)
+    F = np.ascontiguousarray(F, dtype=np.int64).reshape(-1, 3)
+    Q = np.zeros((Xs.shape[1], Xs.shape[0], 4, 4))
+    _vertex_quadrics(Xs, F, bool(area_weighted), Q)
+    return Q[:, 0] if single else Q
+
+
+@njit(cache=True)
+def _vertex_quadrics(X, F, area_weighted, Q):  # pragma: no cover - numba
+    """:func:`vertex_quadrics` into Q (m, P, 4, 4), zeroed: pose p's faces add ``w [n; d][n; d]^T`` to
+    ``Q[:, p]`` of their corners, in face order."""
+    pl = np.empty(4)
+    for p in range(X.shape[0]):
+        for f in range(F.shape[0]):
+            a, b, c = F[f, 0], F[f, 1], F[f, 2]
+            u0, u1, u2 = X[p, b, 0] - X[p, a, 0], X[p, b, 1] - X[p, a, 1], X[p, b, 2] - X[p, a, 2]
+            v0, v1, v2 = X[p, c, 0] - X[p, a, 0], X[p, c, 1] - X[p, a, 1], X[p, c, 2] - X[p, a, 2]
+            c0, c1, c2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
+            norm = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+            s = max(norm, 1e-300)
+            pl[0], pl[1], pl[2] = c0 / s, c1 / s, c2 / s
+            pl[3] = -(pl[0] * X[p, a, 0] + pl[1] * X[p, a, 1] + pl[2] * X[p, a, 2])
+            w = 0.5 * norm if area_weighted else 1.0
+            for i in range(4):
+                for j in range(4):
+                    k = w * pl[i] * pl[j]
+                    Q[a, p, i, j] += k
+                    Q[b, p, i, j] += k
+                    Q[c, p, i, j] += k
+
+
+def vertex_quadrics_reference(X: np.ndarray, F: np.ndarray, area_weighted: bool = True) -> np.ndarray:
+    """:func:`vertex_quadrics` in numpy: the planes of :func:`face_planes`, their outer products, and a sparse
+    vertex-face incidence matrix that sums them at the corners."""
     single = X.ndim == 2
     Xs = X[None] if single else X
     planes, areas = face_planes(Xs, F)                      # (P, f, 4), (P, f)

@@ -298,3 +298,20 @@ def test_a_flat_sheet_keeps_its_outline(backend):
         got = 0.5 * np.abs(np.cross(P[G[:, 1]] - P[G[:, 0]], P[G[:, 2]] - P[G[:, 0]])[:, 2]).sum()
         assert lv.n_faces <= 14
         assert (got == pytest.approx(area, rel=1e-9)) == keeps, (border_weight, got, area)
+
+
+@pytest.mark.parametrize("area_weighted", [True, False])
+def test_compiled_vertex_quadrics_equal_the_numpy_reference(area_weighted):
+    """The compiled pass over the faces and the numpy formula (planes, outer products, incidence product) give
+    the same quadrics, for one pose and for a stack of poses, degenerate faces included."""
+    from rigslim.plugins.decimation.quadrics import vertex_quadrics_reference
+
+    mesh = bumpy_sphere()
+    rng = np.random.default_rng(3)
+    X = mesh.V[None] + 0.05 * rng.normal(size=(4,) + mesh.V.shape)
+    F = np.vstack([mesh.F, [[0, 0, 1], [2, 3, 2]]])          # two faces with a repeated corner: zero area
+    for pos in (mesh.V, X):
+        got = vertex_quadrics(pos, F, area_weighted)
+        want = vertex_quadrics_reference(pos, F, area_weighted)
+        assert got.shape == want.shape
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
