@@ -103,12 +103,14 @@ def no_motion(name: str, clip: str | None, duration: float) -> str:
     return f"{name}'s clip '{clip}' holds one pose only ({duration:g} s long)"
 
 
-def clip_frames(path: Path, clip, fps: float, doc=None) -> tuple[int, str | None, float]:
+def clip_frames(path: Path, clip, fps: float, doc=None, *, moving: bool = False) -> tuple[int, str | None, float]:
     """Frame count of a clip sampled at ``fps`` (1 without animation), its name and its duration.
 
     ``doc``: the file's loaded :class:`~rigslim.io.gltf.document.GltfDocument` (the commands pass the one
     they read once); without it, only the file's JSON is parsed when every sampler's input has its ``max``.
-    An unknown clip is reported against ``--clip``.
+    An unknown clip is reported against ``--clip``. ``moving`` (the commands that fit on every clip): with
+    no ``clip`` given, the first clip that holds at least 2 frames, where the first holds one pose only (a
+    weapon's 0 s idle before its reload); the file has motion when any clip has.
     """
     if is_usd(path):
         from rigslim.io.usd.summary import clip_info
@@ -129,14 +131,25 @@ def clip_frames(path: Path, clip, fps: float, doc=None) -> tuple[int, str | None
         raise _renamed(e, "--clip") from None
     if anim is None:
         return 1, None, 0.0
-    if light:           # the largest key time, from the accessors' max (the reader checks the keys themselves)
-        acc = doc.json["accessors"]
-        duration = max([float(acc[smp["input"]]["max"][0]) for smp in doc.json["animations"][anim]["samplers"]],
+
+    def duration_of(i: int) -> float:
+        if light:       # the largest key time, from the accessors' max (the reader checks the keys themselves)
+            acc = doc.json["accessors"]
+            return max([float(acc[smp["input"]]["max"][0]) for smp in doc.json["animations"][i]["samplers"]],
                        default=0.0)
-    else:
-        duration = animation_duration(doc, anim)
+        return animation_duration(doc, i)
+
+    def frames_of(seconds: float) -> int:
+        return int(np.floor(seconds * fps + 1e-3)) + 1
+
+    duration = duration_of(anim)
+    if moving and clip is None and frames_of(duration) < 2:
+        for i in range(1, len(doc.json["animations"])):
+            if frames_of(duration_of(i)) >= 2:
+                anim, duration = i, duration_of(i)
+                break
     name = doc.json["animations"][anim].get("name", str(anim))
-    return int(np.floor(duration * fps + 1e-3)) + 1, name, duration
+    return frames_of(duration), name, duration
 
 
 def _renamed(e: RigslimError, option: str) -> RigslimError:
@@ -198,6 +211,14 @@ def _gltf_input(path: Path, clip, fps: float, frames: int, skin: int | None = No
 
 #: Most example poses the commands fit to (long clips are subsampled evenly).
 MAX_EXAMPLE_POSES = 24
+
+
+def every_clip_poses(src: Path, clip) -> dict:
+    """The ``poses:`` of the commands that fit on every clip: :data:`MAX_EXAMPLE_POSES` example frames shared
+    out over the clips (``clip``: that one only), held-out frames of each clip for the test
+    (:mod:`rigslim.runtime.clips`). A USD input fits on its bound clip."""
+    clips = "all" if clip is None or is_usd(src) else [clip]
+    return {"examples": {"clips": clips, "count": MAX_EXAMPLE_POSES}, "test": {"clips": clips}}
 
 
 def _poses(frames: int) -> dict:

@@ -18,6 +18,7 @@ from rigslim.commands.gltf_common import (
     _poses,
     clip_frames,
     command_session,
+    every_clip_poses,
     input_section,
     is_usd,
     no_motion,
@@ -88,7 +89,11 @@ def lod_pipeline(src: Path, out: Path, *, ratios, max_bones: int, clip, fps: flo
                  max_error: str | None = DEFAULT_MAX_ERROR, joints: dict | None = None,
                  coverage: dict | None = None) -> dict:
     """The pipeline ``rigslim lod`` runs: a decimation step with a bone limit (and ``joints``: the joint budget,
-    :func:`rigslim.commands.lod_levels.decimate_params`), then the LOD writer (``coverage``: its switch camera)."""
+    :func:`rigslim.commands.lod_levels.decimate_params`), then the LOD writer (``coverage``: its switch camera).
+
+    Animated: the example poses come from every clip (``clip``: that one) and the levels are measured on
+    held-out frames of each, as ``rigslim reduce`` does (:func:`rigslim.commands.gltf_common.every_clip_poses`):
+    a limb that only the third clip moves is seen by the collapses."""
     steps = [{"decimate": method, "targets": list(ratios), "max_bones": max_bones,
               **({"max_error": "none" if max_error is None else max_error} if bounded(method) else {}),
               **(joints or {})}]
@@ -99,7 +104,7 @@ def lod_pipeline(src: Path, out: Path, *, ratios, max_bones: int, clip, fps: flo
         write.update(coverage or {})
     steps.append(write)
     return {"name": f"lod-{src.stem}", "inputs": input_section(src, _gltf_input(src, clip, fps, frames, skin)),
-            "poses": _poses(frames), "steps": steps}
+            "poses": every_clip_poses(src, clip) if frames >= 2 else _poses(frames), "steps": steps}
 
 
 def cmd_lod(args) -> int:
@@ -126,7 +131,7 @@ def cmd_lod(args) -> int:
         {f"--split (level {r:g})": p for r, p in zip(ratios, split_names(out, ratios), strict=True)} | \
         {"--split (sidecar)": sidecar_path(out)}
     with command_session(args, [src], named) as (source,), scratch_folder("rigslim-lod-") as tmp:
-        frames, clip, duration = clip_frames(src, args.clip, args.fps, source)
+        frames, clip, duration = clip_frames(src, args.clip, args.fps, source, moving=True)
         unnormalised = unnormalised_note("lod", src.name, source)
         if frames < 2:
             _joint_count(src, source)              # a file without a skin is refused before the note
@@ -202,6 +207,10 @@ def _lod_document(args, src, outputs, runs, result, targets, kept, step, clip, d
             doc["per_skin"].append({"skin": p["inputs"]["gltf"].get("skin"), "seconds": t, "pipeline": p,
                                     "input_faces": st.get("input_faces"),
                                     "levels": [lv["faces"] for lv in st.get("levels", [])]})
+    split = result.asset.split if result.asset is not None else None
+    if split is not None and split.clips and isinstance(split.clips.get("test"), list):
+        # per clip, the frames (its own numbers, at --fps) the collapses fitted and the levels were measured on
+        doc["clips"] = {side: split.clips.get(side, []) for side in ("examples", "test")}
     doc["switch"] = switch_camera(result)
     return doc, rows
 

@@ -9,7 +9,6 @@ import numpy as np
 
 from rigslim.commands.compare import compare
 from rigslim.commands.gltf_common import (
-    MAX_EXAMPLE_POSES,
     _chain,
     _check_fps,
     _check_input,
@@ -22,6 +21,7 @@ from rigslim.commands.gltf_common import (
     _poses,
     clip_frames,
     command_session,
+    every_clip_poses,
     input_section,
     is_usd,
     no_motion,
@@ -65,10 +65,7 @@ def reduce_pipeline(src: Path, out: Path, *, k: int, select: str | None, solve: 
         if animated:
             steps.append({"evaluate": ["position-rms", "normal-deviation", "max-influences"]})
     steps.append(write_step(out, quantize=quantize, clamp_negative=True, keep_input_weights=False))
-    poses = _poses(frames)
-    if animated:
-        clips = "all" if clip is None or is_usd(src) else [clip]
-        poses = {"examples": {"clips": clips, "count": MAX_EXAMPLE_POSES}, "test": {"clips": clips}}
+    poses = every_clip_poses(src, clip) if animated else _poses(frames)
     return {"name": f"reduce-{src.stem}", "inputs": input_section(src, _gltf_input(src, clip, fps, frames, skin)),
             "poses": poses, "steps": steps}
 
@@ -113,7 +110,7 @@ def cmd_reduce(args) -> int:
                          f"-k {args.k} is not 1..64", field="-k", fix="give -k 1..8 (glTF) or 1..64 (USD)")
     _check_fps(args.fps)
     with command_session(args, [src], {"-o": out}) as (source,):
-        frames, clip, duration = clip_frames(src, args.clip, args.fps, source)
+        frames, clip, duration = clip_frames(src, args.clip, args.fps, source, moving=True)
         unnormalised = unnormalised_note("reduce", src.name, source)
         console = _console(args)
         select: str | None = resolved_select(args.select, args.by)

@@ -68,10 +68,10 @@ def test_each_level_is_within_p_pixels_at_its_coverage(split):
     cam = sidecar["camera"]
     assert (cam["pixel_error"], cam["fov_deg"], cam["resolution"]) == (PIXELS, FOV, HEIGHT)
     r, aspect = sidecar["bounding_radius_m"], cam["aspect"]
-    spec = report["pipeline"]["poses"]["test"]                         # "a:b:c" test frames of the clip
-    a, b, c = (int(x) for x in spec.split(":"))
+    (held_out,) = report["clips"]["test"]                              # the test frames of the one clip
+    assert held_out["clip"] == CLIP
     fps = report["pipeline"]["inputs"]["gltf"]["fps"]
-    test = list(range(a, b, c))
+    test = held_out["frames"]
     chosen = measured_frames(len(test), 12)            # the test frames the writer measured (switch_frames)
     times = [test[i] / fps for i in chosen[:: max(1, len(chosen) // 3)][:3]]
     width = int(round(aspect * HEIGHT))

@@ -1,0 +1,88 @@
+"""``rigslim lod`` fits its collapses to example frames of every clip and measures the levels on held-out frames
+of each (``--clip`` restricts both); a file whose first clip holds one pose takes its motion from the others.
+
+The tube's clips here are ``still`` (its morph weights only: the joint never turns) and then ``bend``. Fitted to
+the first clip alone, as ``lod`` did before, the collapses never see the bend, and the level is far off in it.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from support.hostile_gltf import write_glb
+
+from rigslim.commands.cli import main
+from rigslim.io.gltf.document import load_gltf
+
+pytest.importorskip("pymeshlab")
+
+TUBE = Path(__file__).resolve().parents[3] / "examples" / "data" / "gltf" / "tube_two_materials.glb"
+
+
+def _tube(path: Path, first: str) -> Path:
+    """The tube with two clips: ``first`` (``still``: the bend's morph channel only; ``pose``: the joint's rotation
+    at its first key only, a clip of one pose, 0 s long) and then ``bend``."""
+    src = load_gltf(TUBE)
+    js = json.loads(json.dumps(src.json))
+    bend = js["animations"][0]
+    if first == "still":
+        clip = dict(json.loads(json.dumps(bend)), name="still", channels=bend["channels"][1:])
+    else:                          # one key: new accessors over the first element of the bend's time and rotation
+        acc = js["accessors"]
+        smp = bend["samplers"][0]
+        acc.append(dict(acc[smp["input"]], count=1, max=acc[smp["input"]]["min"]))
+        acc.append(dict(acc[smp["output"]], count=1))
+        clip = {"name": "pose", "samplers": [{"input": len(acc) - 2, "output": len(acc) - 1,
+                                              "interpolation": "LINEAR"}],
+                "channels": [dict(bend["channels"][0], sampler=0)]}
+    js["animations"] = [clip, bend]
+    return write_glb(path, js, src.buffers[0])
+
+
+def _level_error(capfd, src: Path, out: Path, clip: str) -> dict:
+    capfd.readouterr()
+    assert main(["compare", str(src), str(out), "--clip", clip, "--level", "1", "--json", "--samples", "2000"]) == 0
+    return json.loads(capfd.readouterr().out)
+
+
+def test_lod_fits_every_clip_and_reports_the_frames_of_each(tmp_path, capfd):
+    src = _tube(tmp_path / "still_bend.glb", "still")
+    every, first = tmp_path / "every.glb", tmp_path / "first.glb"
+    assert main(["lod", str(src), "-o", str(every), "--ratios", "0.25", "--max-error", "none",
+                 "--report", str(tmp_path / "every.json")]) == 0
+    assert main(["lod", str(src), "-o", str(first), "--ratios", "0.25", "--max-error", "none", "--clip", "still",
+                 "--report", str(tmp_path / "first.json")]) == 0
+    doc = json.loads((tmp_path / "every.json").read_text())
+    assert [c["clip"] for c in doc["clips"]["examples"]] == [c["clip"] for c in doc["clips"]["test"]] == \
+        ["still", "bend"]
+    for ex, te in zip(doc["clips"]["examples"], doc["clips"]["test"], strict=True):
+        assert ex["frames"] and te["frames"] and not set(ex["frames"]) & set(te["frames"])   # held out
+        assert max(ex["frames"] + te["frames"]) <= 30                                    # 1 s at 30 fps
+    only = json.loads((tmp_path / "first.json").read_text())["clips"]
+    assert [c["clip"] for c in only["examples"]] == [c["clip"] for c in only["test"]] == ["still"]
+    a, b = _level_error(capfd, src, every, "bend"), _level_error(capfd, src, first, "bend")
+    assert a["faces"] == b["faces"] == 384
+    # measured: 0.020 % / 0.28 % RMS / max fitted on both clips, 0.256 % / 3.52 % on the still clip alone
+    assert a["hausdorff_rms_pct"] < 0.25 * b["hausdorff_rms_pct"] and a["hausdorff_max_pct"] < b["hausdorff_max_pct"]
+
+
+def test_a_first_clip_of_one_pose_takes_the_motion_of_the_others(tmp_path, capfd):
+    """A weapon's 0 s idle before its reload: ``lod`` once simplified such a file for its rest pose only and
+    ``reduce`` fell back to k-largest; both now fit the clips that move."""
+    src = _tube(tmp_path / "pose_bend.glb", "pose")
+    assert [a["name"] for a in load_gltf(src).json["animations"]] == ["pose", "bend"]
+    capfd.readouterr()
+    assert main(["lod", str(src), "-o", str(tmp_path / "l.glb"), "--ratios", "0.5",
+                 "--report", str(tmp_path / "l.json")]) == 0
+    err = capfd.readouterr().err
+    assert "rest pose only" not in err
+    doc = json.loads((tmp_path / "l.json").read_text())
+    assert doc["frames"] == 31 and doc["clip"] == "bend"
+    assert "bend" in [c["clip"] for c in doc["clips"]["test"]]
+    assert main(["reduce", str(src), "-o", str(tmp_path / "r.glb"), "-k", "1",
+                 "--report", str(tmp_path / "r.json")]) == 0
+    assert "falling back" not in capfd.readouterr().err
+    rep = json.loads((tmp_path / "r.json").read_text())
+    assert rep["world"]["clips"] >= 1 and rep["world"]["position_rms_m"] >= 0
