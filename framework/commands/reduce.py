@@ -70,14 +70,16 @@ def reduce_pipeline(src: Path, out: Path, *, k: int, select: str | None, solve: 
             "poses": poses, "steps": steps}
 
 
-def _world(src: Path, written: Path, split, clip, clip_name, fps: float) -> dict:
+def _world(src: Path, written: Path, split, clip, fps: float) -> dict:
     """Position and normal errors of the written file on the test frames of every clip, in world units
     (pooled over the clips' frames; % of the first clip's world-space diagonal). A USD side: the clip of
     ``--clip`` (default the first, its bound clip) only, as :func:`rigslim.commands.compare.candidate_clip`
-    matches no clip names across the two formats."""
+    matches no clip names across the two formats: its test frames, or every frame where it has none (a
+    first clip of one pose)."""
     per_clip = (split.clips or {}).get("test") if split is not None else None
     if not isinstance(per_clip, list) or is_usd(src) or is_usd(written):
-        part = next((p for p in per_clip or [] if p["clip"] in (clip_name, "input animation")), None)
+        compared = clip_frames(src, clip, fps)[1]         # the clip compare poses: --clip, else the first
+        part = next((p for p in per_clip or [] if p["clip"] in (compared, "input animation")), None)
         frames = ",".join(map(str, part["frames"])) if part else None
         return compare(src, written, clip=clip, frames=frames, fps=fps, hausdorff=False)
     sq = nsq = count = 0.0
@@ -135,7 +137,7 @@ def cmd_reduce(args) -> int:
         world = {}
         if frames >= 2:     # the test frames again, in world units, from the file about to be committed
             with staged_view(out) as written:
-                world = _world(src, written, result.asset.split, args.clip, clip, args.fps)
+                world = _world(src, written, result.asset.split, args.clip, args.fps)
             world = {k: world[k] for k in ("position_rms_m", "position_max_m", "position_rms_pct",
                                            "normal_rms_rad", "reference_diagonal_m", "clips") if k in world}
         solver = [s.get("solver", {}) for s in result.document["steps"] if s.get("stage") == "solve"]

@@ -86,3 +86,15 @@ def test_a_first_clip_of_one_pose_takes_the_motion_of_the_others(tmp_path, capfd
     assert "falling back" not in capfd.readouterr().err
     rep = json.loads((tmp_path / "r.json").read_text())
     assert rep["world"]["clips"] >= 1 and rep["world"]["position_rms_m"] >= 0
+
+
+def test_a_first_clip_of_one_pose_reduced_into_usd(tmp_path, capfd):
+    """The USD output is measured on its bound clip, the first: a clip of one pose has no held-out frame, so its
+    one frame is compared (the fit's test frames are the bend's, which the USD side does not carry)."""
+    src = _tube(tmp_path / "pose_bend.glb", "pose")
+    assert main(["reduce", str(src), "-o", str(tmp_path / "r.usda"), "-k", "1",
+                 "--report", str(tmp_path / "r.json")]) == 0
+    doc = json.loads((tmp_path / "r.json").read_text())
+    assert doc["clip"] == "bend" and not doc["fallback_k_largest"]          # fitted on the clip that moves
+    assert doc["world"]["position_rms_m"] >= 0 and "clips" not in doc["world"]   # the USD side's one clip
+
