@@ -318,6 +318,8 @@ def main(argv=None):
     ap.add_argument("--out", default=str(OUT))
     ap.add_argument("--name", default="gltf_lod", help="the results' file stem in --out (gltf_lod_holdout for the "
                                                        "hold-out characters)")
+    ap.add_argument("--merge", action="store_true", help="replace only the measured characters' rows of the "
+                                                         "written results (with --only), keeping the others")
     args = ap.parse_args(argv)
     tools, versions = {}, {}
     if args.gltfpack and Path(args.gltfpack).exists():
@@ -339,6 +341,12 @@ def main(argv=None):
             paths = [p for p in paths if any(k in p.name for k in args.only)]
         for path in paths:
             results.append(bench(path, tmp, tools, args.samples))
+    if args.merge and (Path(args.out) / f"{args.name}.json").exists():
+        new = {r["character"] for r in results}
+        kept = json.loads((Path(args.out) / f"{args.name}.json").read_text())["results"]
+        order = [r["character"] for r in kept]
+        results = sorted([r for r in kept if r["character"] not in new] + results,
+                         key=lambda r: order.index(r["character"]) if r["character"] in order else len(order))
     doc = {"machine": machine() | {"load": load}, "tools": ", ".join(versions.values()) or "none",
            "samples": args.samples, "ratios": list(RATIOS), "results": results}
     md = markdown(doc)

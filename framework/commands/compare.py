@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -218,6 +219,9 @@ def candidate_clip(ref: Path, cand: Path, clip, clip_name: str | None) -> tuple[
             return clip, clip if isinstance(clip, str) else names[clip], None
         if isinstance(clip, str) and clip.isdigit() and int(clip) < len(names):
             return clip, names[int(clip)], None
+        if isinstance(clip, str) and re.fullmatch(r"#\d+", clip) and int(clip[1:]) < len(names) \
+                and names[int(clip[1:])] is None:     # an unnamed clip, as it is listed (and labelled in reports)
+            return int(clip[1:]), None, None
         raise InputError(f"the candidate has no clip {clip!r} (its clips: {shown})", source=cand, field="--clip",
                          fix="name a clip both files have, or rename the candidate's clip")
     named = clip_name is not None and clip_name in _clip_names(ref)       # an unnamed clip has no name to match

@@ -64,3 +64,19 @@ def test_clip_names_a_clip_of_both_files(tmp_path, capfd):
     second = _tube_with(tmp_path / "second.glb", lambda bend: [_still(bend), bend])
     code, res, err = _compare(capfd, second, "--clip", "bend")
     assert code == 0 and res["candidate_clip"] == "bend" and res["position_max_m"] == 0.0 and err == []
+
+
+def test_an_unnamed_clip_is_named_as_it_is_listed(tmp_path, capfd):
+    """Unnamed clips are listed (and labelled in lod's report) as ``#i``: ``--clip '#0'`` names the first of
+    both files. It was refused with "the candidate has no clip '#0' (its clips: #0)"."""
+    def unnamed(bend):
+        return [{k: v for k, v in bend.items() if k != "name"}]
+    ref = _tube_with(tmp_path / "ref.glb", unnamed)
+    cand = _tube_with(tmp_path / "cand.glb", unnamed)
+    capfd.readouterr()
+    assert main(["compare", str(ref), str(cand), "--clip", "#0", "--samples", "500", "--frames", "0:31:10",
+                 "--json"]) == 0
+    res = json.loads(capfd.readouterr().out)
+    assert res["position_max_m"] == 0.0
+    assert main(["compare", str(ref), str(cand), "--clip", "#1"]) == 2
+    assert "#1" in capfd.readouterr().err
