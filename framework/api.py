@@ -28,7 +28,13 @@ from rigslim.model.poses import FrameSplit, Poses
 from rigslim.model.weights import ReducedWeights, validate_weights
 from rigslim.plugin.contract import Decimation, Decimator, StepContext
 from rigslim.plugin.host import PluginHost, PluginInfo, get_host
-from rigslim.runtime.clips import DEFAULT_EXAMPLE_COUNT, sample_clip_frames
+from rigslim.runtime.clips import (
+    DEFAULT_EXAMPLE_COUNT,
+    EXAMPLE_CAP,
+    pose_descriptors,
+    sample_clip_frames,
+    thin_examples,
+)
 from rigslim.runtime.document import PipelineDoc, Step, check_params, load_pipeline
 from rigslim.runtime.run import RunResult, run_pipeline
 
@@ -214,7 +220,9 @@ def _asset(mesh: Mesh | tuple[np.ndarray, np.ndarray], weights: Any, poses: Any,
                                      or examples < 1):
             raise PipelineError(f"input should be a whole number >= 1 (got {brief(examples)})",
                                 field="reduce_weights.examples", fix="give the example poses in all, e.g. examples=24")
-        sampled = sample_clip_frames([len(c) for c in clips], DEFAULT_EXAMPLE_COUNT if examples is None else examples)
+        count = DEFAULT_EXAMPLE_COUNT if examples is None else examples
+        sampled = thin_examples(sample_clip_frames([len(c) for c in clips], count),
+                                lambda c, frames: pose_descriptors(asset, clips[c].T[frames]), EXAMPLE_CAP * count)
         starts = np.cumsum([0] + [len(c) for c in clips])
         ex = [int(starts[i] + f) for i, (e, _, _) in enumerate(sampled) for f in e]
         val = [int(starts[i] + f) for i, (_, v, _) in enumerate(sampled) for f in v]

@@ -156,6 +156,48 @@ def sample_clip_frames(lengths, count: int) -> list[tuple[list[int], list[int], 
     return out
 
 
+def farthest_poses(X: np.ndarray, count: int) -> list[int]:
+    """Rows of ``X`` (one descriptor per pose) chosen by farthest-point sampling (Gonzalez 1985).
+
+    Start at row 0; then, ``count - 1`` times, the row whose distance to the nearest row chosen so far,
+    ``d(x) = min_c ||x - X_c||``, is largest (the first such row not yet chosen on ties). The chosen rows cover the
+    descriptors within a factor 2 of the best covering radius with ``count`` centres. Returns the chosen
+    rows, sorted (all rows when ``count >= len(X)``).
+    """
+    X = np.asarray(X, np.float64).reshape(len(X), -1)
+    if count >= len(X):
+        return list(range(len(X)))
+    chosen = [0]
+    d = np.linalg.norm(X - X[0], axis=1)
+    d[0] = -np.inf
+    for _ in range(count - 1):
+        c = int(np.argmax(d))          # never a chosen row, even among repeats (all at distance 0)
+        chosen.append(c)
+        d = np.minimum(d, np.linalg.norm(X - X[c], axis=1))
+        d[chosen] = -np.inf
+    return sorted(chosen)
+
+
+def thin_examples(sampled: list[tuple[list[int], list[int], list[int]]], descriptors, most: int
+                  ) -> list[tuple[list[int], list[int], list[int]]]:
+    """:func:`sample_clip_frames`'s split with at most ``most`` example frames in all: where the clips'
+    shares add up to more (many clips, each with its :data:`MIN_CLIP_EXAMPLES`), the examples kept are the
+    :func:`farthest_poses` of their ``descriptors`` (``descriptors(clip, frames) -> (len(frames), d)``: the
+    poses compared, e.g. posed positions of some vertices), so that different motions keep their examples
+    and near repeats (a jump to the left and to the right) share theirs. An example frame not kept becomes a
+    validation frame of its clip; the test frames are unchanged."""
+    total = sum(len(ex) for ex, _, _ in sampled)
+    if total <= most:
+        return sampled
+    owners = [(c, f) for c, (ex, _, _) in enumerate(sampled) for f in ex]
+    X = np.concatenate([descriptors(c, ex) for c, (ex, _, _) in enumerate(sampled) if ex], axis=0)
+    keep = {owners[i] for i in farthest_poses(X, most)}
+    out = []
+    for c, (ex, val, te) in enumerate(sampled):
+        out.append(([f for f in ex if (c, f) in keep], sorted(val + [f for f in ex if (c, f) not in keep]), te))
+    return out
+
+
 @dataclass(frozen=True)
 class FrameSplit:
     """Example frames (for fitting) and test frames (for measuring), disjoint.
