@@ -84,6 +84,10 @@ def bounded(method: str) -> bool:
         return True
 
 
+#: Test frames ``lod --measure`` measures with ``metro`` at most (evenly spread over every clip's).
+MEASURED_FRAMES = 24
+
+
 def lod_pipeline(src: Path, out: Path, *, ratios, max_bones: int, clip, fps: float, frames: int, quantize: str,
                  method: str = "quartic", measure: bool = False, skin: int | None = None,
                  max_error: str | None = DEFAULT_MAX_ERROR, joints: dict | None = None,
@@ -97,8 +101,8 @@ def lod_pipeline(src: Path, out: Path, *, ratios, max_bones: int, clip, fps: flo
     steps = [{"decimate": method, "targets": list(ratios), "max_bones": max_bones,
               **({"max_error": "none" if max_error is None else max_error} if bounded(method) else {}),
               **(joints or {})}]
-    if measure:
-        steps.append({"evaluate": ["metro", "max-influences"]})
+    if measure:       # metro on at most MEASURED_FRAMES test frames of all the clips' (a pymeshlab run each)
+        steps.append({"evaluate": {"metro": {"frames": MEASURED_FRAMES}, "max-influences": {}}})
     write = write_step(out, quantize=quantize, lod=True, clamp_negative=True)
     if not is_usd(out):
         write.update(coverage or {})

@@ -145,3 +145,31 @@ steps:
 """)
     with pytest.raises(StepError, match="no progressive hierarchy"):
         run_pipeline(path)
+
+
+def test_metro_frames_measures_that_many_test_frames_evenly(write_pipeline):
+    """``frames: N``: N of the test frames, first and last among them (the same values there as measuring every
+    frame); 0 is every frame."""
+    from rigslim.plugins.metrics.metro import spread_frames
+    from rigslim.runtime.run import run_pipeline
+
+    assert spread_frames(10, 0) == list(range(10)) == spread_frames(10, 12)
+    assert spread_frames(10, 3) == [0, 4, 9] and len(spread_frames(100, 24)) == 24
+    text = """
+inputs:
+  mesh: data/elephant.obj
+  skeleton: data/elephant.tgf
+  weights: data/elephant-weights.dmat
+  animation: data/elephant-anim.dmat
+poses: {{examples: "0:457:45", test: "5:457:90"}}
+steps:
+  - select: k-largest
+    k: 2
+  - solve: k-largest
+  - evaluate: {{metro: {{samples: 2000{frames}}}}}
+"""
+    every = run_pipeline(write_pipeline(text.format(frames=""))).evaluations[0]["metrics"]
+    two = run_pipeline(write_pipeline(text.format(frames=", frames: 2"))).evaluations[0]["metrics"]
+    full, few = every["hausdorff_max_m"]["per_frame"], two["hausdorff_max_m"]["per_frame"]
+    assert len(full) == 6 and len(few) == 2
+    assert np.allclose(few, [full[0], full[-1]], rtol=1e-6)
