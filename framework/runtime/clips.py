@@ -39,8 +39,8 @@ shares add up to more than ``EXAMPLE_CAP * count`` (48 by default: a game charac
 examples each), farthest-point sampling of the example poses, compared by the posed positions of 256 of
 the mesh's vertices (:func:`pose_descriptors`), keeps that many; the others become validation frames
 (:func:`rigslim.model.poses.thin_examples`). The Red Eclipse player with its 62 clips: 48 example poses
-over 34 clips instead of 150, and ``rigslim lod --ratios 0.5,0.25,0.1`` 2.83 s instead of 6.84 s. ``--clip`` of the commands is
-``clips: [NAME]``. :attr:`FrameSplit.segments` records where each clip lies in
+over 34 clips instead of 150, and ``rigslim lod --ratios 0.5,0.25,0.1`` 2.83 s instead of 6.84 s.
+``--clip`` of the commands is ``clips: [NAME]``. :attr:`FrameSplit.segments` records where each clip lies in
 the stack (cross-validation across clips uses it).
 """
 
