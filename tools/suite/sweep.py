@@ -1,4 +1,4 @@
-"""Build the sweep characters: 13 animated characters for robustness sweeps, never committed, never tuned on.
+"""Build the sweep characters: 17 animated characters for robustness sweeps, never committed, never tuned on.
 
 The suite (``build.py``) is what methods and constants are chosen on and the hold-out set
 (``build.py --set holdout``) is what they are checked on; these are for running every command on
@@ -12,7 +12,9 @@ Debian packages and with the same converters as the suite:
   (``pmd2gltf.py``);
 - three cube2 models (``cube2-data``): the shotgun and the minigun first-person guns (IQM, textured,
   rigid parts; ``iqm2gltf.py``) and the cloth flag (MD5 through ``assimp export``, texture embedded by
-  ``clips.py``).
+  ``clips.py``);
+- four Red Eclipse files (``redeclipse-data``, CC-BY-SA-3.0): the pistol and the smg (MD5, rigid parts; the
+  pistol's first clip holds one pose), a swaying palm tree and the player with all 62 clips (IQM).
 
 ``OUT/index.json`` lists each file as ``build.py``'s indexes do (faces, joints, clips, provenance).
 
@@ -72,6 +74,7 @@ ZERO_AD = [
                          ("idle", "art/animation/mechanical/hele_lithobolos_idle.dae.cached.psa")]),
 ]
 CUBE2 = ["shotgun", "minigun", "flag"]
+RED_ECLIPSE = ["re_pistol", "re_smg", "re_palm", "re_player_all"]
 
 
 def build_zero_ad(spec, work: Path, out: Path) -> dict:
@@ -117,6 +120,53 @@ def build_cube2(name: str, work: Path, out: Path) -> dict:
     return B.describe(c, out)
 
 
+def _md5_clips(d: Path, mesh: str, clips: list[tuple[str, str]], tex: Path, work: Path, out: Path) -> None:
+    """An MD5 model with one .md5anim per clip: assimp exports the mesh once per clip, ``clips.py`` merges."""
+    tmp = work / out.stem
+    tmp.mkdir(parents=True, exist_ok=True)
+    parts = []
+    for clip, anim in clips:
+        shutil.copy(d / mesh, tmp / f"{clip}.md5mesh")
+        shutil.copy(d / f"{anim}.md5anim", tmp / f"{clip}.md5anim")
+        B.run(["assimp", "export", tmp / f"{clip}.md5mesh", tmp / f"{clip}.glb", "-fglb2"])
+        parts.append((clip, tmp / f"{clip}.glb"))
+    B.run([B.PY, B.HERE / "clips.py", parts[0][1], "-o", out, "--rename", f"anim={parts[0][0]}",
+           *[x for c, p in parts[1:] for x in ("--merge", f"{c}={p}")], "--texture", f"0={tex}"])
+
+
+def build_red_eclipse(name: str, work: Path, out: Path) -> dict:
+    """Red Eclipse 1.6 (``redeclipse-data``, CC-BY-SA-3.0): two first-person weapons (MD5, rigid parts, a
+    0 s idle first: ``lod`` once simplified the pistol for its rest pose only), a swaying palm tree (IQM) and
+    the player with all 62 of its clips (IQM: the many-clip example thinning, docs/pipelines.md)."""
+    data = B.package_root(work, "redeclipse-data") / "usr/share/games/redeclipse/data"
+    if name == "re_pistol":
+        d = data / "weapons/pistol"
+        _md5_clips(d, "pistol.md5mesh", [("idle", "pistol-idle"), ("shoot", "pistol-shoot"),
+                                         ("reload", "pistol-reload")], d / "skin.png", work, out)
+        kind, source, clips = "mechanical (first-person pistol, rigid parts, 0 s idle)", "weapons/pistol", \
+            ["idle", "shoot", "reload"]
+    elif name == "re_smg":
+        d = data / "weapons/smg"
+        _md5_clips(d, "smg.md5mesh", [("idle", "smg_idle"), ("reload", "smg_reload")], d / "diffuse.png", work,
+                   out)
+        kind, source, clips = "mechanical (first-person smg, rigid parts)", "weapons/smg", ["idle", "reload"]
+    elif name == "re_palm":
+        d = data / "dziq/palm_tree01a"
+        B.run([B.PY, B.HERE / "iqm2gltf.py", d / "palm_tree01a.iqm", "-o", out,
+               "--texture", f"leaves={data / 'dziq/meshtex/palm_tree_leaves.png'}", "--alpha", "leaves",
+               "--texture", f"trunk={data / 'dziq/meshtex/palm_tree_trunk.jpg'}", "--anim", f"idle={d / 'idle.iqm'}"])
+        kind, source, clips = "vegetation (palm tree swaying, 17 joints)", "dziq/palm_tree01a", ["idle"]
+    else:
+        d = data / "actors/player"
+        anims = sorted(p for p in d.glob("*.iqm"))
+        B.run([B.PY, B.HERE / "iqm2gltf.py", d / "male/RE_Player_male.iqm", "-o", out,
+               "--texture", f"RE_Player={d / 'diffuse.png'}", *[x for p in anims for x in ("--anim", f"{p.stem}={p}")]])
+        kind, source, clips = "humanoid (Red Eclipse player, all 62 clips)", "actors/player", [p.stem for p in anims]
+    c = B.Character(name, kind, "redeclipse-data", source, "CC-BY-SA-3.0", "Red Eclipse Team (redeclipse-data)",
+                    "sweep", fit=clips[:1], holdout=clips[1:2], test=[(clips[-1], 0.3)])
+    return B.describe(c, out)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", type=Path, required=True, help="folder for the .glb files and index.json")
@@ -126,12 +176,16 @@ def main(argv=None) -> int:
     args.work.mkdir(parents=True, exist_ok=True)
     args.out.mkdir(parents=True, exist_ok=True)
     entries = []
-    for spec in [*ZERO_AD, *CUBE2]:
+    for spec in [*ZERO_AD, *CUBE2, *RED_ECLIPSE]:
         name = spec if isinstance(spec, str) else spec[0]
         if args.only is not None and name not in args.only:
             continue
         out = args.out / f"{name}.glb"
-        e = build_cube2(name, args.work, out) if isinstance(spec, str) else build_zero_ad(spec, args.work, out)
+        if isinstance(spec, str):
+            build = build_red_eclipse if spec in RED_ECLIPSE else build_cube2
+            e = build(name, args.work, out)
+        else:
+            e = build_zero_ad(spec, args.work, out)
         entries.append(e)
         print(f"{name}: {e['faces']} faces, {e['joints']} joints, {len(e['clips'])} clips, textured {e['textured']}")
     (args.out / "index.json").write_text(json.dumps({"version": 1, "about": "rigslim's sweep characters "
