@@ -156,6 +156,14 @@ def sample_clip_frames(lengths, count: int) -> list[tuple[list[int], list[int], 
     return out
 
 
+def spread_frames(n: int, most: int) -> list[int]:
+    """At most ``most`` of ``n`` frames, evenly spread, first and last included (all when ``most`` is 0 or at
+    least ``n``): the frames a measurement that cannot afford every test frame takes."""
+    if most <= 0 or n <= most:
+        return list(range(n))
+    return sorted({int(round(x)) for x in np.linspace(0, n - 1, most)})
+
+
 def farthest_poses(X: np.ndarray, count: int) -> list[int]:
     """Rows of ``X`` (one descriptor per pose) chosen by farthest-point sampling (Gonzalez 1985).
 

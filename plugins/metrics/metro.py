@@ -14,6 +14,7 @@ import numpy as np
 from pydantic import Field
 
 from rigslim.errors import StepError
+from rigslim.model.poses import spread_frames
 from rigslim.numerics.surface_distance import metro_distance, pymeshlab_available
 from rigslim.numerics.units import reference_diagonal
 from rigslim.plugin import Metric, Params, aggregate
@@ -33,14 +34,6 @@ class MetroParams(Params):
     frames: int = Field(default=0, ge=0)
     """At most this many test frames, evenly spread over them (0: every test frame). A character fitted on every
     clip has a third of all its frames as test frames (hundreds for a game character), each a pymeshlab run."""
-
-
-def spread_frames(n: int, most: int) -> list[int]:
-    """At most ``most`` of ``n`` frames, evenly spread, first and last included (all when ``most`` is 0 or
-    at least ``n``)."""
-    if most <= 0 or n <= most:
-        return list(range(n))
-    return sorted({int(round(x)) for x in np.linspace(0, n - 1, most)})
 
 
 class Metro(Metric[MetroParams]):

@@ -236,6 +236,20 @@ def iqm_re_female(c: Character, work: Path, out: Path) -> None:
     iqm_re_player(c, work, out, body="female")
 
 
+def md5_clips(d: Path, mesh: str, clips: list[tuple[str, str]], tmp: Path, out: Path, extra: list) -> None:
+    """An MD5 model with one ``.md5anim`` per clip ``(clip, anim)``: assimp exports a copy of the mesh with each
+    animation, and ``clips.py`` merges them into ``out`` by node name (``extra``: its further arguments)."""
+    tmp.mkdir(parents=True, exist_ok=True)
+    parts = []
+    for name, anim in clips:
+        shutil.copy(d / mesh, tmp / f"{name}.md5mesh")
+        shutil.copy(d / f"{anim}.md5anim", tmp / f"{name}.md5anim")
+        run(["assimp", "export", tmp / f"{name}.md5mesh", tmp / f"{name}.glb", "-fglb2"])
+        parts.append((name, tmp / f"{name}.glb"))
+    run([PY, HERE / "clips.py", parts[0][1], "-o", out, "--rename", f"anim={parts[0][0]}",
+         *[x for n, p in parts[1:] for x in ("--merge", f"{n}={p}")], *extra])
+
+
 def md5_drone(c: Character, work: Path, out: Path) -> None:
     d = package_root(work, c.package) / RE / "drone"
     tmp = work / "drone"
@@ -243,18 +257,10 @@ def md5_drone(c: Character, work: Path, out: Path) -> None:
     # (clip, md5anim, the game's rate in actors/drone/md5.cfg; the files say 24 fps)
     clips = [("left", "left", 16), ("forward", "forward", 16), ("backward", "backward", 16), ("death", "death", 8),
              ("sword_attack", "sword-attack1", 15)]
-    parts = []
-    for name, anim, _rate in clips:
-        shutil.copy(d / "mesh.md5mesh", tmp / f"{name}.md5mesh")
-        shutil.copy(d / f"{anim}.md5anim", tmp / f"{name}.md5anim")
-        run(["assimp", "export", tmp / f"{name}.md5mesh", tmp / f"{name}.glb", "-fglb2"])
-        parts.append((name, tmp / f"{name}.glb"))
     skin = _small_image(d / "skin.jpg", tmp / "skin512.jpg")
-    base = parts[0][1]
-    run([PY, HERE / "clips.py", base, "-o", out, "--rename", f"anim={parts[0][0]}",
-         *[x for n, p in parts[1:] for x in ("--merge", f"{n}={p}")],
-         *[x for n, _a, rate in clips for x in ("--retime", f"{n}={24 / rate:g}")],
-         "--texture", f"0={skin}", "--texture", f"1={skin}"])
+    md5_clips(d, "mesh.md5mesh", [(name, anim) for name, anim, _ in clips], tmp, out,
+              [*[x for n, _a, rate in clips for x in ("--retime", f"{n}={24 / rate:g}")],
+               "--texture", f"0={skin}", "--texture", f"1={skin}"])
 
 
 def b3d_minetest(c: Character, work: Path, out: Path) -> None:

@@ -120,20 +120,6 @@ def build_cube2(name: str, work: Path, out: Path) -> dict:
     return B.describe(c, out)
 
 
-def _md5_clips(d: Path, mesh: str, clips: list[tuple[str, str]], tex: Path, work: Path, out: Path) -> None:
-    """An MD5 model with one .md5anim per clip: assimp exports the mesh once per clip, ``clips.py`` merges."""
-    tmp = work / out.stem
-    tmp.mkdir(parents=True, exist_ok=True)
-    parts = []
-    for clip, anim in clips:
-        shutil.copy(d / mesh, tmp / f"{clip}.md5mesh")
-        shutil.copy(d / f"{anim}.md5anim", tmp / f"{clip}.md5anim")
-        B.run(["assimp", "export", tmp / f"{clip}.md5mesh", tmp / f"{clip}.glb", "-fglb2"])
-        parts.append((clip, tmp / f"{clip}.glb"))
-    B.run([B.PY, B.HERE / "clips.py", parts[0][1], "-o", out, "--rename", f"anim={parts[0][0]}",
-           *[x for c, p in parts[1:] for x in ("--merge", f"{c}={p}")], "--texture", f"0={tex}"])
-
-
 def build_red_eclipse(name: str, work: Path, out: Path) -> dict:
     """Red Eclipse 1.6 (``redeclipse-data``, CC-BY-SA-3.0): two first-person weapons (MD5, rigid parts, a
     0 s idle first: ``lod`` once simplified the pistol for its rest pose only), a swaying palm tree (IQM) and
@@ -141,14 +127,15 @@ def build_red_eclipse(name: str, work: Path, out: Path) -> dict:
     data = B.package_root(work, "redeclipse-data") / "usr/share/games/redeclipse/data"
     if name == "re_pistol":
         d = data / "weapons/pistol"
-        _md5_clips(d, "pistol.md5mesh", [("idle", "pistol-idle"), ("shoot", "pistol-shoot"),
-                                         ("reload", "pistol-reload")], d / "skin.png", work, out)
+        B.md5_clips(d, "pistol.md5mesh", [("idle", "pistol-idle"), ("shoot", "pistol-shoot"),
+                                          ("reload", "pistol-reload")], work / name, out,
+                    ["--texture", f"0={d / 'skin.png'}"])
         kind, source, clips = "mechanical (first-person pistol, rigid parts, 0 s idle)", "weapons/pistol", \
             ["idle", "shoot", "reload"]
     elif name == "re_smg":
         d = data / "weapons/smg"
-        _md5_clips(d, "smg.md5mesh", [("idle", "smg_idle"), ("reload", "smg_reload")], d / "diffuse.png", work,
-                   out)
+        B.md5_clips(d, "smg.md5mesh", [("idle", "smg_idle"), ("reload", "smg_reload")], work / name, out,
+                    ["--texture", f"0={d / 'diffuse.png'}"])
         kind, source, clips = "mechanical (first-person smg, rigid parts)", "weapons/smg", ["idle", "reload"]
     elif name == "re_palm":
         d = data / "dziq/palm_tree01a"

@@ -18,19 +18,15 @@ vertices; RMS a few % above ``rigslim compare``'s 20,000-sample figure): docs/gl
 
 from __future__ import annotations
 
-import numpy as np
-
+from rigslim.model.poses import spread_frames
 from rigslim.numerics.level_error import bounding_radius, level_errors
 from rigslim.numerics.screen_coverage import coverage_series
 
 __all__ = ["level_switch", "measured_frames"]
 
 
-def measured_frames(n: int, most: int) -> list[int]:
-    """At most ``most`` of ``n`` test frames, evenly spread (all when ``most`` is 0 or at least ``n``)."""
-    if most <= 0 or n <= most:
-        return list(range(n))
-    return sorted({int(round(x)) for x in np.linspace(0, n - 1, most)})
+#: At most ``most`` of ``n`` test frames, evenly spread (:func:`rigslim.model.poses.spread_frames`).
+measured_frames = spread_frames
 
 
 def _measured(asset, levels, frames: list[int], samples: int) -> list[dict]:

@@ -150,7 +150,7 @@ steps:
 def test_metro_frames_measures_that_many_test_frames_evenly(write_pipeline):
     """``frames: N``: N of the test frames, first and last among them (the same values there as measuring every
     frame); 0 is every frame."""
-    from rigslim.plugins.metrics.metro import spread_frames
+    from rigslim.model.poses import spread_frames
     from rigslim.runtime.run import run_pipeline
 
     assert spread_frames(10, 0) == list(range(10)) == spread_frames(10, 12)
