@@ -103,6 +103,13 @@ def _world(src: Path, written: Path, split, clip, fps: float) -> dict:
     return out
 
 
+def _passes_through(result) -> bool:
+    """Whether the solve kept every vertex's input weights exactly (each has at most k influences)."""
+    solved = [s.get("solver", {}) for s in result.document["steps"] if s.get("stage") == "solve"]
+    m = len(result.asset.mesh.V) if result.asset is not None and result.asset.mesh is not None else -1
+    return bool(solved) and all(int(r.get("passed_through", -1)) == m for r in solved)
+
+
 def cmd_reduce(args) -> int:
     from rigslim.io.atomic import scratch_folder, staged_view
 
@@ -142,6 +149,7 @@ def cmd_reduce(args) -> int:
                                            "normal_rms_rad", "reference_diagonal_m", "clips") if k in world}
         solver = [s.get("solver", {}) for s in result.document["steps"] if s.get("stage") == "solve"]
         fallback = sum(int(r.get("fallback_vertices", 0)) for r in solver)
+        untouched = select is not None and all(_passes_through(r[1]) for r in runs)
         doc = _header("reduce") | {"input": str(src), "output": str(out), "clip": clip, "clip_seconds": duration,
                                     "frames": frames, "k": args.k, "select": select, "solve": solve,
                                     "fallback_k_largest": frames < 2, "guard_fallback_vertices": fallback,
@@ -157,7 +165,9 @@ def cmd_reduce(args) -> int:
         over = f" over {world['clips']} clips" if world.get("clips", 1) > 1 else ""
         line += (f"; test-pose position RMS{over} {world['position_rms_pct']:.4g} % of the world-space diagonal "
                  f"({world['position_rms_m']:.4g} m of {world['reference_diagonal_m']:.4g} m)")
-    if frames >= 2 and select is not None and solve not in ("k-largest", None):
+    if untouched:
+        line += f"; every vertex has at most {args.k} influences, so the weights pass through unchanged"
+    elif frames >= 2 and select is not None and solve not in ("k-largest", None):
         line += f"; {fallback} vertices fell back to k-largest on held-out frames"
     print(line)
     if unnormalised:

@@ -1,4 +1,4 @@
-"""Build the sweep characters: 17 animated characters for robustness sweeps, never committed, never tuned on.
+"""Build the sweep characters: 28 animated characters for robustness sweeps, never committed, never tuned on.
 
 The suite (``build.py``) is what methods and constants are chosen on and the hold-out set
 (``build.py --set holdout``) is what they are checked on; these are for running every command on
@@ -10,6 +10,9 @@ Debian packages and with the same converters as the suite:
   croc, fox, elephant, a soldier (the short-tunic infantry body with hoplite and swordsman clips) and
   the lithobolos siege engine (rigid parts), each a cached PMD with its skeleton and five PSA clips
   (``pmd2gltf.py``);
+- eleven more 0 A.D. characters, the second batch (``ZERO_AD_2``, built for the sweep of 2026-12-05): pig, mastiff,
+  hippo, rabbit, goat, sheep, shark, hawk, chicken, the asian elephant and a woman in a dress (the biped
+  infantry clips), 124 to 1,538 faces, 9 to 58 joints;
 - three cube2 models (``cube2-data``): the shotgun and the minigun first-person guns (IQM, textured,
   rigid parts; ``iqm2gltf.py``) and the cloth flag (MD5 through ``assimp export``, texture embedded by
   ``clips.py``);
@@ -72,6 +75,42 @@ ZERO_AD = [
     ("lithobolos", "mechanical (stone thrower, rigid parts)", "art/meshes/structural/hele_lithobolos.dae.cached.pmd",
      "hele_lithobolos", [("attack", "art/animation/mechanical/hele_lithobolos.dae.cached.psa"),
                          ("idle", "art/animation/mechanical/hele_lithobolos_idle.dae.cached.psa")]),
+]
+#: The second batch (built 2026-12-05 for the sweep of that day): 0 A.D. characters no earlier sweep used.
+O = "art/animation/other"
+ZERO_AD_2 = [
+    ("pig", "quadruped (pig)", "art/meshes/skeletal/pig.dae.cached.pmd", "boar",
+     [(c, f"{Q}/animal_pig_{c}_01.dae.cached.psa") for c in ("walk", "run", "idle", "feeding", "attack", "death")]),
+    ("mastiff", "quadruped (war dog, spiked collar)", "art/meshes/skeletal/mastiff.dae.cached.pmd", "mastiff",
+     [(c, f"{Q}/mastiff_{c}.dae.cached.psa") for c in ("run", "idle", "attack", "death")]),
+    ("hippo", "quadruped (hippopotamus)", "art/meshes/skeletal/fauna_hippopotamus.dae.cached.pmd",
+     "hippopotamus_armature",
+     [(c, f"{Q}/hippopotamus_{s}.dae.cached.psa") for c, s in (("walk", "walk"), ("trot", "trot"),
+                                                               ("idle", "idle_01"), ("attack", "attack"),
+                                                               ("death", "death"))]),
+    ("rabbit", "quadruped (rabbit, long ears, tiny)", "art/meshes/skeletal/rabbit_01.dae.cached.pmd", "deer",
+     [(c, f"{Q}/rabbit_{s}.dae.cached.psa") for c, s in (("walk", "walk"), ("idle", "idle_01"), ("death", "death"))]),
+    ("goat", "quadruped (goat, horns)", "art/meshes/skeletal/goat.dae.cached.pmd", "goat",
+     [(c, f"{Q}/goat_{s}.dae.cached.psa") for c, s in (("walk", "walk"), ("idle", "idle_01"), ("death", "death"))]),
+    ("sheep", "quadruped (sheep, fleece)", "art/meshes/skeletal/sheep.dae.cached.pmd", "sheep",
+     [(c, f"{Q}/sheep_{s}.dae.cached.psa") for c, s in (("walk", "walk"), ("run", "run"), ("idle", "idle_01"),
+                                                        ("death", "death"))]),
+    ("shark", "fish (shark, swimming)", "art/meshes/skeletal/shark.dae.cached.pmd", "shark",
+     [(c, f"{O}/shark_{c}.dae.cached.psa") for c in ("walk", "run", "idle")]),
+    ("hawk", "bird (hawk, wings)", "art/meshes/skeletal/hawk.dae.cached.pmd", "hawk",
+     [(c, f"{O}/hawk_{c}.dae.cached.psa") for c in ("flight", "glide")]),
+    ("chicken", "bird (chicken, tiny)", "art/meshes/skeletal/chicken.dae.cached.pmd", "chicken",
+     [(c, f"{Q}/chicken_{s}.dae.cached.psa") for c, s in (("walk", "walk"), ("run", "run_01"), ("idle", "idle_01"),
+                                                          ("attack", "attack"), ("death", "death"))]),
+    ("elephant_asian", "quadruped (asian elephant, trunk, tusks)",
+     "art/meshes/skeletal/elephant_asian_male.dae.cached.pmd", "elephantidae_asian",
+     [(c, f"{Q}/elephant_asian_{s}.dae.cached.psa") for c, s in (("walk", "walk"), ("run", "run"), ("idle", "idle_01"),
+                                                                 ("attack", "attack_melee_01"), ("death", "death"))]),
+    ("woman", "humanoid (0 A.D. woman, dress)", "art/meshes/skeletal/new/f_dress.dae.cached.pmd", "biped",
+     list(zip(CLIPS5, [f"{BI}/hoplite/walk_ready.dae.cached.psa", f"{BI}/hoplite/run_ready.dae.cached.psa",
+                       f"{BI}/hoplite/idle_relax_01.dae.cached.psa",
+                       f"{BI}/swordsman/attack_melee_2h_01.dae.cached.psa", f"{BI}/death_a.dae.cached.psa"],
+              strict=True))),
 ]
 CUBE2 = ["shotgun", "minigun", "flag"]
 RED_ECLIPSE = ["re_pistol", "re_smg", "re_palm", "re_player_all"]
@@ -163,7 +202,7 @@ def main(argv=None) -> int:
     args.work.mkdir(parents=True, exist_ok=True)
     args.out.mkdir(parents=True, exist_ok=True)
     entries = []
-    for spec in [*ZERO_AD, *CUBE2, *RED_ECLIPSE]:
+    for spec in [*ZERO_AD, *ZERO_AD_2, *CUBE2, *RED_ECLIPSE]:
         name = spec if isinstance(spec, str) else spec[0]
         if args.only is not None and name not in args.only:
             continue

@@ -189,6 +189,19 @@ def test_k8_writes_only_the_sets_the_widest_vertex_needs(tmp_path, valid):
     assert check_no_empty_set(tmp_path / "rf-25.glb") == 2
 
 
+def test_reduce_says_when_every_vertex_passes_through(tmp_path, capsys):
+    """RiggedFigure has at most 4 influences per vertex (19 joints): -k 4 keeps every vertex's weights, and the
+    line says so instead of counting guard fall-backs; -k 3 reduces and counts them."""
+    src = GLTF / "RiggedFigure" / "RiggedFigure.gltf"
+    assert main(["reduce", str(src), "-o", str(tmp_path / "k4.glb"), "-k", "4"]) == 0
+    line = capsys.readouterr().out
+    assert "every vertex has at most 4 influences, so the weights pass through unchanged" in line
+    assert "fell back" not in line
+    assert main(["reduce", str(src), "-o", str(tmp_path / "k3.glb"), "-k", "3"]) == 0
+    line = capsys.readouterr().out
+    assert "pass through" not in line and "vertices fell back to k-largest" in line
+
+
 def test_reduce_defaults_to_best_fit_by_error_fitted_on_every_clip(tmp_path, capsys):
     """No options: best-fit by error + geometric, examples from both of wuson's clips, the guard's count
     in the report and the line; --select k-largest / --by / --clip reach the other choices."""
