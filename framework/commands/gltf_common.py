@@ -96,10 +96,16 @@ def unnormalised_note(command: str, name: str, doc) -> str | None:
             f"deforms as the normalised skin does")
 
 
-def no_motion(name: str, clip: str | None, duration: float) -> str:
-    """Why a file gives fewer than 2 frames: no animation at all, or a clip of one pose (an SMD's 0 s clip)."""
+def no_motion(name: str, clip: str | None, duration: float, source=None, searched: bool = False) -> str:
+    """Why a file gives fewer than 2 frames: no animation at all, or a clip of one pose (an SMD's 0 s clip).
+
+    ``searched``: the command looked through every clip for motion (no ``--clip``); where the file (``source``,
+    its loaded glTF document) has several clips, the line says that each of them holds one pose."""
     if clip is None:
         return f"{name} has no animation"
+    clips = len(source.json.get("animations", [])) if searched and source is not None else 1
+    if clips > 1:
+        return f"each of {name}'s {clips} clips holds one pose only (the first, '{clip}', is {duration:g} s long)"
     return f"{name}'s clip '{clip}' holds one pose only ({duration:g} s long)"
 
 

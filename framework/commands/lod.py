@@ -139,8 +139,8 @@ def cmd_lod(args) -> int:
         unnormalised = unnormalised_note("lod", src.name, source)
         if frames < 2:
             _joint_count(src, source)              # a file without a skin is refused before the note
-            print(f"rigslim lod: {no_motion(src.name, clip, duration)}: simplifying for the rest pose only",
-                  file=sys.stderr)
+            why = no_motion(src.name, clip, duration, source, args.clip is None)
+            print(f"rigslim lod: {why}: simplifying for the rest pose only", file=sys.stderr)
         console = _console(args)
         target = tmp / f"lod{out.suffix}" if args.split else out
         runs = _chain(src, target, lambda i, o, s: lod_pipeline(

@@ -130,8 +130,8 @@ def cmd_reduce(args) -> int:
                   f"writing the weights normalised", file=sys.stderr)
             select = solve = None
         elif frames < 2:
-            print(f"rigslim reduce: {no_motion(src.name, clip, duration)}: falling back to k-largest weights",
-                  file=sys.stderr)
+            why = no_motion(src.name, clip, duration, source, args.clip is None)
+            print(f"rigslim reduce: {why}: falling back to k-largest weights", file=sys.stderr)
             select, solve = "k-largest", "k-largest"
         with scratch_folder("rigslim-reduce-") as tmp:
             runs = _chain(src, out, lambda i, o, s: reduce_pipeline(

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import struct
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -442,6 +443,10 @@ def test_no_motion_says_which():
 
     assert no_motion("a.glb", None, 0.0) == "a.glb has no animation"
     assert no_motion("t.glb", "anim", 0.0) == "t.glb's clip 'anim' holds one pose only (0 s long)"
+    three = SimpleNamespace(json={"animations": [{}, {}, {}]})
+    assert no_motion("t.glb", "anim", 0.0, three, searched=True) == (
+        "each of t.glb's 3 clips holds one pose only (the first, 'anim', is 0 s long)")
+    assert no_motion("t.glb", "anim", 0.0, three) == "t.glb's clip 'anim' holds one pose only (0 s long)"
 
 
 def test_inspect_json(capsys):

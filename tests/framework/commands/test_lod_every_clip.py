@@ -88,6 +88,27 @@ def test_a_first_clip_of_one_pose_takes_the_motion_of_the_others(tmp_path, capfd
     assert rep["world"]["clips"] >= 1 and rep["world"]["position_rms_m"] >= 0
 
 
+def test_every_clip_of_one_pose_is_named_as_such(tmp_path, capfd):
+    """Two clips, each one pose: ``lod`` simplifies for the rest pose and ``reduce`` falls back to k-largest, and
+    both say that each of the clips holds one pose (they once named only the first); with ``--clip`` they name
+    that one."""
+    one = _tube(tmp_path / "pose_bend.glb", "pose")
+    src = load_gltf(one)
+    js = json.loads(json.dumps(src.json))
+    js["animations"] = [js["animations"][0], dict(json.loads(json.dumps(js["animations"][0])), name="aim")]
+    src = write_glb(tmp_path / "poses.glb", js, src.buffers[0])
+    capfd.readouterr()
+    assert main(["lod", str(src), "-o", str(tmp_path / "l.glb"), "--ratios", "0.5", "--max-error", "none"]) == 0
+    err = capfd.readouterr().err
+    assert "each of poses.glb's 2 clips holds one pose only (the first, 'pose', is 0 s long)" in err
+    assert "simplifying for the rest pose only" in err
+    assert main(["reduce", str(src), "-o", str(tmp_path / "r.glb"), "-k", "1"]) == 0
+    err = capfd.readouterr().err
+    assert "each of poses.glb's 2 clips holds one pose only" in err and "falling back to k-largest" in err
+    assert main(["reduce", str(src), "-o", str(tmp_path / "r2.glb"), "-k", "1", "--clip", "aim"]) == 0
+    assert "poses.glb's clip 'aim' holds one pose only" in capfd.readouterr().err
+
+
 def test_a_first_clip_of_one_pose_reduced_into_usd(tmp_path, capfd):
     """The USD output is measured on its bound clip, the first: a clip of one pose has no held-out frame, so its
     one frame is compared (the fit's test frames are the bend's, which the USD side does not carry)."""
