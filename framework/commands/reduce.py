@@ -103,9 +103,14 @@ def _world(src: Path, written: Path, split, clip, fps: float) -> dict:
     return out
 
 
+def _solver_reports(result) -> list[dict]:
+    """The ``solve`` steps' solver reports of a pipeline run."""
+    return [s.get("solver", {}) for s in result.document["steps"] if s.get("stage") == "solve"]
+
+
 def _passes_through(result) -> bool:
     """Whether the solve kept every vertex's input weights exactly (each has at most k influences)."""
-    solved = [s.get("solver", {}) for s in result.document["steps"] if s.get("stage") == "solve"]
+    solved = _solver_reports(result)
     m = len(result.asset.mesh.V) if result.asset is not None and result.asset.mesh is not None else -1
     return bool(solved) and all(int(r.get("passed_through", -1)) == m for r in solved)
 
@@ -147,12 +152,12 @@ def cmd_reduce(args) -> int:
                 world = _world(src, written, result.asset.split, args.clip, args.fps)
             world = {k: world[k] for k in ("position_rms_m", "position_max_m", "position_rms_pct",
                                            "normal_rms_rad", "reference_diagonal_m", "clips") if k in world}
-        solver = [s.get("solver", {}) for s in result.document["steps"] if s.get("stage") == "solve"]
-        fallback = sum(int(r.get("fallback_vertices", 0)) for r in solver)
+        fallback = sum(int(r.get("fallback_vertices", 0)) for r in _solver_reports(result))
         untouched = select is not None and all(_passes_through(r[1]) for r in runs)
         doc = _header("reduce") | {"input": str(src), "output": str(out), "clip": clip, "clip_seconds": duration,
                                     "frames": frames, "k": args.k, "select": select, "solve": solve,
                                     "fallback_k_largest": frames < 2, "guard_fallback_vertices": fallback,
+                                    "passed_through": untouched,
                                     "seconds": seconds, "metrics": metrics,
                                     "world": world, "pipeline": pipeline, "run": result.document}
         if len(runs) > 1:
