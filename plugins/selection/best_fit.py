@@ -39,6 +39,7 @@ from numba import njit
 from pydantic import Field
 
 from rigslim.model.weights import InfluenceSets
+from rigslim.numerics.clip_balance import fit_transforms
 from rigslim.numerics.largest_entries import k_largest
 from rigslim.plugin import InfluenceSelector, Params
 from rigslim.plugins.selection.k_largest import pass_through_note
@@ -111,12 +112,16 @@ def one_ring_vote(A: sp.csr_matrix, fit: np.ndarray, adjacency, beta: float) -> 
     return fit + beta * np.asarray(N[rows, A.indices]).ravel()
 
 
-def best_fit(asset, k: int, by: str = "weight", coherence: float = 0.0, swaps: int = 0) -> tuple[InfluenceSets, dict]:
-    """Influence sets of the sparse example-pose fit (module docstring) and a report."""
+def best_fit(asset, k: int, by: str = "weight", coherence: float = 0.0, swaps: int = 0,
+             balance: str = "clips") -> tuple[InfluenceSets, dict]:
+    """Influence sets of the sparse example-pose fit (module docstring) and a report.
+
+    ``balance``: ``clips`` weights the example frames so that every clip counts
+    (:mod:`rigslim.numerics.clip_balance`), ``frames`` weights them alike."""
     t0 = time.perf_counter()
     A = sp.csr_matrix(asset.weights)
     A.sort_indices()
-    T = asset.example_poses().T
+    T, frame_weights = fit_transforms(asset, k, balance)
     fit, member, errors = sparse_fit(asset.mesh.V, T, A, k, by, swaps)
     score = one_ring_vote(A, fit, asset.mesh.adjacency, coherence) if coherence > 0 else fit.copy()
     if by == "error":
@@ -127,6 +132,7 @@ def best_fit(asset, k: int, by: str = "weight", coherence: float = 0.0, swaps: i
     p = T.shape[0]
     diag = asset.mesh.bbox_diagonal
     report = {"by": by, "coherence": float(coherence), "swaps": int(swaps), "example_poses": int(p),
+              "balance": balance if frame_weights is not None else "frames",
               "fit_rms_pct": float(100.0 * np.sqrt(errors.sum() / (max(len(errors), 1) * max(p, 1))) / diag),
               "fit_support_mean": float(support.mean()) if support.size else 0.0,
               "fit_support_max": int(support.max(initial=0)),
@@ -141,6 +147,8 @@ class BestFitParams(Params):
                                            "drop influences greedily by least example-pose error")
     swaps: int = Field(0, ge=0, description="by: error: passes of single exchanges (member for "
                        "non-member) that lower the example-pose error further")
+    balance: Literal["clips", "frames"] = Field("clips", description="clips: weight the example frames so "
+                                                "that every clip counts by its k-largest error; frames: alike")
 
 
 class BestFitSelector(InfluenceSelector[BestFitParams]):
@@ -154,7 +162,7 @@ class BestFitSelector(InfluenceSelector[BestFitParams]):
         assert weights is not None  # require() raised otherwise
         if pass_through_note(params.k, weights.shape[1], ctx):
             return k_largest(weights, params.k)
-        sets, report = best_fit(asset, params.k, params.by, swaps=params.swaps)
+        sets, report = best_fit(asset, params.k, params.by, swaps=params.swaps, balance=params.balance)
         if ctx is not None and hasattr(ctx, "report"):
             ctx.report.update(report)
         return sets

@@ -27,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from rigslim.numerics.clip_balance import fit_transforms
 from rigslim.numerics.row_threads import over_rows
 from rigslim.numerics.simplex_nnls import _lawson_hanson
 
@@ -122,8 +123,9 @@ def _fit_rows(start, stop, V, T, indptr, indices, data, sel, valid, alpha0, eps,
         energy0[v] = max(e0, 0.0)
 
 
-def geometric_nonnegative(asset, influences, alpha0, ridge: float) -> tuple[np.ndarray, dict]:
-    """Per-vertex non-negative geometric weights on ``influences`` (module docstring).
+def geometric_nonnegative(asset, influences, alpha0, ridge: float, balance: str = "clips") -> tuple[np.ndarray, dict]:
+    """Per-vertex non-negative geometric weights on ``influences`` (module docstring); the example frames
+    weighted by ``balance`` (:func:`rigslim.numerics.clip_balance.fit_transforms`).
 
     Returns
     -------
@@ -135,9 +137,9 @@ def geometric_nonnegative(asset, influences, alpha0, ridge: float) -> tuple[np.n
     import scipy.sparse as sp
 
     V = np.ascontiguousarray(asset.mesh.V, dtype=np.float64)
-    T = np.ascontiguousarray(asset.example_poses().T, dtype=np.float64)
-    A = sp.csr_matrix(asset.weights)
     sel = np.ascontiguousarray(influences.indices, dtype=np.int64)
+    T, frame_weights = fit_transforms(asset, sel.shape[1], balance)
+    A = sp.csr_matrix(asset.weights)
     valid = np.ascontiguousarray(influences.valid)
     nvalid = int(valid.sum())
     m, k = sel.shape
@@ -150,4 +152,5 @@ def geometric_nonnegative(asset, influences, alpha0, ridge: float) -> tuple[np.n
     data = np.ascontiguousarray(A.data, dtype=np.float64)
     over_rows(_fit_rows, m, V, T, A.indptr.astype(np.int64), A.indices.astype(np.int64), data, sel, valid,
               np.ascontiguousarray(alpha0, dtype=np.float64), eps, out, energy, energy0)
-    return out, {"energy": float(energy.sum()), "energy_start": float(energy0.sum()), "ridge": eps}
+    return out, {"energy": float(energy.sum()), "energy_start": float(energy0.sum()), "ridge": eps,
+                 "balance": balance if frame_weights is not None else "frames"}

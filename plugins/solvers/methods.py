@@ -50,6 +50,9 @@ class ReductionParams(Params):
     residual_tolerance: float = Field(1e-6, gt=0, description="CG (multilevel / AMG-CG) stops when the reduced "
                                       "gradient norm falls below this times its starting value")
     max_iterations: int = Field(500, ge=1, description="upper bound on CG iterations")
+    balance: Literal["clips", "frames"] = Field(
+        "clips", description="geometric, poisson: weight the example frames so that every clip counts, each by "
+        "the inverse of k-largest's error on it (rigslim.numerics.clip_balance); frames: every frame alike")
     guard: Literal["k-largest", "k-largest-per-vertex", "off"] = Field(
         "k-largest", description="with validation frames (held-out frames of the clips, poses: examples: "
         "{clips: ...}): vertices fall back to k-largest's weights until every clip's validation error is below "

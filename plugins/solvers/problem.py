@@ -35,6 +35,7 @@ import scipy.sparse as sp
 
 from rigslim.errors import StepError
 from rigslim.numerics.blend import basis_positions, linear_blend
+from rigslim.numerics.clip_balance import fit_transforms
 
 if TYPE_CHECKING:
     from rigslim.model.weights import InfluenceSets
@@ -184,9 +185,11 @@ def constraints(asset, influences, linear_precision: bool) -> tuple[np.ndarray, 
     return C, d
 
 
-def pose_basis(asset, influences):
-    """Geometric / Poisson basis ``B`` (m, k, 3p) and target ``Y`` (m, 3p) of the example poses."""
-    T = asset.example_poses().T
+def pose_basis(asset, influences, balance: str = "clips"):
+    """Geometric / Poisson basis ``B`` (m, k, 3p) and target ``Y`` (m, 3p) of the example poses, each pose
+    scaled by the square root of its frame weight (``balance``,
+    :func:`rigslim.numerics.clip_balance.fit_transforms`)."""
+    T, _ = fit_transforms(asset, influences.indices.shape[1], balance)
     V = asset.mesh.V
     Bp = basis_positions(V, T, influences.indices)  # (p, m, k, 3)
     p, m, k, _ = Bp.shape
@@ -209,8 +212,9 @@ def handle_basis(asset, influences):
 
 def build_problem(asset, method: str, *, nonnegative: bool | None = None, laplacian: str = "mass-weighted",
                   linear_precision: bool = False, position_weight: float = 0.0,
-                  ridge: float = RIDGE) -> ReductionProblem:
-    """Assemble the energy of ``method`` in {"geometric", "smooth", "poisson"} on the asset's influence sets."""
+                  ridge: float = RIDGE, balance: str = "clips") -> ReductionProblem:
+    """Assemble the energy of ``method`` in {"geometric", "smooth", "poisson"} on the asset's influence sets
+    (``balance``: the example frames' weights, :func:`pose_basis`)."""
     influences = asset.influences
     A = asset.weights
     if influences.n_vertices != asset.mesh.n_vertices:
@@ -225,8 +229,9 @@ def build_problem(asset, method: str, *, nonnegative: bool | None = None, laplac
     if method == "smooth":
         B, Y = handle_basis(asset, influences)
     else:
-        B, Y = pose_basis(asset, influences)
+        B, Y = pose_basis(asset, influences, balance)
         info["example_poses"] = int(Y.shape[1] // 3)
+        info["balance"] = balance
     if method == "geometric":
         Q = sp.identity(asset.mesh.n_vertices, format="csr")
         coupled = False

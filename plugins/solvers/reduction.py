@@ -85,10 +85,11 @@ def _solve(asset, method: str, params, ctx) -> tuple[ReducedWeights, dict]:
     nonneg = default_nonnegative(asset) if params.nonnegative is None else bool(params.nonnegative)
     if (method == "geometric" and nonneg and params.device == "numpy" and params.solver in ("auto", "local")
             and not (lp and asset.handles.is_cage)):
-        return _geometric_per_vertex(asset, lp, params.ridge, t0)
+        return _geometric_per_vertex(asset, lp, params.ridge, t0, params.balance)
     prob = build_problem(asset, method, nonnegative=params.nonnegative,
                          laplacian=getattr(params, "laplacian", "mass-weighted"), linear_precision=lp,
-                         position_weight=getattr(params, "position_weight", 0.0), ridge=params.ridge)
+                         position_weight=getattr(params, "position_weight", 0.0), ridge=params.ridge,
+                         balance=params.balance)
     if params.solver == "global" and prob.nonneg:
         raise StepError("the global solver handles equality constraints only, and non-negativity is on",
                         field="solver", fix="use solver: auto or local, or set nonnegative: false")
@@ -114,12 +115,13 @@ def _linear_precision(asset, method: str, linear_precision: bool | None) -> bool
     return bool(linear_precision) if linear_precision is not None else method == "smooth"
 
 
-def _geometric_per_vertex(asset, lp: bool, ridge: float, t0: float) -> tuple[ReducedWeights, dict]:
+def _geometric_per_vertex(asset, lp: bool, ridge: float, t0: float,
+                          balance: str = "clips") -> tuple[ReducedWeights, dict]:
     """Non-negative geometric weights: independent per-vertex QPs with the sum-to-one row only,
     ``min ||sum_l alpha_l B_l - Y_v||^2  s.t.  1^T alpha = 1, alpha >= 0``, in the compiled kernel
     (:func:`rigslim.plugins.solvers.geometric_kernel.geometric_nonnegative`)."""
     alpha0 = initial_weights(asset.weights, asset.influences)
-    alpha, rep = geometric_nonnegative(asset, asset.influences, alpha0, ridge)
+    alpha, rep = geometric_nonnegative(asset, asset.influences, alpha0, ridge, balance)
     report = {"method": "geometric", "nonnegative": True, "linear_precision": lp, "energy_name": "geometric",
               "constraints": 1, "example_poses": len(asset.split.examples), "path": "local",
               "backend": "numba", "sweeps": 1, "colors": 1, "converged": True, **rep,
