@@ -317,15 +317,45 @@ def frame_errors(asset, reduced, frames):
     return np.asarray(pos), np.asarray(p95)
 
 
-def per_clip_rows(asset, methods):
-    """For each test clip: frames, and per method the position RMS (pooled over its frames) and mean normal p95."""
-    rows = []
+def clip_test_frames(asset):
+    """``{clip: stack frames}``: each test clip's frames that the errors are measured on (at most
+    ``MAX_TEST_FRAMES``, evenly)."""
+    out = {}
     for part in asset.split.clips["test"]:
         seg = next(s for s in asset.split.segments if s["clip"] == part["clip"])
         frames = [seg["start"] + f for f in part["frames"]]
         if len(frames) > MAX_TEST_FRAMES:
             frames = [frames[i] for i in np.linspace(0, len(frames) - 1, MAX_TEST_FRAMES).round().astype(int)]
-        r = {"clip": part["clip"], "frames": len(frames)}
+        out[part["clip"]] = frames
+    return out
+
+
+def yardstick_weights(asset, k):
+    """The default's selection and solve (best-fit by error + geometric, clips balanced; no guard) fitted on
+    the very frames the errors are measured on, every test frame of every clip: what one weight set reaches
+    with these bone transforms when it sees the test motion, the yardstick for the Dem Bones ratio."""
+    import copy
+    import dataclasses
+
+    from rigslim.plugin import StepContext
+    from rigslim.plugin.host import get_host
+
+    a = copy.copy(asset)
+    frames = sorted({f for fr in clip_test_frames(asset).values() for f in fr})
+    a.split = dataclasses.replace(asset.split, examples=frames, validation=[])
+    host = get_host()
+    sel = host.get("influence-selection", "best-fit")
+    sel.apply(a, sel.parse_params({"k": k, "by": "error"}), StepContext())
+    sol = host.get("weight-solver", "geometric")
+    sol.apply(a, sol.parse_params({"guard": "off"}), StepContext())
+    return a.reduced
+
+
+def per_clip_rows(asset, methods):
+    """For each test clip: frames, and per method the position RMS (pooled over its frames) and mean normal p95."""
+    rows = []
+    for clip, frames in clip_test_frames(asset).items():
+        r = {"clip": clip, "frames": len(frames)}
         for name, W in methods.items():
             pos, p95 = frame_errors(asset, W, frames)
             r[name] = {"position_pct": float(np.sqrt(np.mean(pos ** 2))), "normal_p95_rad": float(np.mean(p95))}
@@ -342,6 +372,8 @@ def character_block(name, asset, k, fit_clips, held_clips):
     methods = {"default": default, "k_largest": k_largest_weights(asset.weights, k)}
     W, dem_s = dem_bones_weights(asset, k)
     methods["dem_bones"] = W
+    if not passes:
+        methods["yardstick"] = yardstick_weights(asset, k)
     rows = per_clip_rows(asset, methods)
     blk = {"character": name, "k": k, "vertices": asset.mesh.n_vertices, "joints": asset.handles.n,
            "max_influences": int(np.diff(asset.weights.indptr).max()), "pass_through": passes,
@@ -422,7 +454,7 @@ def suite_summary(blocks):
     exact, i.e. pass-through, left out of the ratios), and the normal p95 comparisons."""
     out = []
     for k in sorted({b["k"] for b in blocks}):
-        kl, db, worse, n_better, n_clips, p95, db_max = [], [], [], 0, 0, [], None
+        kl, db, yd, worse, n_better, n_clips, p95, db_max = [], [], [], [], 0, 0, [], None
         for b in (b for b in blocks if b["k"] == k):
             for r in b["clips"]:
                 d, q, e = (r[m]["position_pct"] for m in ("default", "k_largest", "dem_bones"))
@@ -431,6 +463,8 @@ def suite_summary(blocks):
                     continue
                 kl.append(d / q)
                 db.append(d / e if e > 0 else np.nan)
+                if "yardstick" in r:
+                    yd.append(r["yardstick"]["position_pct"] / e if e > 0 else np.nan)
                 if e > 0 and d / e >= np.nanmax(db):
                     db_max = {"character": b["character"], "clip": r["clip"], "default": d, "dem_bones": e}
                 if d > q:
@@ -447,6 +481,7 @@ def suite_summary(blocks):
                     "vs_k_largest_mean": float(np.mean(kl)), "vs_k_largest_max": float(np.max(kl)),
                     "vs_dem_bones_mean": float(np.nanmean(db)), "vs_dem_bones_max": float(np.nanmax(db)),
                     "vs_dem_bones_max_clip": db_max,
+                    "yardstick_vs_dem_bones_mean": float(np.nanmean(yd)) if yd else None,
                     "clips_above_k_largest": worse,
                     # of the clips where some method turns normals (p95 above round-off); on the others fewer
                     # than 5 % of the vertices turn at all with any of the three, so no p95 is below another
@@ -477,10 +512,16 @@ def suite_markdown(doc):
            "bounding-box diagonal, pooled over the clip's frames; normal p95: the 95th percentile of the "
            "per-vertex normal angle (rad), mean over frames. The elephant (one clip): examples 0:457:45, "
            "validation 22:457:45, test 5:457:7 minus those.", "",
+           "*Yardstick*: the default's selection and solve fitted on the very frames the errors are measured on "
+           "(every test frame of every clip, clips balanced, no guard), so what one weight set can reach with these "
+           "bone transforms when it sees the test motion. It is not a bound clip by clip: one weight set trades the "
+           "clips against each other (in the held-out configuration it gives re_drone's four quiet clips 0.0048 % "
+           "where the default, which never saw the sword attack, gives 0.0001 %), but its mean ratio to Dem Bones "
+           "shows what fitting the example poses better could gain.", "",
            "| configuration, k | clips | default / k-largest, mean (max) | clips above k-largest | "
-           "default / Dem Bones, mean (max) "
+           "default / Dem Bones, mean (max) | yardstick / Dem Bones, mean "
            "| normal p95 default / k-largest / Dem Bones (mean) | clips with normal p95 below both |",
-           "|---|---|---|---|---|---|---|"]
+           "|---|---|---|---|---|---|---|---|"]
     for cfg, title in (("all", "all clips fitted (the one-liner)"),
                        ("split", "fit clips / held-out clips (multi-clip characters)")):
         out += summary_rows(s["summary"][cfg], title)
@@ -499,13 +540,14 @@ def summary_rows(summary, title):
     out = []
     for r in summary:
         if not r["ratio_clips"]:
-            out.append(f"| {title}, k = {r['k']} | 0 of {r['clips']} | every clip passes through | | | | |")
+            out.append(f"| {title}, k = {r['k']} | 0 of {r['clips']} | every clip passes through | | | | | |")
             continue
         above = ", ".join(f"{w['character']} {w['clip']} ({w['default']:.4f} vs {w['k_largest']:.4f})"
                           for w in r["clips_above_k_largest"]) or "none"
         out.append(f"| {title}, k = {r['k']} | {r['ratio_clips']} of {r['clips']} | {r['vs_k_largest_mean']:.3f} "
                    f"({r['vs_k_largest_max']:.3f}) | {above} | {r['vs_dem_bones_mean']:.3f} "
-                   f"({r['vs_dem_bones_max']:.3f}) | {r['normal_p95_default_mean']:.4f} / "
+                   f"({r['vs_dem_bones_max']:.3f}) | {fmt(r.get('yardstick_vs_dem_bones_mean'), 3)} | "
+                   f"{r['normal_p95_default_mean']:.4f} / "
                    f"{r['normal_p95_k_largest_mean']:.4f} / {r['normal_p95_dem_bones_mean']:.4f} | "
                    f"{r['normal_p95_below_both']} of {r['ratio_clips'] - r.get('normal_p95_all_zero', 0)}"
                    f"{_zero_ties(r)} |")
