@@ -1,4 +1,4 @@
-"""Build the sweep characters: 28 animated characters for robustness sweeps, never committed, never tuned on.
+"""Build the sweep characters: 39 animated characters for robustness sweeps, never committed, never tuned on.
 
 The suite (``build.py``) is what methods and constants are chosen on and the hold-out set
 (``build.py --set holdout``) is what they are checked on; these are for running every command on
@@ -13,6 +13,9 @@ Debian packages and with the same converters as the suite:
 - eleven more 0 A.D. characters, the second batch (``ZERO_AD_2``, built for the sweep of 2026-12-05): pig, mastiff,
   hippo, rabbit, goat, sheep, shark, hawk, chicken, the asian elephant and a woman in a dress (the biped
   infantry clips), 124 to 1,538 faces, 9 to 58 joints;
+- eleven more, the third batch (``ZERO_AD_3``, built for the third sweep of 2026-12-05): lion, bull, wildebeest,
+  donkey, zebra, polar bear, peacock, crow, seagull, the whale's back and fins and a man in a robe (the archer
+  clips), 302 to 2,528 faces, 8 to 46 joints;
 - three cube2 models (``cube2-data``): the shotgun and the minigun first-person guns (IQM, textured,
   rigid parts; ``iqm2gltf.py``) and the cloth flag (MD5 through ``assimp export``, texture embedded by
   ``clips.py``);
@@ -112,6 +115,39 @@ ZERO_AD_2 = [
                        f"{BI}/swordsman/attack_melee_2h_01.dae.cached.psa", f"{BI}/death_a.dae.cached.psa"],
               strict=True))),
 ]
+#: The third batch (built 2026-12-05, after the second): 0 A.D. characters no earlier sweep used.
+ZERO_AD_3 = [
+    ("lion", "quadruped (lion, mane)", "art/meshes/skeletal/animal_lion.dae.cached.pmd", "horse_old",
+     [(c, f"{Q}/lion_{s}.dae.cached.psa") for c, s in (("walk", "walk"), ("run", "run"), ("idle", "idle_01"),
+                                                       ("death", "death"))]),
+    ("bull", "quadruped (bull, horns)", "art/meshes/skeletal/bull_a.dae.cached.pmd", "bovidae_skeleton",
+     [(c, f"{Q}/bovidae_{s}.dae.cached.psa") for c, s in (("walk", "walk_relax"), ("run", "run"), ("idle", "idle_a"),
+                                                          ("attack", "attack"), ("death", "death_a"))]),
+    ("wildebeest", "quadruped (wildebeest, horns, beard)", "art/meshes/skeletal/wildebeest_adult.dae.cached.pmd",
+     "bovidae_skeleton",
+     [(c, f"{Q}/bovidae_{s}.dae.cached.psa") for c, s in (("walk", "walk"), ("feeding", "feeding"),
+                                                          ("idle", "idle_b"), ("death", "death_b"))]),
+    ("donkey", "quadruped (donkey, small)", "art/meshes/skeletal/donkey.dae.cached.pmd", "horse_old",
+     [(c, f"{Q}/donkey_{c}_01.dae.cached.psa") for c in ("walk", "idle", "death")]),
+    ("zebra", "quadruped (zebra, mane)", "art/meshes/skeletal/zebra.dae.cached.pmd", "zebra",
+     [(c, f"{Q}/zebra_{c}.dae.cached.psa") for c in CLIPS5]),
+    ("bear_polar", "quadruped (polar bear, 2,528 faces)", "art/meshes/skeletal/bear_polar.dae.cached.pmd",
+     "ursidae_armature",
+     [(c, f"{Q}/bear_{s}.dae.cached.psa") for c, s in (("walk", "walk"), ("run", "run"), ("idle", "idle_02"),
+                                                       ("attack", "attack_02"), ("death", "death_01"))]),
+    ("peacock", "bird (peacock, tail fan)", "art/meshes/skeletal/peacock.dae.cached.pmd", "peacock",
+     [(c, f"{Q}/peacock_{c}.dae.cached.psa") for c in ("walk", "idle", "feeding", "death")]),
+    ("crow", "bird (crow, wings)", "art/meshes/skeletal/crow.dae.cached.pmd", "hawk",
+     [(c, f"{O}/crow_{c}.dae.cached.psa") for c in ("flight", "glide")]),
+    ("seagull", "bird (seagull, wings)", "art/meshes/skeletal/seagull.dae.cached.pmd", "hawk",
+     [(c, f"{O}/seagull_{s}.dae.cached.psa") for c, s in (("flight", "flight_01"), ("flight2", "flight_02"))]),
+    ("whale_fin", "fish (whale back and fins, surfacing)", "art/meshes/skeletal/whale_fin.dae.cached.pmd", "whale",
+     [(c, f"{O}/whale_fin_idle_{c}.dae.cached.psa") for c in "abcd"]),
+    ("robe", "humanoid (0 A.D. infantry, robe)", "art/meshes/skeletal/new/m_robe.dae.cached.pmd", "biped",
+     list(zip(CLIPS5, [f"{BI}/archer/walk_ready.dae.cached.psa", f"{BI}/archer/run_ready.dae.cached.psa",
+                       f"{BI}/archer/idle_ready.dae.cached.psa", f"{BI}/archer/attack_ranged.dae.cached.psa",
+                       f"{BI}/death_b.dae.cached.psa"], strict=True))),
+]
 CUBE2 = ["shotgun", "minigun", "flag"]
 RED_ECLIPSE = ["re_pistol", "re_smg", "re_palm", "re_player_all"]
 
@@ -202,7 +238,7 @@ def main(argv=None) -> int:
     args.work.mkdir(parents=True, exist_ok=True)
     args.out.mkdir(parents=True, exist_ok=True)
     entries = []
-    for spec in [*ZERO_AD, *ZERO_AD_2, *CUBE2, *RED_ECLIPSE]:
+    for spec in [*ZERO_AD, *ZERO_AD_2, *ZERO_AD_3, *CUBE2, *RED_ECLIPSE]:
         name = spec if isinstance(spec, str) else spec[0]
         if args.only is not None and name not in args.only:
             continue
