@@ -118,7 +118,8 @@ def example_clips(split) -> np.ndarray | None:
     return clip
 
 
-def fit_transforms(asset, k: int, balance: str = "clips") -> tuple[np.ndarray, np.ndarray | None]:
+def fit_transforms(asset, k: int, balance: str = "clips",
+                   clip_scale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """The example poses' transforms for a least-squares weight fit, each pose scaled by ``sqrt(w_f)``.
 
     Parameters
@@ -129,6 +130,10 @@ def fit_transforms(asset, k: int, balance: str = "clips") -> tuple[np.ndarray, n
         Influences per vertex.
     balance : {"clips", "frames"}
         ``clips``: the clip-balanced weights (module docstring); ``frames``: every example frame alike.
+    clip_scale : (segments,) array, optional
+        A further factor on the weights of each clip's frames (indexed like ``asset.split.segments``; the
+        solvers' validated reweighting, :func:`rigslim.plugins.solvers.safeguards.failing_clips`); the
+        weights are then normalised to mean 1 again.
 
     Returns
     -------
@@ -137,10 +142,13 @@ def fit_transforms(asset, k: int, balance: str = "clips") -> tuple[np.ndarray, n
         The frame weights, None where every frame counts alike.
     """
     T = np.ascontiguousarray(asset.example_poses().T, dtype=np.float64)
-    clip = example_clips(asset.split) if balance == "clips" else None
+    clip = example_clips(asset.split) if balance == "clips" or clip_scale is not None else None
     if clip is None:
         return T, None
-    w = clip_balance_weights(asset.mesh.V, asset.weights, T, clip, k)
+    w = clip_balance_weights(asset.mesh.V, asset.weights, T, clip, k) if balance == "clips" else np.ones(len(clip))
+    if clip_scale is not None:
+        w = w * np.asarray(clip_scale, dtype=np.float64)[clip]
+        w = w / w.mean()
     if np.allclose(w, 1.0):
         return T, None
     return np.ascontiguousarray(T * np.sqrt(w)[:, None, None, None]), w

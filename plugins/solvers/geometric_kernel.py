@@ -123,9 +123,10 @@ def _fit_rows(start, stop, V, T, indptr, indices, data, sel, valid, alpha0, eps,
         energy0[v] = max(e0, 0.0)
 
 
-def geometric_nonnegative(asset, influences, alpha0, ridge: float, balance: str = "clips") -> tuple[np.ndarray, dict]:
+def geometric_nonnegative(asset, influences, alpha0, ridge: float, balance: str = "clips",
+                          clip_scale: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
     """Per-vertex non-negative geometric weights on ``influences`` (module docstring); the example frames
-    weighted by ``balance`` (:func:`rigslim.numerics.clip_balance.fit_transforms`).
+    weighted by ``balance`` and ``clip_scale`` (:func:`rigslim.numerics.clip_balance.fit_transforms`).
 
     Returns
     -------
@@ -138,7 +139,7 @@ def geometric_nonnegative(asset, influences, alpha0, ridge: float, balance: str 
 
     V = np.ascontiguousarray(asset.mesh.V, dtype=np.float64)
     sel = np.ascontiguousarray(influences.indices, dtype=np.int64)
-    T, frame_weights = fit_transforms(asset, sel.shape[1], balance)
+    T, frame_weights = fit_transforms(asset, sel.shape[1], balance, clip_scale)
     A = sp.csr_matrix(asset.weights)
     valid = np.ascontiguousarray(influences.valid)
     nvalid = int(valid.sum())

@@ -53,6 +53,10 @@ class ReductionParams(Params):
     balance: Literal["clips", "frames"] = Field(
         "clips", description="geometric, poisson: weight the example frames so that every clip counts, each by "
         "the inverse of k-largest's error on it (rigslim.numerics.clip_balance); frames: every frame alike")
+    reweight_rounds: int = Field(
+        4, ge=0, description="geometric, poisson, with the guard on and validation frames of two or more clips: "
+        "while a clip's validation error is above k-largest's by the guard's bound, its example frames count "
+        "twice as much and the weights are solved again, at most this many times (0: off)")
     guard: Literal["k-largest", "k-largest-per-vertex", "off"] = Field(
         "k-largest", description="with validation frames (held-out frames of the clips, poses: examples: "
         "{clips: ...}): vertices fall back to k-largest's weights until every clip's validation error is below "

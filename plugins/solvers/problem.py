@@ -185,11 +185,11 @@ def constraints(asset, influences, linear_precision: bool) -> tuple[np.ndarray, 
     return C, d
 
 
-def pose_basis(asset, influences, balance: str = "clips"):
+def pose_basis(asset, influences, balance: str = "clips", clip_scale=None):
     """Geometric / Poisson basis ``B`` (m, k, 3p) and target ``Y`` (m, 3p) of the example poses, each pose
-    scaled by the square root of its frame weight (``balance``,
+    scaled by the square root of its frame weight (``balance`` and ``clip_scale``,
     :func:`rigslim.numerics.clip_balance.fit_transforms`)."""
-    T, _ = fit_transforms(asset, influences.indices.shape[1], balance)
+    T, _ = fit_transforms(asset, influences.indices.shape[1], balance, clip_scale)
     V = asset.mesh.V
     Bp = basis_positions(V, T, influences.indices)  # (p, m, k, 3)
     p, m, k, _ = Bp.shape
@@ -212,9 +212,9 @@ def handle_basis(asset, influences):
 
 def build_problem(asset, method: str, *, nonnegative: bool | None = None, laplacian: str = "mass-weighted",
                   linear_precision: bool = False, position_weight: float = 0.0,
-                  ridge: float = RIDGE, balance: str = "clips") -> ReductionProblem:
+                  ridge: float = RIDGE, balance: str = "clips", clip_scale=None) -> ReductionProblem:
     """Assemble the energy of ``method`` in {"geometric", "smooth", "poisson"} on the asset's influence sets
-    (``balance``: the example frames' weights, :func:`pose_basis`)."""
+    (``balance``, ``clip_scale``: the example frames' weights, :func:`pose_basis`)."""
     influences = asset.influences
     A = asset.weights
     if influences.n_vertices != asset.mesh.n_vertices:
@@ -229,7 +229,7 @@ def build_problem(asset, method: str, *, nonnegative: bool | None = None, laplac
     if method == "smooth":
         B, Y = handle_basis(asset, influences)
     else:
-        B, Y = pose_basis(asset, influences, balance)
+        B, Y = pose_basis(asset, influences, balance, clip_scale)
         info["example_poses"] = int(Y.shape[1] // 3)
         info["balance"] = balance
     if method == "geometric":

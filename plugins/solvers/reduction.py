@@ -33,15 +33,19 @@ import numpy as np
 
 from rigslim.errors import StepError
 from rigslim.model.weights import ReducedWeights
+from rigslim.numerics.clip_balance import example_clips
 from rigslim.numerics.small_qp import solve_small_qps
 from rigslim.plugins.solvers.geometric_kernel import geometric_nonnegative
 from rigslim.plugins.solvers.global_solver import global_solve
 from rigslim.plugins.solvers.local_solver import feasible_start, kkt_residual, local_solve
 from rigslim.plugins.solvers.multilevel_solver import multilevel_solve
 from rigslim.plugins.solvers.problem import build_problem, default_nonnegative, initial_weights
-from rigslim.plugins.solvers.safeguards import guard_k_largest, pass_through
+from rigslim.plugins.solvers.safeguards import failing_clips, guard_k_largest, pass_through
 
-__all__ = ["project_feasible", "solve_weights"]
+__all__ = ["REWEIGHT_FACTOR", "project_feasible", "solve_weights"]
+
+#: The factor on a failing clip's example-frame weights per round of the validated reweighting.
+REWEIGHT_FACTOR = 2.0
 
 
 def project_feasible(prob, target, start) -> np.ndarray:
@@ -65,6 +69,8 @@ def solve_weights(asset, method: str, params, ctx=None) -> tuple[ReducedWeights,
     t0 = time.perf_counter()
     reduced, report = _solve(asset, method, params, ctx)
     guard = getattr(params, "guard", "off")
+    if guard != "off" and method != "smooth" and getattr(params, "reweight_rounds", 0) > 0:
+        reduced, report = _reweighted(asset, method, params, ctx, reduced, report)
     if guard in ("k-largest", "k-largest-per-vertex"):
         reduced, grep = guard_k_largest(asset, reduced, per_vertex=guard == "k-largest-per-vertex")
         report.update(grep)
@@ -75,8 +81,32 @@ def solve_weights(asset, method: str, params, ctx=None) -> tuple[ReducedWeights,
     return reduced, report
 
 
-def _solve(asset, method: str, params, ctx) -> tuple[ReducedWeights, dict]:
-    """The optimum of ``method`` on the influence sets (:func:`solve_weights` before its safeguards)."""
+def _reweighted(asset, method: str, params, ctx, reduced: ReducedWeights, report: dict):
+    """Validated reweighting: while some clip's validation error is above k-largest's by the guard's bound
+    (:func:`rigslim.plugins.solvers.safeguards.failing_clips`), the weights of that clip's example frames
+    are multiplied by :data:`REWEIGHT_FACTOR` and the energy is solved again, at most ``params.reweight_rounds``
+    times. The guard then acts on the last solution. The report records the rounds and each clip's factor."""
+    segments = getattr(asset.split, "segments", None) or []
+    if example_clips(asset.split) is None or not list(asset.split.validation):
+        return reduced, report
+    scale = np.ones(len(segments))
+    rounds = 0
+    for _ in range(params.reweight_rounds):
+        failing = failing_clips(asset, reduced)
+        if not failing:
+            break
+        scale[failing] *= REWEIGHT_FACTOR
+        reduced, report = _solve(asset, method, params, ctx, clip_scale=scale)
+        rounds += 1
+    report["reweight_rounds"] = rounds
+    if rounds:
+        report["clip_scale"] = [float(x) for x in scale]
+    return reduced, report
+
+
+def _solve(asset, method: str, params, ctx, clip_scale=None) -> tuple[ReducedWeights, dict]:
+    """The optimum of ``method`` on the influence sets (:func:`solve_weights` before its safeguards), the
+    example clips' frames weighted by ``params.balance`` and ``clip_scale``."""
     t0 = time.perf_counter()
     asset.require("mesh", "handles", "weights", "influences", step=f"solve: {method}")
     if method != "smooth":
@@ -85,11 +115,11 @@ def _solve(asset, method: str, params, ctx) -> tuple[ReducedWeights, dict]:
     nonneg = default_nonnegative(asset) if params.nonnegative is None else bool(params.nonnegative)
     if (method == "geometric" and nonneg and params.device == "numpy" and params.solver in ("auto", "local")
             and not (lp and asset.handles.is_cage)):
-        return _geometric_per_vertex(asset, lp, params.ridge, t0, params.balance)
+        return _geometric_per_vertex(asset, lp, params.ridge, t0, params.balance, clip_scale)
     prob = build_problem(asset, method, nonnegative=params.nonnegative,
                          laplacian=getattr(params, "laplacian", "mass-weighted"), linear_precision=lp,
                          position_weight=getattr(params, "position_weight", 0.0), ridge=params.ridge,
-                         balance=params.balance)
+                         balance=params.balance, clip_scale=clip_scale)
     if params.solver == "global" and prob.nonneg:
         raise StepError("the global solver handles equality constraints only, and non-negativity is on",
                         field="solver", fix="use solver: auto or local, or set nonnegative: false")
@@ -115,13 +145,13 @@ def _linear_precision(asset, method: str, linear_precision: bool | None) -> bool
     return bool(linear_precision) if linear_precision is not None else method == "smooth"
 
 
-def _geometric_per_vertex(asset, lp: bool, ridge: float, t0: float,
-                          balance: str = "clips") -> tuple[ReducedWeights, dict]:
+def _geometric_per_vertex(asset, lp: bool, ridge: float, t0: float, balance: str = "clips",
+                          clip_scale=None) -> tuple[ReducedWeights, dict]:
     """Non-negative geometric weights: independent per-vertex QPs with the sum-to-one row only,
     ``min ||sum_l alpha_l B_l - Y_v||^2  s.t.  1^T alpha = 1, alpha >= 0``, in the compiled kernel
     (:func:`rigslim.plugins.solvers.geometric_kernel.geometric_nonnegative`)."""
     alpha0 = initial_weights(asset.weights, asset.influences)
-    alpha, rep = geometric_nonnegative(asset, asset.influences, alpha0, ridge, balance)
+    alpha, rep = geometric_nonnegative(asset, asset.influences, alpha0, ridge, balance, clip_scale)
     report = {"method": "geometric", "nonnegative": True, "linear_precision": lp, "energy_name": "geometric",
               "constraints": 1, "example_poses": len(asset.split.examples), "path": "local",
               "backend": "numba", "sweeps": 1, "colors": 1, "converged": True, **rep,

@@ -60,6 +60,12 @@ Guard
     (k = 3); no rule on the given clips bounds a clip never given (other held-out
     clips stay above k-largest: docs/results/reduction_quality_best_fit.md).
 
+    Round-off is not a failure: an excess up to ``n (ROUNDOFF d)^2`` per frame over
+    n vertices (every vertex off by 1e-6 of the bounding-box diagonal d,
+    :func:`roundoff_tolerance`) passes. Without it a clip in which the vertices
+    do not move (a zebra's idle: both errors about 2e-12, the bound 1.1e-14)
+    failed on the last bits, and every vertex fell back.
+
     A fit that helps one clip cannot buy that with another. Vertices that pass
     through (at most k influences) are left out: their weights are exact.
     Memory: the per-frame excess, m x (validation frames) float32.
@@ -74,12 +80,24 @@ from rigslim.model.weights import ReducedWeights
 from rigslim.numerics.blend import linear_blend
 from rigslim.numerics.largest_entries import k_largest
 
-__all__ = ["canonical_twins", "clip_bound", "guard_k_largest", "k_largest_weights", "pass_through", "twin_handles"]
+__all__ = ["canonical_twins", "clip_bound", "failing_clips", "guard_k_largest", "k_largest_weights", "pass_through",
+           "roundoff_tolerance", "twin_handles"]
 
 #: z of the per-clip bound (:func:`clip_bound`): the clip's mean per-frame excess plus z standard errors.
 MARGIN_Z = 2.0
 #: Handles whose transforms agree within this on every seen pose are twins (:func:`twin_handles`).
 TWIN_TOL = 1e-5
+#: Position errors below this fraction of the bounding-box diagonal are round-off: the guard's comparisons
+#: (:func:`roundoff_tolerance`) do not count an excess smaller than such an error at every vertex.
+ROUNDOFF = 1e-6
+
+
+def roundoff_tolerance(asset, vertices: int | None = None) -> float:
+    """The squared error of ``vertices`` (default: all) vertices each off by :data:`ROUNDOFF` times the
+    bounding-box diagonal, ``n (ROUNDOFF d)^2``: per frame, excesses up to this are round-off, not a worse
+    fit (a clip in which the vertices do not move gives both weight sets errors of about 1e-12 d^2)."""
+    n = asset.mesh.n_vertices if vertices is None else vertices
+    return float(n * (ROUNDOFF * asset.mesh.bbox_diagonal) ** 2)
 
 
 def pass_through(A: sp.csr_matrix, reduced: ReducedWeights, sets=None) -> tuple[ReducedWeights, int]:
@@ -180,19 +198,25 @@ def clip_bound(X: np.ndarray, z: float = MARGIN_Z) -> np.ndarray:
     return np.mean(X, axis=-1) + z * se
 
 
-def fallback_set(per_clip, e_fit, e_kl, passes, per_vertex=False, z: float = MARGIN_Z) -> np.ndarray:
+def fallback_set(per_clip, e_fit, e_kl, passes, per_vertex=False, z: float = MARGIN_Z,
+                 tol: float = 0.0) -> np.ndarray:
     """(m,) bool: the vertices F that take k-largest's weights (module docstring).
 
     ``per_clip``: the (m, p_c) per-frame excess ``e_v^j(fit) - e_v^j(k-largest)`` of each clip's validation
     frames; ``e_fit``, ``e_kl``: the errors summed over every validation frame; ``passes``: rows kept exactly
-    anyway; ``z``: the margin of :func:`clip_bound` (0: the clip's sum alone).
+    anyway; ``z``: the margin of :func:`clip_bound` (0: the clip's sum alone); ``tol``: the round-off of a
+    frame's excess summed over all m vertices (:func:`roundoff_tolerance`; a vertex's share is ``tol / m``
+    per frame). Excesses up to the tolerance are not failures.
     """
+    m = len(e_fit)
+    tol_v = tol / max(m, 1)
     if per_vertex:
-        worse = np.zeros(len(e_fit), dtype=bool)
+        worse = np.zeros(m, dtype=bool)
         for D in per_clip:
-            worse |= D.sum(axis=1, dtype=np.float64) > 0.0
+            worse |= D.sum(axis=1, dtype=np.float64) > tol_v * D.shape[1]
         return worse & ~passes
-    worse = (e_fit > e_kl) & ~passes
+    frames = sum(D.shape[1] for D in per_clip)
+    worse = (e_fit > e_kl + tol_v * frames) & ~passes
     sums = [D.sum(axis=1, dtype=np.float64) for D in per_clip]
     changed = True
     while changed:
@@ -200,7 +224,7 @@ def fallback_set(per_clip, e_fit, e_kl, passes, per_vertex=False, z: float = MAR
         for D, x in zip(per_clip, sums, strict=True):
             kept = ~(worse | passes)
             X = D[kept].sum(axis=0, dtype=np.float64)            # the clip's per-frame excess
-            if clip_bound(X, z) <= 0.0:
+            if clip_bound(X, z) <= tol:
                 continue
             # largest excess on the clip first, then the vertices worse on some of its frames (largest total)
             pos = np.maximum(D, 0.0).sum(axis=1, dtype=np.float64)
@@ -212,10 +236,33 @@ def fallback_set(per_clip, e_fit, e_kl, passes, per_vertex=False, z: float = MAR
                 continue
             # the bound after falling back each prefix of the order: the shortest prefix that meets it
             bounds = clip_bound(X[None, :] - np.cumsum(D[order], axis=0, dtype=np.float64), z)
-            met = np.flatnonzero(bounds <= 0.0)
+            met = np.flatnonzero(bounds <= tol)
             worse[order[:met[0] + 1 if met.size else order.size]] = True
             changed = True
     return worse
+
+
+def failing_clips(asset, reduced: ReducedWeights) -> list[int]:
+    """The clips (indices into ``asset.split.segments``) whose validation frames fail :func:`clip_bound`
+    against k-largest's weights with ``reduced`` on every vertex (before any fallback): the clips whose
+    example frames the validated reweighting of :func:`rigslim.plugins.solvers.reduction.solve_weights`
+    counts more. Empty without validation frames or clips."""
+    split = asset.split
+    segments = getattr(split, "segments", None) or []
+    frames = list(split.validation) if split is not None else []
+    if len(segments) < 2 or not frames or asset.poses is None:
+        return []
+    base = k_largest_weights(asset.weights, reduced.k)
+    tol = roundoff_tolerance(asset)
+    out = []
+    for i, s in enumerate(segments):
+        group = [f for f in frames if s["start"] <= f < s["start"] + s["frames"]]
+        if not group:
+            continue
+        D, _, _ = _frame_excess(asset, reduced, base, group)
+        if clip_bound(D.sum(axis=0, dtype=np.float64)) > tol:
+            out.append(i)
+    return out
 
 
 def twin_handles(T: np.ndarray, diagonal: float, tol: float = TWIN_TOL) -> np.ndarray:
@@ -304,7 +351,7 @@ def guard_k_largest(asset, reduced: ReducedWeights, per_vertex: bool = False) ->
         e_kl += ek
         per_clip.append(D)
         clip_sums.append((group, ef, ek))
-    worse = fallback_set(per_clip, e_fit, e_kl, passes, per_vertex=per_vertex)
+    worse = fallback_set(per_clip, e_fit, e_kl, passes, per_vertex=per_vertex, tol=roundoff_tolerance(asset))
     indices = np.where(worse[:, None], base.indices, reduced.indices)
     values = np.where(worse[:, None], base.values, reduced.values)
     out = ReducedWeights(indices, values, reduced.n_handles)

@@ -4,6 +4,7 @@ of vertices with at most k influences (plugins/solvers/safeguards.py)."""
 import json
 
 import numpy as np
+import pytest
 import scipy.sparse as sp
 
 import rigslim
@@ -187,3 +188,85 @@ def test_twins_take_the_input_weights_choice_and_change_nothing_on_the_seen_pose
     assert np.linalg.norm(linear_blend(V, out, parted) - full) < np.linalg.norm(linear_blend(V, fit, parted) - full)
     # already on the larger: nothing moves
     assert canonical_twins(A, out, label)[1] == 0
+
+
+def conflicting_clips_rig():
+    """Joints 0 (static), 1 (turns), 2; every vertex (0.5, 0.3, 0.2), k = 2 on joints 0 and 1 (k-largest sets).
+
+    The set's one free weight a (on joint 0) reproduces clip A exactly at a = 0.7 (joint 2 rests) and clip B
+    exactly at a = 0.64 (joint 2 = 0.7 I + 0.3 joint 1); k-largest's a is 0.625. A is long and moves far, B is
+    short and moves little, so the fit of both (a = 0.67) is far better than k-largest on A and twice as bad on
+    B: the guard gives every vertex back to k-largest. Any a in (0.625, 0.655) beats k-largest on both.
+    """
+    rng = np.random.default_rng(1)
+    m = 30
+    V = rng.normal(size=(m, 3)) + np.array([2.0, 0.0, 0.0])
+    F = np.array([[i, i + 1, i + 2] for i in range(m - 2)])
+    W = np.tile([0.5, 0.3, 0.2], (m, 1))
+
+    def clip(n, amplitude, mix):
+        T = np.tile(np.eye(3, 4), (n, 3, 1, 1))
+        for p, t in enumerate(np.linspace(0.0, 1.0, n)):
+            T[p, 1, :, :3] = _rotation_z(amplitude * np.sin(2 * np.pi * t))
+            T[p, 2] = (1.0 - mix) * np.eye(3, 4) + mix * T[p, 1]
+        return T
+
+    return (V, F), W, clip(60, 1.2, 0.0), clip(30, 0.25, 0.3)
+
+
+def test_reweighting_finds_weights_that_beat_k_largest_on_both_clips():
+    mesh, W, A, B = conflicting_clips_rig()
+    kl = k_largest_weights(sp.csr_matrix(W), 2)
+    unguarded = rigslim.reduce_weights(mesh, W, [A, B], k=2, select="k-largest", guard="off")
+    assert _rms(mesh, W, unguarded, A) < 0.5 * _rms(mesh, W, kl, A)
+    assert _rms(mesh, W, unguarded, B) > 1.5 * _rms(mesh, W, kl, B)
+    # without reweighting the guard can only fall back: k-largest's weights everywhere
+    plain: dict = {}
+    out = rigslim.reduce_weights(mesh, W, [A, B], k=2, select="k-largest", reweight_rounds=0, report=plain)
+    assert plain["fallback_vertices"] == len(W) and "reweight_rounds" not in plain
+    np.testing.assert_allclose(out.values, kl.values)
+    # with it (the default), B's frames count more until B passes; A still passes
+    report: dict = {}
+    out = rigslim.reduce_weights(mesh, W, [A, B], k=2, select="k-largest", report=report)
+    assert report["reweight_rounds"] >= 1 and report["clip_scale"][0] == 1.0 and report["clip_scale"][1] > 1.0
+    assert report["fallback_vertices"] == 0
+    assert _rms(mesh, W, out, A) < 0.8 * _rms(mesh, W, kl, A)
+    assert _rms(mesh, W, out, B) < 0.9 * _rms(mesh, W, kl, B)
+    assert np.all((out.values[:, 0] > 0.625) & (out.values[:, 0] < 0.655))
+
+
+def test_failing_clips_names_the_clip_the_fit_is_worse_on():
+    from rigslim.api import _asset
+    from rigslim.plugins.solvers.safeguards import failing_clips
+
+    mesh, W, A, B = conflicting_clips_rig()
+    asset = _asset(mesh, W, [A, B], None, None, None)
+    kl = k_largest_weights(sp.csr_matrix(W), 2)
+    fit = rigslim.reduce_weights(mesh, W, [A, B], k=2, select="k-largest", guard="off")
+    assert failing_clips(asset, fit) == [1]          # clip B
+    assert failing_clips(asset, kl) == []            # k-largest is its own bound: excess 0 on every frame
+    assert failing_clips(_asset(mesh, W, A, None, None, None), fit) == []   # one clip, no validation frames
+
+
+def test_roundoff_on_a_clip_at_rest_is_not_a_failure():
+    """A clip in which the vertices do not move gives the fit and k-largest errors of about 1e-12 that differ in
+    their last bits (the zebra's idle); an excess below the round-off tolerance must not make them fall back."""
+    from rigslim.api import _asset
+    from rigslim.plugins.solvers.safeguards import ROUNDOFF, fallback_set, roundoff_tolerance
+
+    rng = np.random.default_rng(0)
+    m = 12
+    moving = -rng.uniform(1e-3, 2e-3, size=(m, 8))          # the fit far better on the moving clip
+    rest = np.full((m, 6), 5e-16) * rng.uniform(0.5, 1.5, size=(m, 6))   # last bits against it at rest
+    e_fit = 1e-3 + 2e-12 + rest.sum(axis=1)
+    e_kl = e_fit - moving.sum(axis=1) - rest.sum(axis=1)
+    passes = np.zeros(m, bool)
+    mesh, W, A, _ = conflicting_clips_rig()
+    asset = _asset(mesh, W, A, None, None, None)
+    tol = roundoff_tolerance(asset, m)
+    assert tol == pytest.approx(m * (ROUNDOFF * asset.mesh.bbox_diagonal) ** 2)
+    assert fallback_set([moving, rest], e_fit, e_kl, passes).all()          # no tolerance: every vertex falls back
+    assert not fallback_set([moving, rest], e_fit, e_kl, passes, tol=tol).any()
+    # a real excess on the clip at rest (each vertex 1e-4 of the diagonal off) still fails
+    real = rest + (1e-4 * asset.mesh.bbox_diagonal) ** 2
+    assert fallback_set([moving, real], e_fit, e_kl + 0.0, passes, tol=tol).any()
