@@ -153,10 +153,12 @@ def cmd_reduce(args) -> int:
             world = {k: world[k] for k in ("position_rms_m", "position_max_m", "position_rms_pct",
                                            "normal_rms_rad", "reference_diagonal_m", "clips") if k in world}
         fallback = sum(int(r.get("fallback_vertices", 0)) for r in _solver_reports(result))
+        reweighted = max([int(r.get("reweight_rounds", 0)) for r in _solver_reports(result)] or [0])
         untouched = select is not None and all(_passes_through(r[1]) for r in runs)
         doc = _header("reduce") | {"input": str(src), "output": str(out), "clip": clip, "clip_seconds": duration,
                                     "frames": frames, "k": args.k, "select": select, "solve": solve,
                                     "fallback_k_largest": frames < 2, "guard_fallback_vertices": fallback,
+                                    "reweight_rounds": reweighted,
                                     "passed_through": untouched,
                                     "seconds": seconds, "metrics": metrics,
                                     "world": world, "pipeline": pipeline, "run": result.document}
@@ -174,6 +176,8 @@ def cmd_reduce(args) -> int:
         line += f"; every vertex has at most {args.k} influences, so the weights pass through unchanged"
     elif frames >= 2 and select is not None and solve not in ("k-largest", None):
         line += f"; {fallback} vertices fell back to k-largest on held-out frames"
+        if reweighted:
+            line += f" (after {reweighted} re-solve{'s' if reweighted > 1 else ''} weighting the failing clips more)"
     print(line)
     if unnormalised:
         print(unnormalised, file=sys.stderr)

@@ -218,6 +218,9 @@ def test_reduce_defaults_to_best_fit_by_error_fitted_on_every_clip(tmp_path, cap
     solver = next(s for s in doc["run"]["steps"] if s["stage"] == "solve")["solver"]
     assert solver["guard"] == "k-largest" and solver["fallback_vertices"] == doc["guard_fallback_vertices"] > 0
     assert f"{doc['guard_fallback_vertices']} vertices fell back to k-largest" in line and "over 2 clips" in line
+    # the validated reweighting's solves, in the report and (when any) on the line
+    assert doc["reweight_rounds"] == solver["reweight_rounds"] >= 0
+    assert ("re-solve" in line) == (doc["reweight_rounds"] > 0)
     best = doc["world"]["position_rms_m"]
     assert main(["reduce", str(src), "-o", str(tmp_path / "kl.glb"), "-k", "2", "--select", "k-largest",
                  "--solve", "k-largest", "--report", str(report)]) == 0
