@@ -40,7 +40,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from rigslim.numerics.blend import linear_blend
-from rigslim.numerics.largest_entries import k_largest
+from rigslim.numerics.largest_entries import k_largest_weights
 
 __all__ = ["FLOOR", "clip_balance_weights", "example_clips", "fit_transforms", "k_largest_matrix"]
 
@@ -49,16 +49,9 @@ FLOOR = 1e-3
 
 
 def k_largest_matrix(A: sp.spmatrix, k: int) -> sp.csr_matrix:
-    """The k largest entries of each row of ``A``, renormalised to sum to one (rows of zero sum kept)."""
-    A = sp.csr_matrix(A)
-    sets = k_largest(A, k)
-    m = A.shape[0]
-    rows = np.repeat(np.arange(m), sets.indices.shape[1])
-    vals = np.where(sets.valid, np.asarray(A[rows, sets.indices.ravel()]).reshape(sets.indices.shape), 0.0)
-    sums = vals.sum(axis=1, keepdims=True)
-    vals = np.divide(vals, sums, out=vals.copy(), where=np.abs(sums) > 1e-12)
-    keep = sets.valid.ravel()
-    return sp.csr_matrix((vals.ravel()[keep], (rows[keep], sets.indices.ravel()[keep])), shape=A.shape)
+    """The k largest entries of each row of ``A``, renormalised to sum to one (rows of zero sum kept), as a
+    sparse matrix (:func:`rigslim.numerics.largest_entries.k_largest_weights`)."""
+    return k_largest_weights(A, k).to_sparse()
 
 
 def clip_balance_weights(V: np.ndarray, A: sp.spmatrix, T: np.ndarray, clip_of: np.ndarray, k: int,

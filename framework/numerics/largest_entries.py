@@ -14,9 +14,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from rigslim.errors import StepError
-from rigslim.model.weights import InfluenceSets
+from rigslim.model.weights import InfluenceSets, ReducedWeights
 
-__all__ = ["check_k", "k_largest"]
+__all__ = ["check_k", "k_largest", "k_largest_weights"]
 
 
 def k_largest(A: sp.spmatrix, k: int, key: Callable[[np.ndarray], np.ndarray] | None = None) -> InfluenceSets:
@@ -86,3 +86,17 @@ def check_k(k: int, n: int) -> None:
     if k >= n:
         raise StepError(f"k = {k} is not smaller than the number of handles ({n})", field="k",
                         fix=f"choose k between 1 and {n - 1}")
+
+
+def k_largest_weights(A: sp.spmatrix, k: int) -> ReducedWeights:
+    """The k largest input weights of each row, renormalised: ``a_{v,i_l} / sum_l' a_{v,i_l'}`` over the
+    row's k largest (rows whose kept weights sum to zero keep their values). The baseline of [P10] sec. 3,
+    which the solvers' guard and the clip balance measure against."""
+    sets = k_largest(A, k)
+    A = sp.csr_matrix(A)
+    m = A.shape[0]
+    rows = np.repeat(np.arange(m), k)
+    vals = np.where(sets.valid, np.asarray(A[rows, sets.indices.ravel()]).reshape(m, k), 0.0)
+    sums = vals.sum(axis=1, keepdims=True)
+    vals = np.divide(vals, sums, out=vals.copy(), where=np.abs(sums) > 1e-12)
+    return ReducedWeights.from_influences(sets, vals, A.shape[1])

@@ -78,7 +78,7 @@ import scipy.sparse as sp
 
 from rigslim.model.weights import ReducedWeights
 from rigslim.numerics.blend import linear_blend
-from rigslim.numerics.largest_entries import k_largest
+from rigslim.numerics.largest_entries import k_largest_weights
 
 __all__ = ["canonical_twins", "clip_bound", "failing_clips", "guard_k_largest", "k_largest_weights", "pass_through",
            "roundoff_tolerance", "twin_handles"]
@@ -146,18 +146,6 @@ def pass_through(A: sp.csr_matrix, reduced: ReducedWeights, sets=None) -> tuple[
         indices[rows[keep], slot[keep]] = A.indices[keep]
         values[rows[keep], slot[keep]] = A.data[keep]
     return ReducedWeights(indices, values, reduced.n_handles), int(small.size)
-
-
-def k_largest_weights(A: sp.csr_matrix, k: int) -> ReducedWeights:
-    """The k largest input weights of each row, renormalised (rows of zero sum keep their values)."""
-    sets = k_largest(A, k)
-    A = sp.csr_matrix(A)
-    m = A.shape[0]
-    rows = np.repeat(np.arange(m), k)
-    vals = np.where(sets.valid, np.asarray(A[rows, sets.indices.ravel()]).reshape(m, k), 0.0)
-    sums = vals.sum(axis=1, keepdims=True)
-    vals = np.divide(vals, sums, out=vals.copy(), where=np.abs(sums) > 1e-12)
-    return ReducedWeights.from_influences(sets, vals, A.shape[1])
 
 
 def _frame_excess(asset, reduced: ReducedWeights, base: ReducedWeights, frames):
