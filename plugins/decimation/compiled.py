@@ -17,6 +17,14 @@ each a function over named groups of arrays:
 - :func:`requeue`: the new edges with the lower bound
   ``max(cost(a, x), cost(b, x), cost(a, b))``, marked dirty, and the blocked
   edges around them released.
+- :func:`speculate`: when an attempt must judge its edge (the fold-over guard
+  and the measured error :func:`source_error`, the loop's costliest work), the
+  next entries of the queue that would do work are judged, or evaluated if
+  dirty, with it, one thread each. Their results are kept with the edge's stamp
+  and the collapse count, and a later turn uses them only while nothing around
+  the edge has changed, the rule by which an attempt already reuses the error
+  in an edge's cost. The queue's order is total, so the collapses are the same
+  as one at a time (``ahead=1``).
 
 The arrays are grouped in named tuples (:class:`LoopMesh`, :class:`LoopVertices`,
 :class:`LoopEdges`, :class:`LoopQueue`, :class:`LoopRecord`, :class:`Scratch`);
@@ -31,15 +39,18 @@ from __future__ import annotations
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from rigslim.numerics.point_mesh_distance import point_triangle_distance2
 from rigslim.plugins.decimation.edge_costs import collapse_cost, quadric_weight
 from rigslim.plugins.decimation.edge_queue import (
+    C_AHEAD,
     C_COLLAPSES,
+    C_COSTED,
     C_EVALS,
     C_FACES,
     C_HEAP,
+    C_MEASURED,
     C_POOL,
     C_POPS,
     C_TAG,
@@ -66,9 +77,10 @@ from rigslim.plugins.decimation.setup import (
     SOURCE_SAMPLES,
 )
 
-__all__ = ["CostModel", "LoopEdges", "LoopMembers", "LoopMesh", "LoopQueue", "LoopRecord", "LoopVertices", "Scratch",
-           "apply_collapse", "collapse_chunk", "evaluate_edge", "folds", "link_ok", "new_members", "new_scratch",
-           "point_triangle_distance2", "requeue", "source_error"]
+__all__ = ["EVALUATE", "JUDGE", "CostModel", "LoopAhead", "LoopEdges", "LoopMembers", "LoopMesh", "LoopQueue",
+           "LoopRecord", "LoopVertices", "Scratch", "apply_collapse", "collapse_chunk", "evaluate_edge", "folded",
+           "folds", "link_ok", "new_ahead", "new_members", "new_scratch", "point_triangle_distance2", "posed_point",
+           "requeue", "source_error", "speculate", "surviving_faces"]
 
 #: The mesh as the loop edits it: faces (vertices renamed as they merge), vertex-face lists (``pool`` slices
 #: ``vf_start[x]:vf_start[x] + vf_cnt[x]``), fixed and seam vertices, face charts, a marker array, and
@@ -98,6 +110,14 @@ LoopMembers = namedtuple("LoopMembers", ["head", "nxt", "tail", "size", "tri0", 
 #: Work arrays of one collapse attempt: neighbours of a and b, the union, the surviving and the removed
 #: faces, the new vertex in every pose, and 3x4 / 3x3 temporaries.
 Scratch = namedtuple("Scratch", ["Na", "Nb", "nbr", "uni", "rem", "fab", "pc", "Xw", "q", "o"])
+#: The work of the queue's next entries, done ahead of their turn, several at once (:func:`speculate`): per edge
+#: slot the measured error (``val``) and whether the collapse folds a face (``fold``, :func:`folds`), with the
+#: edge's stamp and the number of collapses made when they were measured (``time``, -1: never); the true cost
+#: of a dirty edge (``cost``; its new vertex and weights are in the edge table) with the stamp it was computed
+#: at (``cstamp``); the candidates (``cand``), what each needs (``kind``: :data:`JUDGE` or :data:`EVALUATE`)
+#: and their work arrays (one row each); the heap entries held while the candidates are found.
+LoopAhead = namedtuple("LoopAhead", ["val", "fold", "stamp", "time", "cost", "cstamp", "cand", "kind", "out", "bent",
+                                     "rem", "pc", "Xw", "q", "o", "stack", "hc", "hs", "he"])
 
 
 def new_scratch(n_poses: int) -> Scratch:
@@ -105,6 +125,24 @@ def new_scratch(n_poses: int) -> Scratch:
     return Scratch(np.empty(4096, np.int64), np.empty(4096, np.int64), np.empty(4096, np.int64),
                    np.empty(8192, np.int64), np.empty(8192, np.int64), np.empty(MAX_EDGE_FACES, np.int64),
                    np.empty((n_poses + 1, 3)), np.empty((3, 4)), np.empty((3, 3)), np.empty((3, 3)))
+
+
+#: What a candidate of :func:`speculate` needs: its guard and measured error (a clean edge about to be attempted)
+#: or its true cost (a dirty edge about to be evaluated, :func:`evaluate_edge`).
+JUDGE, EVALUATE = 0, 1
+
+
+def new_ahead(cap: int, width: int, n_poses: int, m: int) -> LoopAhead:
+    """Room to measure ``width`` candidates at once (:func:`speculate`) over ``cap`` edge slots of a mesh of m
+    vertices; ``width`` 1 measures each attempt alone."""
+    width = max(1, int(width))
+    held = 4 * width
+    return LoopAhead(np.zeros(cap), np.zeros(cap, np.bool_), np.zeros(cap, np.int64), np.full(cap, -1, np.int64),
+                     np.zeros(cap), np.full(cap, -1, np.int64),
+                     np.zeros(width, np.int64), np.zeros(width, np.int8), np.zeros(width), np.zeros(width, np.bool_),
+                     np.empty((width, 8192), np.int64), np.empty((width, n_poses + 1, 3)), np.empty((width, 3, 4)),
+                     np.empty((width, 3, 3)), np.empty((width, 3, 3)), np.empty((width, 2 * m + 8), np.int64),
+                     np.zeros(held), np.zeros(held, np.int64), np.zeros(held, np.int64))
 
 
 def new_members(m: int, F0: np.ndarray, vf0: tuple[np.ndarray, np.ndarray, np.ndarray],
@@ -205,7 +243,7 @@ def _nearest2(q0, q1, q2, tri, n, first):
 
 
 @njit(cache=True)
-def source_error(a, b, nrem, mesh, vx, mem, s, face):
+def source_error(a, b, nrem, F, pos, Qv, mem, pc, rem, stack, face):
     """The source-side error of collapsing (a, b): the mean squared distance, weighted by their planes' areas,
     of the original vertices that a and b stand for from the new faces around the merged vertex; with
     ``face``, plus the face-side error (:func:`face_error`).
@@ -213,7 +251,8 @@ def source_error(a, b, nrem, mesh, vx, mem, s, face):
     ``S = sum_p sum_j w_p^j d_pj^2 / sum_p sum_j w_p^j`` over the originals p of a and b (``mem``) and the
     example poses j, ``w_p^j = tr Q_p^j[:3, :3]`` (the area of p's planes in pose j; DeCoro's one rest-frame
     quadric weighs every pose alike), ``d_pj`` the distance
-    from p in pose j to the nearest face of ``s.rem`` with a and b at the new vertex (``s.pc``). The new faces
+    from p in pose j to the nearest face of ``rem[:nrem]`` (the faces left around a and b, :func:`link_ok`) with
+    a and b at the new vertex (``pc``: at rest and in every example pose, :func:`posed_vertex`). The new faces
     are posed once (:func:`_posed_new_faces`), and the search starts from the face nearest to the previous
     original (:func:`_nearest2`): the same minima, so the same sum, as a search of every face.
 
@@ -221,9 +260,11 @@ def source_error(a, b, nrem, mesh, vx, mem, s, face):
     enters, ``s = ceil(n / SOURCE_SAMPLES)``: a mean over a spread sample (the list follows the merge tree,
     so it is spatially ordered). That happens only far down a large mesh's hierarchy (below about 750 faces
     of the 193k-face elephant), where each collapse would otherwise measure thousands of originals.
+
+    ``stack``: work space of the merge-tree search (:func:`_nearest_source`; ``mem.stack`` in the loop, one per
+    candidate in :func:`speculate`). Only reads the loop's state, so several candidates may be measured at once.
     """
-    pos, Qv = vx.pos, vx.Qv
-    posed = _posed_new_faces(a, b, nrem, mesh.F, pos, s.pc, s.rem)
+    posed = _posed_new_faces(a, b, nrem, F, pos, pc, rem)
     stride = -(-(mem.size[a] + mem.size[b]) // SOURCE_SAMPLES)
     sw = 0.0
     sd = 0.0
@@ -245,12 +286,12 @@ def source_error(a, b, nrem, mesh, vx, mem, s, face):
             p = mem.nxt[p]
     out = sd / sw if sw > 0 else 0.0
     if face:
-        out += face_error(a, b, nrem, mesh, vx, mem, s)
+        out += face_error(a, b, nrem, F, pos, mem, pc, rem, stack)
     return out
 
 
 @njit(cache=True)
-def _nearest_source(g0, g1, g2, root, mem, tri, best):
+def _nearest_source(g0, g1, g2, root, mem, tri, best, stack):
     """``min(best, d(g, S)^2)``, S the source faces of the originals under ``root`` in the merge tree.
 
     Depth first, the nearer child first; a subtree is skipped when g is farther from its ball than the
@@ -258,7 +299,7 @@ def _nearest_source(g0, g1, g2, root, mem, tri, best):
     a face when ``|g - A| - reach`` is (``tri`` rows ``(A, reach, B, C)``). No face that could be nearer is
     skipped, so the minimum is exact.
     """
-    ball, kid, stack, m = mem.ball, mem.kid, mem.stack, len(mem.nxt)
+    ball, kid, m = mem.ball, mem.kid, len(mem.nxt)
     far = np.sqrt(best)
     top = 0
     stack[0] = root
@@ -294,11 +335,11 @@ def _nearest_source(g0, g1, g2, root, mem, tri, best):
 
 
 @njit(cache=True)
-def face_error(a, b, nrem, mesh, vx, mem, s):
+def face_error(a, b, nrem, F, pos, mem, pc, rem, stack):
     """The face-side error of collapsing (a, b): the mean squared distance of the new faces from the source.
 
-    ``R = (1 / |rem|) sum_f d(g_f, S_f)^2`` over the new faces f around the merged vertex (``s.rem``, with a
-    and b at ``s.pc``), ``g_f`` the centroid of f in the rest pose and ``S_f`` the source faces of the
+    ``R = (1 / |rem|) sum_f d(g_f, S_f)^2`` over the new faces f around the merged vertex (``rem[:nrem]``, with
+    a and b at ``pc[0]``), ``g_f`` the centroid of f in the rest pose and ``S_f`` the source faces of the
     original vertices that f's three corners stand for (``mem``: a's and b's, and the two others'). The
     quadrics measure the new vertex against unbounded planes and ``S`` the source against the new faces;
     neither sees a new face that spreads within its plane over empty space (a grip's opening covered), ``R``
@@ -307,7 +348,7 @@ def face_error(a, b, nrem, mesh, vx, mem, s):
     corner A, so its distance is at least ``|g - A| - reach``, and a whole subtree of the merge tree when g is
     farther than ``best`` from its ball (:func:`_nearest_source`): the minimum is the same as without the tests.
     """
-    F, pos, pc, rem, tri = mesh.F, vx.pos, s.pc, s.rem, mem.tri0
+    tri = mem.tri0
     found = np.empty(nrem)
     count = 0
     for i in range(nrem):
@@ -323,7 +364,7 @@ def face_error(a, b, nrem, mesh, vx, mem, s):
         for root in (a, b, -1 if (x == a or x == b) else x, -1 if (y == a or y == b) else y,
                      -1 if (z == a or z == b) else z):
             if root >= 0:
-                best = _nearest_source(g0, g1, g2, root, mem, tri, best)
+                best = _nearest_source(g0, g1, g2, root, mem, tri, best, stack)
         if best < np.inf:
             found[count] = best
             count += 1
@@ -334,6 +375,119 @@ def face_error(a, b, nrem, mesh, vx, mem, s):
     for i in range(count):
         total += found[i]
     return total / count
+
+
+@njit(cache=True)
+def surviving_faces(a, b, F, vf_start, vf_cnt, pool, rem):
+    """``rem[:n]``: the faces of a without b, then those of b without a, as :func:`link_ok` lists them; returns n."""
+    n = 0
+    for i in range(vf_start[a], vf_start[a] + vf_cnt[a]):
+        f = pool[i]
+        if not (F[f, 0] == b or F[f, 1] == b or F[f, 2] == b):
+            rem[n] = f
+            n += 1
+    for i in range(vf_start[b], vf_start[b] + vf_cnt[b]):
+        f = pool[i]
+        if not (F[f, 0] == a or F[f, 1] == a or F[f, 2] == a):
+            rem[n] = f
+            n += 1
+    return n
+
+
+@njit(parallel=True, cache=True)
+def _measure(n, cand, kind, out, bent, rem, pc, Xw, q, o, stack, ea, eb, ev, ew, method, ip, fp, T, V, W, Qv, fixed,
+             along, F, vf_start, vf_cnt, pool, pos, mem, face, tiny, min_normal_cos):
+    """The body of :func:`speculate`, one candidate a thread. Its arrays are arguments: with numba 0.68,
+    writes inside a parallel loop to an array reached through a named tuple were lost."""
+    for i in prange(n):
+        e = cand[i]
+        a, b = ea[e], eb[e]
+        if kind[i] == EVALUATE:
+            out[i] = collapse_cost(method, a, b, placement(fixed[a], fixed[b], along[a], along[b]), V, W, Qv, T, ip,
+                                   fp, ev[e], ew[e])
+            continue
+        nrem = surviving_faces(a, b, F, vf_start, vf_cnt, pool, rem[i])
+        posed_point(ev[e], ew[e], T, pc[i], Xw[i])
+        bent[i] = folded(a, b, nrem, F, pos, pc[i], rem[i], q[i], o[i], tiny, min_normal_cos)
+        out[i] = 0.0 if bent[i] else source_error(a, b, nrem, F, pos, Qv, mem, pc[i], rem[i], stack[i], face)
+
+
+@njit(cache=True)
+def speculate(n, cm, mesh, vx, ed, mem, ah, cnt, tiny, min_normal_cos):
+    """Do the work of the candidate edges ``ah.cand[:n]`` at once, one thread each: a dirty edge's true cost
+    (:func:`evaluate_edge`), or a clean edge's fold-over guard (:func:`folds`) and, where it passes, its measured
+    error (:func:`source_error`).
+
+    Each gets its own work arrays (the faces left around it, :func:`surviving_faces`, and its new vertex posed,
+    :func:`posed_point`), and nothing here writes the loop's state but a dirty edge's new vertex and weights,
+    which only its evaluation reads: so each finds what its turn would find. ``ah`` keeps the results with e's
+    stamp and, for a guard and error, the collapses made so far (``cnt``, which also counts the measured errors
+    and the costs computed ahead): a cost holds while the stamp does
+    (it depends on a and b alone), a guard and an error while neither changes around the edge either.
+    """
+    _measure(n, ah.cand, ah.kind, ah.out, ah.bent, ah.rem, ah.pc, ah.Xw, ah.q, ah.o, ah.stack, ed.ea, ed.eb, ed.ev,
+             ed.ew, cm.method, cm.ip, cm.fp, cm.T, vx.V, vx.W, vx.Qv, mesh.boundary, mesh.along, mesh.F, mesh.vf_start,
+             mesh.vf_cnt, mesh.pool, vx.pos, mem, cm.fp[5] != 0.0, tiny, min_normal_cos)
+    for i in range(n):
+        e = ah.cand[i]
+        if ah.kind[i] == EVALUATE:
+            ah.cost[e], ah.cstamp[e] = ah.out[i], ed.estamp[e]
+            cnt[C_COSTED] += 1
+        else:
+            ah.val[e], ah.fold[e], ah.stamp[e], ah.time[e] = ah.out[i], ah.bent[i], ed.estamp[e], cnt[C_COLLAPSES]
+            if not ah.bent[i]:
+                cnt[C_MEASURED] += 1
+
+
+@njit(cache=True)
+def _judged(e, mesh, ed, ah):
+    """Whether ``ah`` holds the guard and measured error of clean edge e as its attempt would find them."""
+    t = ah.time[e]
+    return t >= 0 and ah.stamp[e] == ed.estamp[e] and mesh.changed[ed.ea[e]] <= t and mesh.changed[ed.eb[e]] <= t
+
+
+@njit(cache=True)
+def _candidates(e, kind, mesh, ed, qu, cnt, ah):
+    """``ah.cand[:n]``: e (needing ``kind``), then the next entries of the queue whose turn would do work, as many
+    as ``ah`` has rows; returns n.
+
+    A current dirty entry without its cost in ``ah`` is evaluated; a current clean one whose measured error is
+    neither in its cost (``stime``) nor in ``ah`` is judged. The entries looked at (at most ``len(ah.hc)``) are
+    queued again as they were, so the queue pops what it would have popped: its order is total (cost, stamp,
+    edge)."""
+    width = len(ah.cand)
+    ah.cand[0], ah.kind[0] = e, kind
+    n = 1
+    held = 0
+    while n < width and held < len(ah.hc) and cnt[C_HEAP] > 0:
+        c, st, x = pop(qu.hc, qu.hs, qu.he, cnt)
+        ah.hc[held], ah.hs[held], ah.he[held] = c, st, x
+        held += 1
+        if st != ed.estamp[x]:
+            continue
+        if ed.estate[x] == DIRTY:
+            if ah.cstamp[x] == st:
+                continue
+            need = EVALUATE
+        elif ed.estate[x] == CLEAN:
+            t = ed.stime[x]
+            if t >= 0 and mesh.changed[ed.ea[x]] <= t and mesh.changed[ed.eb[x]] <= t:
+                continue
+            if _judged(x, mesh, ed, ah):
+                continue
+            need = JUDGE
+        else:
+            continue
+        new = True
+        for k in range(n):
+            if ah.cand[k] == x:
+                new = False
+        if new:
+            ah.cand[n], ah.kind[n] = x, need
+            n += 1
+    for k in range(held):
+        push(qu.hc, qu.hs, qu.he, cnt, ah.hc[k], ah.hs[k], ah.he[k], ed.estamp, ed.estate)
+    return n
 
 
 @njit(cache=True)
@@ -425,13 +579,16 @@ def _collapsible(x, y, boundary, along, F, vf_start, vf_cnt, pool, charts):
 
 
 @njit(cache=True)
-def evaluate_edge(e, cm, vx, ed, qu, cnt, fixed, along):
-    """Give the dirty edge e its true cost (:func:`collapse_cost` with the edge's :func:`placement`) and queue
-    it again."""
+def evaluate_edge(e, cm, vx, ed, qu, cnt, fixed, along, ah):
+    """Give the dirty edge e its true cost (:func:`collapse_cost` with the edge's :func:`placement`; computed
+    ahead by :func:`speculate` when ``ah`` holds it at e's stamp) and queue it again."""
     a, b = ed.ea[e], ed.eb[e]
     cnt[C_EVALS] += 1
-    ed.ecost[e] = collapse_cost(cm.method, a, b, placement(fixed[a], fixed[b], along[a], along[b]), vx.V, vx.W,
-                                vx.Qv, cm.T, cm.ip, cm.fp, ed.ev[e], ed.ew[e])
+    if ah.cstamp[e] == ed.estamp[e]:
+        ed.ecost[e] = ah.cost[e]
+    else:
+        ed.ecost[e] = collapse_cost(cm.method, a, b, placement(fixed[a], fixed[b], along[a], along[b]), vx.V, vx.W,
+                                    vx.Qv, cm.T, cm.ip, cm.fp, ed.ev[e], ed.ew[e])
     ed.estate[e] = CLEAN
     ed.esrc[e] = 0.0
     ed.stime[e] = -1
@@ -499,7 +656,12 @@ def link_ok(a, b, mesh, cnt, s):
 @njit(cache=True)
 def posed_vertex(v, w, T, s):
     """``s.pc``: the new vertex at rest (v) and in each example pose j, ``sum_k w_k T_k^j [v; 1]``."""
-    pc, Xw = s.pc, s.Xw
+    posed_point(v, w, T, s.pc, s.Xw)
+
+
+@njit(cache=True)
+def posed_point(v, w, T, pc, Xw):
+    """:func:`posed_vertex` into ``pc`` ((poses + 1, 3)), ``Xw`` a 3 x 4 work array."""
     P, n = T.shape[0], T.shape[1]
     for t in range(3):
         pc[0, t] = v[t]
@@ -521,9 +683,14 @@ def folds(a, b, v, w, nrem, mesh, vx, cm, s, tiny, min_normal_cos):
     Fills ``s.pc`` with the new vertex's positions (:func:`posed_vertex`). A face
     folds when its normal turns by more than ``arccos(min_normal_cos)``, or degenerates (``|n| <= tiny``).
     """
-    F, pos, pc, q, o, rem = mesh.F, vx.pos, s.pc, s.q, s.o, s.rem
-    P1 = pos.shape[1]
     posed_vertex(v, w, cm.T, s)
+    return folded(a, b, nrem, mesh.F, vx.pos, s.pc, s.rem, s.q, s.o, tiny, min_normal_cos)
+
+
+@njit(cache=True)
+def folded(a, b, nrem, F, pos, pc, rem, q, o, tiny, min_normal_cos):
+    """:func:`folds` with the new vertex already posed (``pc``) and explicit work arrays (3 x 3 ``q``, ``o``)."""
+    P1 = pos.shape[1]
     for i in range(nrem):
         f = rem[i]
         for j in range(P1):
@@ -667,7 +834,7 @@ def requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s, Qv, normalised):
 
 
 @njit(cache=True)
-def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, cm, mesh, vx, ed, qu, rec, s, mem):
+def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, cm, mesh, vx, ed, qu, rec, s, mem, ah):
     """Run up to ``max_steps`` greedy collapses; returns True when the simplification has finished.
 
     Every array is the loop's state and is updated in place (see
@@ -677,6 +844,7 @@ def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, cm, mesh, vx, ed,
     and record it.
     """
     cnt = rec.cnt
+    measured = cm.fp[4] != 0.0
     for _ in range(max_steps):
         if cnt[C_FACES] <= min_faces:
             return True
@@ -688,22 +856,38 @@ def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, cm, mesh, vx, ed,
             if stamp != ed.estamp[e] or state == DEAD or state == BLOCKED:
                 continue
             if state == DIRTY:               # its true cost, queued again
-                evaluate_edge(e, cm, vx, ed, qu, cnt, mesh.boundary, mesh.along)
+                evaluate_edge(e, cm, vx, ed, qu, cnt, mesh.boundary, mesh.along, ah)
                 continue
             cnt[C_TRIES] += 1
             a, b = ed.ea[e], ed.eb[e]
             ok, nrem, nu, nfab = link_ok(a, b, mesh, cnt, s)
             # S was added with nothing around a and b changed since: the guards and S would give what they gave
             same = ed.stime[e] >= 0 and mesh.changed[a] <= ed.stime[e] and mesh.changed[b] <= ed.stime[e]
-            if ok and not same:              # fold-over guard in the rest pose and every example pose
+            # judged ahead (speculate) with nothing around a and b changed since: its guard and S as they were
+            ahead = ok and not same and _judged(e, mesh, ed, ah)
+            if ahead:
+                cnt[C_AHEAD] += 1
+            elif ok and not same and measured and len(ah.cand) > 1:   # judge it and the next candidates at once
+                n = _candidates(e, JUDGE, mesh, ed, qu, cnt, ah)
+                speculate(n, cm, mesh, vx, ed, mem, ah, cnt, tiny, min_normal_cos)
+                ahead = True
+            if ahead:
+                posed_vertex(ed.ev[e], ed.ew[e], cm.T, s)
+                ok = not ah.fold[e]
+            elif ok and not same:            # fold-over guard in the rest pose and every example pose
                 ok = not folds(a, b, ed.ev[e], ed.ew[e], nrem, mesh, vx, cm, s, tiny, min_normal_cos)
             elif ok:
                 posed_vertex(ed.ev[e], ed.ew[e], cm.T, s)
             if not ok:
                 ed.estate[e] = BLOCKED
                 continue
-            if cm.fp[4] != 0.0 and not same:  # the source-side error S, added to the quadric cost when first seen
-                h = source_error(a, b, nrem, mesh, vx, mem, s, cm.fp[5] != 0.0)
+            if measured and not same:        # the source-side error S, added to the quadric cost when first seen
+                if ahead:
+                    h = ah.val[e]
+                else:
+                    h = source_error(a, b, nrem, mesh.F, vx.pos, vx.Qv, mem, s.pc, s.rem, mem.stack,
+                                     cm.fp[5] != 0.0)
+                    cnt[C_MEASURED] += 1
                 if h < cm.fp[2]:
                     h = 0.0
                 if h > ed.esrc[e]:           # not yet in its cost: add it and queue the edge again

@@ -16,13 +16,18 @@ from numba import njit
 
 from rigslim.plugins.decimation.setup import BLOCKED, DEAD
 
-__all__ = ["C_COLLAPSES", "C_EVALS", "C_FACES", "C_FREE", "C_HEAP", "C_POOL", "C_POPS", "C_SIZE", "C_TAG",
-           "C_TRIES", "N_COUNTERS", "edge_add", "edge_kill", "edge_of", "init_table", "pop", "push"]
+__all__ = ["C_AHEAD", "C_COLLAPSES", "C_COSTED", "C_EVALS", "C_FACES", "C_FREE", "C_HEAP", "C_MEASURED", "C_POOL",
+           "C_POPS", "C_SIZE", "C_TAG", "C_TRIES", "N_COUNTERS", "edge_add", "edge_kill", "edge_of", "init_table",
+           "pop", "push"]
 
 #: Counters of the loop state (one int64 array, ``cnt``): faces left, collapses made, heap size, free edge
-#: slots, edge slots used, vertex-face pool use, marker tag, heap pops, collapse attempts and edge evaluations.
-C_FACES, C_COLLAPSES, C_HEAP, C_FREE, C_SIZE, C_POOL, C_TAG, C_POPS, C_TRIES, C_EVALS = range(10)
-N_COUNTERS = 10
+#: slots, edge slots used, vertex-face pool use, marker tag, heap pops, collapse attempts, edge evaluations,
+#: measured errors (source- and face-side, :func:`rigslim.plugins.decimation.compiled.source_error`), attempts
+#: that found their guard and error judged ahead of them and costs computed ahead
+#: (:func:`rigslim.plugins.decimation.compiled.speculate`).
+(C_FACES, C_COLLAPSES, C_HEAP, C_FREE, C_SIZE, C_POOL, C_TAG, C_POPS, C_TRIES, C_EVALS, C_MEASURED, C_AHEAD,
+ C_COSTED) = range(13)
+N_COUNTERS = 13
 
 
 @njit(cache=True)

@@ -149,7 +149,8 @@ def test_the_face_side_error_is_the_new_faces_distance_from_the_source():
     s.rem[0] = 1
     for h, want in ((0.3, (0.3 / 3) ** 2), (0.0, 0.0)):
         s.pc[:] = [1.0, 0.5, h]
-        assert cc.face_error(1, 2, 1, mesh, vx, mem, s) == pytest.approx(want, rel=1e-12, abs=1e-15)
+        got = cc.face_error(1, 2, 1, mesh.F, vx.pos, mem, s.pc, s.rem, mem.stack)
+        assert got == pytest.approx(want, rel=1e-12, abs=1e-15)
 
 
 def merged_members(V, F, order):
@@ -201,7 +202,7 @@ def test_the_merge_tree_search_finds_the_nearest_source_face_of_a_brute_force():
         fs = sorted(faces_of[c])
         for g in V.min(0) + rng.uniform(size=(5, 3)) * np.ptp(V, axis=0):
             want = point_triangle_distances2(g[None], V[F[fs, 0]], V[F[fs, 1]], V[F[fs, 2]]).min()
-            got = cc._nearest_source(g[0], g[1], g[2], c, mem, mem.tri0, np.inf)
+            got = cc._nearest_source(g[0], g[1], g[2], c, mem, mem.tri0, np.inf, mem.stack)
             assert got == pytest.approx(want, rel=1e-12, abs=1e-300)
 
 
@@ -245,7 +246,7 @@ def test_a_large_source_set_enters_the_source_error_as_a_spread_sample():
     s = cc.new_scratch(P)
     s.rem[:3] = [0, 1, 2]
     s.pc[:] = rng.normal(size=(P + 1, 3))
-    got = cc.source_error(a, b, 3, mesh, vx, mem, s, False)
+    got = cc.source_error(a, b, 3, mesh.F, vx.pos, vx.Qv, mem, s.pc, s.rem, mem.stack, False)
     sample = np.array(pts)[::-(-m // SOURCE_SAMPLES)]
     assert 300 < len(sample) <= SOURCE_SAMPLES
     num = den = 0.0
