@@ -91,16 +91,17 @@ MEASURED_FRAMES = 24
 def lod_pipeline(src: Path, out: Path, *, ratios, max_bones: int, clip, fps: float, frames: int, quantize: str,
                  method: str = "quartic", measure: bool = False, skin: int | None = None,
                  max_error: str | None = DEFAULT_MAX_ERROR, joints: dict | None = None,
-                 coverage: dict | None = None) -> dict:
+                 coverage: dict | None = None, keep_parts: bool = False) -> dict:
     """The pipeline ``rigslim lod`` runs: a decimation step with a bone limit (and ``joints``: the joint budget,
-    :func:`rigslim.commands.lod_levels.decimate_params`), then the LOD writer (``coverage``: its switch camera).
+    :func:`rigslim.commands.lod_levels.decimate_params`; ``keep_parts``: ``prune_parts: false``), then the LOD
+    writer (``coverage``: its switch camera).
 
     Animated: the example poses come from every clip (``clip``: that one) and the levels are measured on
     held-out frames of each, as ``rigslim reduce`` does (:func:`rigslim.commands.gltf_common.every_clip_poses`):
     a limb that only the third clip moves is seen by the collapses."""
     steps = [{"decimate": method, "targets": list(ratios), "max_bones": max_bones,
               **({"max_error": "none" if max_error is None else max_error} if bounded(method) else {}),
-              **(joints or {})}]
+              **({"prune_parts": False} if keep_parts else {}), **(joints or {})}]
     if measure:       # metro on at most MEASURED_FRAMES test frames of all the clips' (a pymeshlab run each)
         steps.append({"evaluate": {"metro": {"frames": MEASURED_FRAMES}, "max-influences": {}}})
     write = write_step(out, quantize=quantize, lod=True, clamp_negative=True)
@@ -146,7 +147,7 @@ def cmd_lod(args) -> int:
         runs = _chain(src, target, lambda i, o, s: lod_pipeline(
             i, o, ratios=ratios, max_bones=args.max_bones, clip=args.clip, fps=args.fps, frames=frames,
             quantize=args.quantize, method=args.method, measure=args.measure, skin=s, max_error=max_error,
-            joints=joints, coverage=coverage), args, console, tmp, source)
+            joints=joints, coverage=coverage, keep_parts=args.keep_parts), args, console, tmp, source)
         pipeline, result, _ = runs[0]
         seconds = sum(r[2] for r in runs)
         step = next(s for s in result.document["steps"] if s["stage"] == "decimate")
@@ -224,6 +225,10 @@ def _say_where_it_stopped(t: dict, max_error: str | None, seam_vertices) -> None
     if "faces" not in t:
         return
     where = f"target {t['target']:g} ({t['target_faces']} faces)"
+    if t.get("parts_removed") and t["same_as"] is None:
+        print(f"rigslim lod: level {t['label']}: no collapse was left at {t['faces_collapsed']} faces, so "
+              f"{t['parts_removed']} parts were removed whole, the nearest to the rest first (the "
+              f"farthest {t['removal_distance']:.3g} m away; --keep-parts keeps them)", file=sys.stderr)
     if t["same_as"] == "source":          # the decimation's levels.SOURCE: ended before the first collapse
         if t["stopped"] is None or t["faces"] <= 1.03 * t["target_faces"]:
             print(f"rigslim lod: {where}: the source's own {t['faces']} faces meet it, so it has no level",
@@ -238,6 +243,10 @@ def _say_where_it_stopped(t: dict, max_error: str | None, seam_vertices) -> None
     elif t["same_as"] is not None:
         print(f"rigslim lod: {where} not reached: it ends at the {t['faces']} faces of level {t['same_as']}, "
               f"so it has no level of its own", file=sys.stderr)
+    elif t["stopped"] == "max_error" and t.get("parts_removed"):
+        print(f"rigslim lod: level {t['label']} stopped at {t['faces']} faces, {where}: no collapse was left and "
+              f"removing its next part whole exceeds --max-error {max_error} ({t['parts_removed']} removed; "
+              f"--max-error none goes on)", file=sys.stderr)
     elif t["stopped"] == "max_error":
         print(f"rigslim lod: level {t['label']} stopped at {t['faces']} faces, {where}: the next collapse exceeds "
               f"--max-error {max_error} (--max-error none goes on)", file=sys.stderr)

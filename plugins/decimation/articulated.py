@@ -94,6 +94,10 @@ class DecimationParams(Params):
     seams_collapse_along: bool = True
     """With ``seams: lock``: seam vertices may still collapse with each other along their seam (both
     sides keep their own attributes; :func:`rigslim.io.gltf.seams.seam_structure`); false keeps every seam vertex."""
+    prune_parts: bool = True
+    """A face target that the last collapse leaves short (every part at a tetrahedron or held by the guards)
+    is reached by removing whole parts, the nearest to the rest of the surface first, within ``max_error``
+    (:mod:`rigslim.plugins.decimation.prune`); false: such a level stops where the collapses stop."""
     max_error: float | str | None = None
     """Error bound of every level (:mod:`rigslim.plugins.decimation.levels`): a number or ``"E%"`` is % of
     the bounding-box diagonal of the first test pose, ``"Em"`` metres (world units); ``none`` (default) turns
@@ -166,11 +170,15 @@ def target_record(c, bound: float | None, hier=None) -> dict:
 
     A target that stopped with no valid collapse left also gets ``parts`` (connected parts of the level's
     faces) and ``minimal_parts`` (those with at most 4 faces: a closed part at a tetrahedron, which no collapse
-    may shrink further without removing the part) when ``hier`` is given.
+    may shrink further without removing the part) when ``hier`` is given; one reached by removing parts
+    (``parts_removed``) gets ``faces_collapsed``, the faces where the collapses ended.
     """
     out = {"target": c.target, "target_faces": c.target_faces, "faces": c.faces, "label": c.label,
-           "error": c.error, "max_error": bound, "stopped": c.stopped, "same_as": c.same_as}
-    if hier is not None and c.stopped == "no collapse" and c.same_as is None:
+           "error": c.error, "max_error": bound, "stopped": c.stopped, "same_as": c.same_as,
+           "parts_removed": c.parts_removed, "removal_distance": c.removal_distance}
+    if hier is not None and c.parts_removed:
+        out["faces_collapsed"] = hier.faces_after(c.collapses)
+    if hier is not None and c.stopped == "no collapse" and c.same_as is None and not c.parts_removed:
         out["parts"], out["minimal_parts"] = part_sizes(hier.prefix(c.collapses).mesh.F)
     return out
 
@@ -332,6 +340,11 @@ class ArticulatedDecimator(Decimator):
                          else collapse_distances(hier, Q[:, :len(asset.example_poses().T)]))
             choices = choose_levels(hier, list(params.targets), faces, distances, bound, self.name)
             levels = self.levels(asset, params, hier, choices)
+            if params.prune_parts:
+                from rigslim.plugins.decimation.prune import prune_levels
+
+                choices, levels = prune_levels(hier, choices, levels, T[:len(asset.example_poses().T)], bound,
+                                               self.name)
         if params.joint_budget is not None:
             with clock("joints"):
                 from rigslim.plugins.decimation.joint_budget import step_joint_budgets
@@ -401,7 +414,14 @@ class ArticulatedDecimator(Decimator):
         if stats:
             ctx.report["loop"] = stats
         for c in choices:
-            if c.stopped == "max_error" and c.same_as is None:
+            if c.parts_removed and c.same_as is None:
+                ctx.log(f"level {c.label}: {c.parts_removed} parts removed whole after the last collapse "
+                        f"({c.faces} faces, target {c.target_faces}; the farthest "
+                        f"{c.removal_distance:.3g} from the rest of the surface)")
+            if c.stopped == "max_error" and c.same_as is None and c.parts_removed:
+                ctx.log(f"level {c.label} stopped at {c.faces} faces (target {c.target_faces}): removing the next "
+                        f"part exceeds max_error {params.max_error}")
+            elif c.stopped == "max_error" and c.same_as is None:
                 ctx.log(f"level {c.label} stopped at {c.faces} faces (target {c.target_faces}): the next collapse "
                         f"exceeds max_error {params.max_error}")
             elif c.same_as == SOURCE:

@@ -81,12 +81,17 @@ class LevelChoice:
     error: float
     """Largest collapse distance in the prefix (units of the positions)."""
     stopped: str | None
-    """``None`` (reached), ``"max_error"`` (the bound), ``"no collapse"`` (nothing valid was left)."""
+    """``None`` (reached), ``"max_error"`` (the bound), ``"no collapse"`` (nothing valid was left, and with
+    ``prune_parts`` one part is left or none could go)."""
     label: str
     same_as: str | None = None
     """The finer level this target ended at (no level of its own), if any; :data:`SOURCE` when it ends before
     the first collapse (the bound, no valid collapse, or a target the source's face count already meets: a copy
     of the source is no level)."""
+    parts_removed: int = 0
+    """Parts removed whole after the last collapse to reach the target (:mod:`rigslim.plugins.decimation.prune`)."""
+    removal_distance: float = 0.0
+    """The largest removal distance of those parts (units of the positions; 0 when none)."""
 
 
 def choose_levels(hier, targets: list[float], target_faces: list[int], distances: np.ndarray,

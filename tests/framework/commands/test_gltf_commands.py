@@ -339,17 +339,41 @@ def test_lod_joint_budget_stays_within_max_error_and_says_so(tmp_path, capsys):
 
 
 def test_lod_says_why_no_collapse_was_left(tmp_path, capsys):
-    """mangonel (37 wooden parts) cannot reach 5 % without removing parts: the report counts the parts left
-    whole at 4 faces or fewer, and stderr says so (it once printed "None seam vertices")."""
+    """mangonel (37 wooden parts) cannot reach 5 % without removing parts: with --keep-parts the report counts
+    the parts left whole at 4 faces or fewer, and stderr says so (it once printed "None seam vertices")."""
     src = GLTF / "suite" / "mangonel.glb"
     out, rep = tmp_path / "m.glb", tmp_path / "m.json"
-    assert main(["lod", str(src), "-o", str(out), "--ratios", "0.05", "--max-error", "none",
+    assert main(["lod", str(src), "-o", str(out), "--ratios", "0.05", "--max-error", "none", "--keep-parts",
                  "--report", str(rep)]) == 0
     t = json.loads(rep.read_text())["targets"][0]
     assert t["stopped"] == "no collapse" and t["faces"] > 1.03 * t["target_faces"]
     assert 0 < t["minimal_parts"] <= t["parts"]
     err = capsys.readouterr().err
     assert f"{t['minimal_parts']} of its {t['parts']} parts are at 4 faces or fewer" in err and "None" not in err
+    assert t["parts_removed"] == 0
+
+
+def test_lod_removes_whole_parts_where_no_collapse_is_left(tmp_path, capsys):
+    """Without --keep-parts mangonel's 10 % level (116 faces) is reached by removing parts whole, the nearest
+    to the rest first, and lands within 3 % of its target (parts that fit in the last removal's overshoot are
+    put back); the level says how many went. Within the default bound (1 %) no part goes: the level stops
+    where the collapses stop and stderr says why."""
+    src = GLTF / "suite" / "mangonel.glb"
+    out, rep = tmp_path / "m.glb", tmp_path / "m.json"
+    assert main(["lod", str(src), "-o", str(out), "--ratios", "0.25,0.1", "--max-error", "none",
+                 "--report", str(rep)]) == 0
+    doc = json.loads(rep.read_text())
+    t = doc["targets"][1]
+    assert t["stopped"] is None and t["same_as"] is None and t["label"] == "quartic-10pct"
+    assert 0.97 * t["target_faces"] <= t["faces"] <= t["target_faces"]
+    assert t["parts_removed"] > 0 and t["removal_distance"] > 0
+    assert [lv["faces"] for lv in doc["levels"]] == [doc["targets"][0]["faces"], t["faces"]]
+    assert t["faces_collapsed"] > t["target_faces"]
+    assert (f"level quartic-10pct: no collapse was left at {t['faces_collapsed']} faces, so {t['parts_removed']} "
+            f"parts were removed whole") in capsys.readouterr().err
+    assert main(["lod", str(src), "-o", str(out), "--ratios", "0.1", "--report", str(rep)]) == 0
+    t = json.loads(rep.read_text())["targets"][0]
+    assert t["stopped"] == "max_error" and t["faces"] > t["target_faces"]
 
 
 def test_lod_writes_no_level_where_the_first_collapse_exceeds_the_bound(tmp_path, capsys):

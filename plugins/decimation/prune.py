@@ -1,0 +1,216 @@
+"""Parts removed whole: far levels of many-part meshes that no collapse can bring to their target.
+
+A mesh made of many closed parts (a siege engine's beams, pegs and ropes; a character's buttons, teeth and
+straps) stops collapsing when every part is a tetrahedron or otherwise held by the guards: the link condition
+keeps each closed part at four faces or more. On the suite's mangonel (1,158 faces, 37 parts) the hierarchy
+ends at 248 faces, 31 of its parts at four faces or fewer, so a 10 % target (116 faces) cannot be met by
+collapses. meshoptimizer meets such targets by removing small components (``meshopt_SimplifyPrune``); so
+does this module, for the levels the hierarchy cannot reach and with the error bound, never beyond it.
+
+**Removal distance.** Removing part C from a level leaves the rest R. The points of C then lie at their
+distance from R, so the removal's error is
+
+    d_C = sqrt( (1 / (P |C|)) sum_j sum_{v in C} dist(x_v^j, R^j)^2 )
+
+over the example poses j and C's vertices v, each posed by the level's own weights
+(``x_v^j = sum_i w_vi T_i^j [v; 1]``), R^j the rest posed likewise: the root mean square distance over the
+example poses, as a collapse's geometric error is (:func:`rigslim.plugins.decimation.levels.collapse_distances`).
+A peg sunk into a beam is near the beam and costs little; a rope hanging free, or a head on its own, costs
+its whole offset.
+
+**Greedy removal.** The part with the smallest distance goes first, then the next, until the level has at
+most its target's faces, the next removal would pass the error bound (``max_error``), or one part is left.
+Removing a part can only move the others' nearest surface farther away, so a distance measured earlier is a
+lower bound of the current one: the parts wait in a queue by their last distance and the one on top is
+measured again before it goes (lazy evaluation, exact). The last removal may overshoot the target (a
+28-face part where 4 faces were missing): parts that fit in the overshoot are put back, the farthest first
+(:func:`kept_back`). Every target takes its removals from the one sequence, so the levels' face counts
+strictly decrease.
+"""
+
+from __future__ import annotations
+
+import heapq
+from dataclasses import dataclass
+
+import numpy as np
+
+from rigslim.model.hierarchy import SimplifiedLevel
+from rigslim.model.mesh import Mesh
+from rigslim.model.weights import ReducedWeights
+
+__all__ = ["PruneStep", "face_parts", "kept_back", "prune_levels", "prune_sequence", "pruned_level", "removal_distance"]
+
+
+@dataclass(frozen=True, eq=False)
+class PruneStep:
+    """One part removed: its faces (rows of the level's faces), the faces left after it, and its distance."""
+
+    faces: np.ndarray
+    faces_left: int
+    distance: float
+
+
+def face_parts(F: np.ndarray) -> tuple[int, np.ndarray]:
+    """``(n, label)``: the connected parts of the faces ``F`` (faces sharing a vertex) and each face's part."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    F = np.asarray(F, np.int64).reshape(-1, 3)
+    if not len(F):
+        return 0, np.zeros(0, np.int64)
+    n_v = int(F.max()) + 1
+    rows = np.concatenate([F[:, 0], F[:, 1]])
+    cols = np.concatenate([F[:, 1], F[:, 2]])
+    n, label = connected_components(sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_v, n_v)),
+                                    directed=False)
+    _, part = np.unique(label[F[:, 0]], return_inverse=True)
+    return int(part.max()) + 1, part.astype(np.int64)
+
+
+def removal_distance(X: np.ndarray, part_vertices: np.ndarray, rest_faces: np.ndarray) -> float:
+    """``d_C`` (module docstring): X (P, v, 3) the level's vertices in every example pose, ``part_vertices``
+    C's vertices, ``rest_faces`` the faces left without C (at least one)."""
+    from rigslim.numerics.point_mesh_distance import build_tree, point_mesh_squared_distances, refit_tree
+
+    tree = None
+    total = 0.0
+    for j in range(len(X)):
+        tree = build_tree(X[j], rest_faces) if tree is None else refit_tree(tree, X[j], rest_faces)
+        total += float(point_mesh_squared_distances(X[j][part_vertices], X[j], rest_faces, tree=tree).sum())
+    return float(np.sqrt(total / max(len(X) * len(part_vertices), 1)))
+
+
+def prune_sequence(level: SimplifiedLevel, T: np.ndarray, min_faces: int, bound: float | None
+                   ) -> tuple[list[PruneStep], str | None]:
+    """The parts to remove from ``level``, in order, until at most ``min_faces`` faces are left.
+
+    Parameters
+    ----------
+    level : SimplifiedLevel
+        The level no collapse can simplify further (the hierarchy's end).
+    T : (P, n, 3, 4) array
+        The example poses' bone transforms.
+    min_faces : int
+        Stop once the faces left are at most this.
+    bound : float, optional
+        The error bound (units of the positions): no removal farther than this.
+
+    Returns
+    -------
+    steps, stopped
+        The removals (greedy by distance, module docstring) and why they stopped short of ``min_faces``:
+        None (reached), ``"max_error"`` (the next removal passes the bound) or ``"no collapse"`` (one part
+        left).
+    """
+    from rigslim.numerics.blend import linear_blend
+
+    F = np.asarray(level.mesh.F, np.int64)
+    n, part = face_parts(F)
+    if len(F) <= min_faces:
+        return [], None
+    X = np.stack([linear_blend(level.mesh.V, level.weights, T[j]) for j in range(len(T))])
+    faces_of = [np.flatnonzero(part == p) for p in range(n)]
+    verts_of = [np.unique(F[f]) for f in faces_of]
+    alive = np.ones(n, bool)
+
+    def distance(p: int) -> float:
+        rest = F[alive[part] & (part != p)]
+        return removal_distance(X, verts_of[p], rest)
+
+    queue = [(distance(p), p) for p in range(n)] if n > 1 else []
+    heapq.heapify(queue)
+    steps: list[PruneStep] = []
+    left = len(F)
+    while left > min_faces:
+        if int(alive.sum()) <= 1:
+            return steps, "no collapse"
+        d, p = heapq.heappop(queue)
+        now = distance(p)
+        if queue and now > queue[0][0]:         # farther than when measured: wait for its turn again
+            heapq.heappush(queue, (now, p))
+            continue
+        if bound is not None and now > bound:
+            return steps, "max_error"
+        alive[p] = False
+        left -= len(faces_of[p])
+        steps.append(PruneStep(faces_of[p], left, now))
+    return steps, None
+
+
+def kept_back(steps: list[PruneStep], slack: int) -> list[PruneStep]:
+    """The removals ``steps`` that reached a target, less those the target can keep: the last removal may take
+    the level ``slack`` faces below its target, so parts of at most that many faces are put back, the farthest
+    first (each brings back the most error), while they fit. The largest distance removed cannot grow (the
+    rest only gains surface), and the level lands closer to its target."""
+    back = set()
+    for i in sorted(range(len(steps)), key=lambda i: -steps[i].distance):
+        if len(steps[i].faces) <= slack:
+            back.add(i)
+            slack -= len(steps[i].faces)
+    return [s for i, s in enumerate(steps) if i not in back]
+
+
+def pruned_level(level: SimplifiedLevel, steps: list[PruneStep], label: str) -> SimplifiedLevel:
+    """``level`` without the parts of ``steps``: its other faces, their vertices (``vertex_ids`` a subset of
+    the level's, so writers map it onto the hierarchy as before) and weights. Its ``error`` stays the largest
+    collapse error (the removals' distances are the steps')."""
+    F = np.asarray(level.mesh.F, np.int64)
+    keep = np.ones(len(F), bool)
+    for s in steps:
+        keep[s.faces] = False
+    used, Fc = np.unique(F[keep], return_inverse=True)
+    w = level.weights
+    weights = ReducedWeights(w.indices[used], w.values[used], w.n_handles)
+    ids = None if level.vertex_ids is None else np.asarray(level.vertex_ids)[used]
+    mesh = Mesh(level.mesh.V[used], Fc.reshape(-1, 3), source=level.mesh.source)
+    return SimplifiedLevel(mesh, weights, label, ids, level.error, level.method)
+
+
+def prune_levels(hier, choices: list, levels: list[SimplifiedLevel], T: np.ndarray, bound: float | None,
+                 method: str) -> tuple[list, list[SimplifiedLevel]]:
+    """The face targets that the hierarchy's last collapse leaves short (``stopped == "no collapse"``) reached
+    by removing parts of its final mesh (:func:`prune_sequence`); returns the choices and levels, updated.
+
+    One removal sequence serves them all, finest first: each takes the shortest prefix that meets it, so a
+    coarser target's level is a finer one's less more parts. A target whose prefix gives the face count of
+    the level before it has no level of its own (``same_as``), as in
+    :func:`rigslim.plugins.decimation.levels.choose_levels`.
+    """
+    from dataclasses import replace
+
+    from rigslim.plugins.decimation.levels import REACHED, SOURCE, target_name
+
+    stuck = [i for i, c in enumerate(choices) if c.stopped == "no collapse"]
+    if not stuck:
+        return choices, levels
+    base = hier.prefix(hier.n_collapses)
+    steps, why = prune_sequence(base, T, min(choices[i].target_faces for i in stuck), bound)
+    if not steps:
+        return choices, levels
+    out = list(choices)
+    dropped = {choices[i].label for i in stuck if choices[i].same_as is None}
+    kept = [lv for lv in levels if lv.label not in dropped]
+    finer = [c for c in choices[:stuck[0]] if c.same_as is None]
+    last_faces = finer[-1].faces if finer else len(hier.F)
+    last_label = finer[-1].label if finer else None
+    for i in stuck:
+        c = choices[i]
+        reach = next((k for k, s in enumerate(steps) if s.faces_left <= c.target_faces), None)
+        chosen = steps if reach is None else kept_back(steps[:reach + 1], c.target_faces - steps[reach].faces_left)
+        faces = len(base.mesh.F) - sum(len(s.faces) for s in chosen)
+        label = target_name(method, c.target, c.target_faces)
+        if faces > (1 + REACHED) * c.target_faces:
+            label += f"-{faces}f"
+        farthest = max(s.distance for s in chosen)
+        if faces >= last_faces:                  # no fewer faces than the level before: none of its own
+            same = last_label if last_label is not None else SOURCE
+            out[i] = replace(c, same_as=same, faces=last_faces, stopped=why if reach is None else None)
+            continue
+        out[i] = replace(c, faces=faces, label=label, error=max(c.error, farthest), same_as=None,
+                         stopped=why if reach is None else None, parts_removed=len(chosen),
+                         removal_distance=farthest)
+        kept.append(pruned_level(base, chosen, label))
+        last_faces, last_label = faces, label
+    kept.sort(key=lambda lv: -lv.n_faces)
+    return out, kept
