@@ -250,6 +250,9 @@ def _say_where_it_stopped(t: dict, max_error: str | None, seam_vertices) -> None
     elif t["stopped"] == "max_error":
         print(f"rigslim lod: level {t['label']} stopped at {t['faces']} faces, {where}: the next collapse exceeds "
               f"--max-error {max_error} (--max-error none goes on)", file=sys.stderr)
+    elif t.get("parts_removed"):
+        print(f"rigslim lod: level {t['label']} stopped at {t['faces']} faces, {where}: no collapse was left and "
+              f"one part is left", file=sys.stderr)
     else:
         held = []
         if t.get("parts"):

@@ -242,21 +242,16 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     border_collapses : bool
         False: no border vertex moves at all.
     normalised : bool
-        Rank collapses by ``E / (w_a + w_b)``, the error over the total (area) weight of the merged planes
-        (:func:`rigslim.plugins.decimation.edge_costs.quadric_weight`): a mean squared distance, as
-        meshoptimizer does, so that small parts (a tail, the feet, fingers) cost as much per unit of
-        displacement as large ones; false: [S09]'s area-weighted error ``E``.
-    source_distance : bool
-        With ``normalised``: add the source-side error ``S`` of a collapse
-        (:func:`rigslim.plugins.decimation.compiled.source_error`: the area-weighted mean squared distance of
-        the original vertices that a and b stand for from the faces around the new vertex, over the example
-        poses) to its cost. ``S`` is computed when the edge reaches the top of the queue and passes the
-        guards; if it is not yet in the cost, it is added and the edge queued again.
-    face_distance : bool
-        With ``source_distance``: ``S`` adds the face error :func:`rigslim.plugins.decimation.compiled.face_error`.
+        Rank collapses by ``E / (w_a + w_b)``, the error over the merged planes' total (area) weight
+        (:func:`rigslim.plugins.decimation.edge_costs.quadric_weight`), a mean squared distance (meshoptimizer);
+        false: [S09]'s area-weighted error ``E``.
+    source_distance, face_distance : bool
+        With ``normalised``: add the source-side error ``S`` of a collapse (and with ``face_distance`` its
+        face-side error; :func:`rigslim.plugins.decimation.compiled.source_error`) to its cost, when the edge
+        reaches the top of the queue and passes the guards; the edge is then queued again.
     min_normal_cos : float
-        A collapse is refused if a surviving face's normal turns by more than
-        ``arccos(min_normal_cos)`` in the rest pose or any example pose.
+        Refuse a collapse that turns a surviving face's normal by more than ``arccos(min_normal_cos)`` in the
+        rest pose or any example pose.
     progress : callable, optional
         ``ctx.progress``.
     batch : int
@@ -266,10 +261,9 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
         ``"numba"``: the compiled loop and per-edge costs of :mod:`rigslim.plugins.decimation.compiled`
         (same collapses; the model must provide ``compiled_spec()``).
     ahead : int, optional
-        Compiled loop with ``source_distance``: how many edges' ``S`` are measured at once, the attempted one
-        and the next candidates of the queue, one thread each
-        (:func:`rigslim.plugins.decimation.compiled.speculate`); default :func:`ahead_width` of numba's
-        thread count; 1: one at a time. The collapses are the same for every value.
+        Compiled loop with ``source_distance``: edges judged at once, one thread each (the attempted one and the
+        queue's next; :func:`rigslim.plugins.decimation.compiled.speculate`); default :func:`ahead_width` of
+        numba's threads; 1: one at a time. The collapses are the same for every value.
     locked : (m,) bool array, optional
         Vertices no collapse may move (like boundary vertices, whatever
         ``keep_boundary`` says): e.g. a glTF file's UV seams and material

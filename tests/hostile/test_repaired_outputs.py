@@ -36,3 +36,28 @@ def test_a_skin_listing_a_joint_twice_is_refused_in_one_line(tmp_path, capsys, c
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "skins[0].joints" in err and "listed twice" in err
     assert not out.exists()
+
+
+def test_a_mesh_whose_parts_all_go_gets_an_empty_level_node(tmp_path, capsys):
+    """Three meshes, one part each: at 30 % with no bound two parts are removed whole (plugins/decimation/
+    prune.py). Their nodes' level nodes hold no mesh and no skin (nothing shows there), the file validates,
+    ``compare`` reads the level, and stderr says the level stopped with one part left."""
+    import json
+
+    from rigslim.io.gltf.document import load_gltf
+
+    if not validator_available():
+        pytest.fail("glTF-Validator missing: run tools/setup-gltf-validator.sh (make test-tools)")
+    src = build_gltf(tmp_path / "src.glb", random_parts(np.random.default_rng(1), 3, 3, 4), 4, separate_meshes=True)
+    out, rep = tmp_path / "out.glb", tmp_path / "r.json"
+    assert main(["lod", str(src), "-o", str(out), "--ratios", "0.3", "--max-error", "none", "--report", str(rep)]) == 0
+    assert validation_errors(validate_gltf(out)) == []
+    t = json.loads(rep.read_text())["targets"][0]
+    assert t["parts_removed"] == 2 and t["stopped"] == "no collapse"
+    js = load_gltf(out).json
+    levels = [js["nodes"][n["extensions"]["MSFT_lod"]["ids"][0]] for n in js["nodes"] if "extensions" in n]
+    assert sum("mesh" in lv for lv in levels) == 1
+    assert all("skin" not in lv for lv in levels if "mesh" not in lv)
+    assert "no collapse was left and one part is left" in capsys.readouterr().err
+    assert main(["compare", str(src), str(out), "--level", "1", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["faces"] == t["faces"]

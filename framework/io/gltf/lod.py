@@ -345,7 +345,7 @@ def level_sources(skin: GltfSkin, data: list[PrimitiveData]) -> LevelSources:
 def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | None = None,
                      attributes: list[np.ndarray] | None = None, transfer: str = "project",
                      sources: LevelSources | None = None) -> list[LevelPrimitive]:
-    """One :class:`LevelPrimitive` per source primitive for a level taken from ``hier``.
+    """One :class:`LevelPrimitive` per source primitive that keeps a face in a level taken from ``hier``.
 
     Parameters
     ----------
@@ -420,7 +420,8 @@ def level_primitives(skin: GltfSkin, hier, level, data: list[PrimitiveData] | No
             raise StepError(f"level '{level.label}': a vertex of primitive {d.index} has no attribute value",
                             field="levels", fix="report this file; simplify with seams locked")
         attrs, targets = _column_blocks(X, cols, len(d.targets))
-        out.append(LevelPrimitive(d.index, hier.V[hv], faces, rows, attrs, targets))
+        if len(faces):                  # a primitive whose parts all went (prune.py) has no level primitive
+            out.append(LevelPrimitive(d.index, hier.V[hv], faces, rows, attrs, targets))
     return out
 
 
@@ -490,7 +491,8 @@ def level_document(doc: GltfDocument, level: int) -> GltfDocument:
     """The document as a viewer shows it at LOD ``level`` (0: the full meshes).
 
     Every node with ``MSFT_lod`` gets the mesh (and skin) of its level
-    node ``ids[level - 1]``; nodes with fewer levels show their coarsest one.
+    node ``ids[level - 1]``, or none when that node has no mesh (rigslim writes such a level node where
+    every part of the mesh was removed); nodes with fewer levels show their coarsest one.
     The buffers are shared with ``doc``.
     """
     if level == 0:
@@ -506,9 +508,10 @@ def level_document(doc: GltfDocument, level: int) -> GltfDocument:
         if not ids:
             continue
         src = nodes[ids[min(level, len(ids)) - 1]]
-        if "mesh" not in src:
-            raise InputError(f"LOD node {ids[min(level, len(ids)) - 1]} has no mesh", source=doc.path,
-                             field=f"nodes[{i}].extensions.MSFT_lod", fix="re-export the file")
+        if "mesh" not in src:            # nothing shows at this level (its parts were removed whole)
+            nodes[i].pop("mesh", None)
+            nodes[i].pop("skin", None)
+            continue
         nodes[i]["mesh"] = src["mesh"]
         if "skin" in src:
             nodes[i]["skin"] = src["skin"]

@@ -775,8 +775,8 @@ def _write_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp, lo
     primitive per source primitive (same material, attributes and morph
     targets); for each skinned node, one level node per level with that
     mesh and a skin of the joints that mesh uses (:mod:`rigslim.io.gltf.level_skins`). Each node's
-    ``MSFT_lod`` lists only its own level nodes. Returns per level the faces of each primitive and
-    the joints of each level mesh's skin.
+    ``MSFT_lod`` lists only its own level nodes (a primitive without faces at a level is left out, a mesh
+    without any gives an empty level node). Returns per level each primitive's faces and each skin's joints.
     """
 
     data = primitive_data(source)
@@ -831,14 +831,13 @@ def _write_levels(js, blob, source, levels, hierarchy, quantize, sets, clamp, lo
         for i in skinned:
             node = js["nodes"][i]
             mi = node["mesh"]
-            if mi not in new_mesh:       # every primitive of it degenerated: show the full mesh
-                new_mesh[mi] = mi
-            js["nodes"].append({"name": f"{node.get('name', f'node{i}')}-{level.label}", "mesh": new_mesh[mi],
-                                "skin": skins[mi].skin if new_mesh[mi] != mi else source.skin})
+            js["nodes"].append({"name": f"{node.get('name', f'node{i}')}-{level.label}"})
+            if mi in new_mesh:           # else every face of the mesh went: the level node shows nothing
+                js["nodes"][-1].update({"mesh": new_mesh[mi], "skin": skins[mi].skin})
             if node_extras is not None and node_extras[_j]:
                 js["nodes"][-1]["extras"] = copy.deepcopy(node_extras[_j])
             node_levels[i].append(len(js["nodes"]) - 1)
-            for anim in js.get("animations", []):           # morph weights play on the level nodes too
+            for anim in js.get("animations", []) if mi in new_mesh else []:   # morph weights play on levels too
                 for ch in list(anim.get("channels", [])):
                     if ch.get("target", {}).get("node") == i and ch["target"].get("path") == "weights":
                         anim["channels"].append({"sampler": ch["sampler"],
