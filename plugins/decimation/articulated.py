@@ -186,19 +186,10 @@ def target_record(c, bound: float | None, hier=None) -> dict:
 def part_sizes(F: np.ndarray) -> tuple[int, int]:
     """``(parts, minimal)``: connected parts of the faces ``F`` (sharing a vertex), and how many of them have
     at most 4 faces."""
-    from scipy.sparse.csgraph import connected_components
+    from rigslim.plugins.decimation.prune import face_parts
 
-    F = np.asarray(F, np.int64).reshape(-1, 3)
-    if not len(F):
-        return 0, 0
-    used, Fc = np.unique(F, return_inverse=True)
-    Fc = Fc.reshape(-1, 3)
-    rows = np.concatenate([Fc[:, 0], Fc[:, 1]])
-    cols = np.concatenate([Fc[:, 1], Fc[:, 2]])
-    n, label = connected_components(sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(used),) * 2),
-                                    directed=False)
-    faces = np.bincount(label[Fc[:, 0]], minlength=n)
-    return int(n), int((faces <= 4).sum())
+    n, part = face_parts(F)
+    return n, int((np.bincount(part, minlength=n) <= 4).sum())
 
 
 def limited_weights(A, max_bones: int | None) -> np.ndarray:

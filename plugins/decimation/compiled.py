@@ -440,10 +440,15 @@ def speculate(n, cm, mesh, vx, ed, mem, ah, cnt, tiny, min_normal_cos):
 
 
 @njit(cache=True)
+def _unchanged(t, a, b, changed):
+    """Whether a and b's faces are as they were after ``t`` collapses (``t`` -1: never measured)."""
+    return t >= 0 and changed[a] <= t and changed[b] <= t
+
+
+@njit(cache=True)
 def _judged(e, mesh, ed, ah):
     """Whether ``ah`` holds the guard and measured error of clean edge e as its attempt would find them."""
-    t = ah.time[e]
-    return t >= 0 and ah.stamp[e] == ed.estamp[e] and mesh.changed[ed.ea[e]] <= t and mesh.changed[ed.eb[e]] <= t
+    return ah.stamp[e] == ed.estamp[e] and _unchanged(ah.time[e], ed.ea[e], ed.eb[e], mesh.changed)
 
 
 @njit(cache=True)
@@ -470,10 +475,7 @@ def _candidates(e, kind, mesh, ed, qu, cnt, ah):
                 continue
             need = EVALUATE
         elif ed.estate[x] == CLEAN:
-            t = ed.stime[x]
-            if t >= 0 and mesh.changed[ed.ea[x]] <= t and mesh.changed[ed.eb[x]] <= t:
-                continue
-            if _judged(x, mesh, ed, ah):
+            if _unchanged(ed.stime[x], ed.ea[x], ed.eb[x], mesh.changed) or _judged(x, mesh, ed, ah):
                 continue
             need = JUDGE
         else:
@@ -862,7 +864,7 @@ def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, cm, mesh, vx, ed,
             a, b = ed.ea[e], ed.eb[e]
             ok, nrem, nu, nfab = link_ok(a, b, mesh, cnt, s)
             # S was added with nothing around a and b changed since: the guards and S would give what they gave
-            same = ed.stime[e] >= 0 and mesh.changed[a] <= ed.stime[e] and mesh.changed[b] <= ed.stime[e]
+            same = _unchanged(ed.stime[e], a, b, mesh.changed)
             # judged ahead (speculate) with nothing around a and b changed since: its guard and S as they were
             ahead = ok and not same and _judged(e, mesh, ed, ah)
             if ahead:
