@@ -20,7 +20,8 @@ from collections import namedtuple
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["TriangleTree", "build_tree", "point_mesh_squared_distances", "point_triangle_distance2", "refit_tree"]
+__all__ = ["TriangleTree", "build_tree", "distances_to_other_parts", "point_mesh_squared_distances",
+           "point_triangle_distance2", "refit_tree"]
 
 #: The hierarchy: node boxes ``lo``, ``hi`` (n, 3); ``kid[x]`` the first of x's two children (the second is
 #: ``kid[x] + 1``; -1: a leaf); a leaf holds the triangles ``perm[first[x]:first[x] + count[x]]``.
@@ -215,11 +216,16 @@ def _box2(q0, q1, q2, lo, hi, x):
 
 
 @njit(cache=True)
-def _nearest2(q0, q1, q2, V, F, lo, hi, kid, first, count, perm, stack, hint):
+def _nearest2(q0, q1, q2, V, F, lo, hi, kid, first, count, perm, stack, hint, part, own, alive):
     """The squared distance from q to the nearest triangle and that triangle, starting from the distance to
-    triangle ``hint`` (-1: none): a near first guess prunes more, and the minimum is the same."""
+    triangle ``hint`` (-1: none): a near first guess prunes more, and the minimum is the same.
+
+    With ``own >= 0`` only triangles of other parts that are alive count (``part[t] != own`` and
+    ``alive[part[t]]``; :func:`distances_to_other_parts`); ``own`` -1 counts every triangle."""
     best = np.inf
     arg = -1
+    if own >= 0 and hint >= 0 and (part[hint] == own or not alive[part[hint]]):
+        hint = -1
     if hint >= 0:
         a, b, c = F[hint, 0], F[hint, 1], F[hint, 2]
         best = point_triangle_distance2(q0, q1, q2, V[a, 0], V[a, 1], V[a, 2], V[b, 0], V[b, 1], V[b, 2],
@@ -236,6 +242,8 @@ def _nearest2(q0, q1, q2, V, F, lo, hi, kid, first, count, perm, stack, hint):
         if k < 0:
             for i in range(first[x], first[x] + count[x]):
                 t = perm[i]
+                if own >= 0 and (part[t] == own or not alive[part[t]]):
+                    continue
                 a, b, c = F[t, 0], F[t, 1], F[t, 2]
                 d = point_triangle_distance2(q0, q1, q2, V[a, 0], V[a, 1], V[a, 2], V[b, 0], V[b, 1], V[b, 2],
                                              V[c, 0], V[c, 1], V[c, 2])
@@ -255,13 +263,13 @@ def _nearest2(q0, q1, q2, V, F, lo, hi, kid, first, count, perm, stack, hint):
 
 
 @njit(cache=True, parallel=True)
-def _query(P, V, F, lo, hi, kid, first, count, perm, out, nearest):
+def _query(P, V, F, lo, hi, kid, first, count, perm, out, nearest, part, owner, alive):
     n = P.shape[0]
     for blk in prange((n + BLOCK - 1) // BLOCK):
         stack = np.empty(STACK, np.int64)
         for p in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
             out[p], nearest[p] = _nearest2(P[p, 0], P[p, 1], P[p, 2], V, F, lo, hi, kid, first, count, perm, stack,
-                                           nearest[p])
+                                           nearest[p], part, owner[p] if len(owner) else -1, alive)
 
 
 def point_mesh_squared_distances(P: np.ndarray, V: np.ndarray, F: np.ndarray,
@@ -283,5 +291,26 @@ def point_mesh_squared_distances(P: np.ndarray, V: np.ndarray, F: np.ndarray,
         nearest = np.full(len(P), -1, np.int64)
     else:                            # a guess beyond these triangles (another mesh's) is no guess
         nearest[nearest >= len(F)] = -1
-    _query(P, V, F, tree.lo, tree.hi, tree.kid, tree.first, tree.count, tree.perm, out, nearest)
+    none = np.zeros(0, np.int64)
+    _query(P, V, F, tree.lo, tree.hi, tree.kid, tree.first, tree.count, tree.perm, out, nearest, none, none,
+           np.zeros(0, np.bool_))
+    return out
+
+
+def distances_to_other_parts(P: np.ndarray, owner: np.ndarray, V: np.ndarray, F: np.ndarray, part: np.ndarray,
+                             alive: np.ndarray, tree: TriangleTree | None = None) -> np.ndarray:
+    """(n,) squared distances of the points ``P`` to the triangles of the other parts that are alive: point p's
+    is ``min d(p, t)^2`` over the triangles t with ``part[t] != owner[p]`` and ``alive[part[t]]`` (inf when
+    there is none). One hierarchy of every triangle serves every part (``tree``, as for
+    :func:`point_mesh_squared_distances`); the excluded triangles are skipped where the search reaches them,
+    so the minimum is the one of a search of the allowed triangles."""
+    V = np.ascontiguousarray(V, np.float64)
+    F = np.ascontiguousarray(F, np.int64)
+    P = np.ascontiguousarray(P, np.float64).reshape(-1, 3)
+    tree = build_tree(V, F) if tree is None else tree
+    out = np.empty(len(P))
+    nearest = np.full(len(P), -1, np.int64)
+    _query(P, V, F, tree.lo, tree.hi, tree.kid, tree.first, tree.count, tree.perm, out, nearest,
+           np.ascontiguousarray(part, np.int64), np.ascontiguousarray(owner, np.int64),
+           np.ascontiguousarray(alive, np.bool_))
     return out

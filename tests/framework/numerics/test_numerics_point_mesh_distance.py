@@ -7,6 +7,7 @@ import pytest
 
 from rigslim.numerics.point_mesh_distance import (
     build_tree,
+    distances_to_other_parts,
     point_mesh_squared_distances,
     point_triangle_distance2,
     refit_tree,
@@ -91,3 +92,25 @@ def test_first_guesses_change_no_distance_and_stale_ones_are_ignored():
     stale = np.full(len(P), len(F) + 1000, np.int64)
     np.testing.assert_array_equal(point_mesh_squared_distances(P, V, F, nearest=stale), ref)
     assert stale.max() < len(F)
+
+
+def test_distances_to_other_parts_match_a_brute_force_over_the_allowed_triangles():
+    """Each point measured against the triangles of the other live parts only: its own part's triangles and a
+    removed part's are skipped (every point of the part lies on them), one hierarchy for all; a point with no
+    allowed triangle gets inf."""
+    rng = np.random.default_rng(1)
+    V, F = _sphere(2)
+    part = rng.integers(0, 5, len(F))
+    alive = np.array([True, True, False, True, True])
+    P = np.vstack([V[F[:60, 0]], rng.normal(size=(40, 3))])
+    owner = np.concatenate([part[:60], rng.integers(0, 5, 40)])
+    tree = build_tree(V, F)
+    got = distances_to_other_parts(P, owner, V, F, part, alive, tree)
+    for p, o, g in zip(P, owner, got, strict=True):
+        allowed = F[(part != o) & alive[part]]
+        assert g == pytest.approx(_brute([p], V, allowed)[0], rel=1e-12, abs=1e-15)
+    only = np.array([True, False, False, False, False])
+    alone = distances_to_other_parts(P[:3], np.zeros(3, np.int64), V, F, part, only, tree)
+    assert np.isinf(alone).all()
+    np.testing.assert_allclose(point_mesh_squared_distances(P, V, F, tree), _brute(P, V, F), rtol=1e-12,
+                               atol=1e-15)                                     # the unmasked query counts all
