@@ -188,7 +188,7 @@ def add_commands(sub) -> None:
                         "(0.02m), or none (default 1%%)")
     p.add_argument("--keep-parts", action="store_true",
                    help="never remove a part whole: a level that the collapses cannot bring to its target stops "
-                        "there (default: the parts nearest to the rest go, within --max-error)")
+                        "there (default: the smallest parts nearest to the rest go, within --max-error)")
     p.add_argument("--split", action="store_true", help="one file per level: OUT-50.glb, OUT-25.glb")
     p.add_argument("--measure", action="store_true", help="also measure each level (metro) on the test frames")
     add_level_arguments(p)

@@ -227,8 +227,8 @@ def _say_where_it_stopped(t: dict, max_error: str | None, seam_vertices) -> None
     where = f"target {t['target']:g} ({t['target_faces']} faces)"
     if t.get("parts_removed") and t["same_as"] is None:
         print(f"rigslim lod: level {t['label']}: no collapse was left at {t['faces_collapsed']} faces, so "
-              f"{t['parts_removed']} parts were removed whole, the nearest to the rest first (the "
-              f"farthest {t['removal_distance']:.3g} m away; --keep-parts keeps them)", file=sys.stderr)
+              f"{t['parts_removed']} parts were removed whole, the smallest and nearest to the rest "
+              f"first (the farthest {t['removal_distance']:.3g} m away; --keep-parts keeps them)", file=sys.stderr)
     if t["same_as"] == "source":          # the decimation's levels.SOURCE: ended before the first collapse
         if t["stopped"] is None or t["faces"] <= 1.03 * t["target_faces"]:
             print(f"rigslim lod: {where}: the source's own {t['faces']} faces meet it, so it has no level",

@@ -96,8 +96,9 @@ class DecimationParams(Params):
     sides keep their own attributes; :func:`rigslim.io.gltf.seams.seam_structure`); false keeps every seam vertex."""
     prune_parts: bool = True
     """A face target that the last collapse leaves short (every part at a tetrahedron or held by the guards)
-    is reached by removing whole parts, the nearest to the rest of the surface first, within ``max_error``
-    (:mod:`rigslim.plugins.decimation.prune`); false: such a level stops where the collapses stop."""
+    is reached by removing whole parts, those adding the least error first (small and near the rest), within
+    ``max_error`` (:mod:`rigslim.plugins.decimation.prune`); false: such a level stops where the collapses
+    stop."""
     max_error: float | str | None = None
     """Error bound of every level (:mod:`rigslim.plugins.decimation.levels`): a number or ``"E%"`` is % of
     the bounding-box diagonal of the first test pose, ``"Em"`` metres (world units); ``none`` (default) turns

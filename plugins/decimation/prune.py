@@ -7,22 +7,28 @@ ends at 248 faces, 31 of its parts at four faces or fewer, so a 10 % target (116
 collapses. meshoptimizer meets such targets by removing small components (``meshopt_SimplifyPrune``); so
 does this module, for the levels the hierarchy cannot reach and with the error bound, never beyond it.
 
-**Removal distance.** Removing part C from a level leaves the rest R. The points of C then lie at their
+**Removal distance.** Removing part C from a level leaves the rest R. The surface of C then lies at its
 distance from R, so the removal's error is
 
-    d_C = sqrt( (1 / (P |C|)) sum_j sum_{v in C} dist(x_v^j, R^j)^2 )
+    d_C = sqrt( sum_j sum_{s in C} w_s dist(x_s^j, R^j)^2 / (P sum_{s in C} w_s) )
 
-over the example poses j and C's vertices v, each posed by the level's own weights
-(``x_v^j = sum_i w_vi T_i^j [v; 1]``), R^j the rest posed likewise: the root mean square distance over the
-example poses, as a collapse's geometric error is (:func:`rigslim.plugins.decimation.levels.collapse_distances`).
-A peg sunk into a beam is near the beam and costs little; a rope hanging free, or a head on its own, costs
-its whole offset.
+over the example poses j and points s of C's faces (:data:`FACE_POINTS`: corners, edge midpoints and
+centroid of each face, weighted by a seventh of its rest area), posed by the level's own weights, R^j the
+rest posed likewise: the area-weighted root mean square distance over the example poses, as a collapse's
+geometric error is (:func:`rigslim.plugins.decimation.levels.collapse_distances`). A peg sunk into a beam is
+near the beam and costs little; a rope hanging free, or a head on its own, costs its whole offset; a torso
+between limbs touches them at its corners only, and its faces' middles keep it (measured at its corners
+alone, minetest_character's torso went first).
 
-**Greedy removal.** The part with the smallest distance goes first, then the next, until the level has at
-most its target's faces, the next removal would pass the error bound (``max_error``), or one part is left.
-Removing a part can only move the others' nearest surface farther away, so a distance measured earlier is a
-lower bound of the current one: the parts wait in a queue by their last distance and the one on top is
-measured again before it goes (lazy evaluation, exact). The last removal may overshoot the target (a
+**Greedy removal.** The part whose removal adds the least squared error goes first, ``A_C d_C^2`` (its rest
+area times its squared distance: the integral of the squared distance over its surface, what the level's
+area-weighted RMS error gains), then the next, until the level has at most its target's faces, the next
+removal's distance ``d_C`` would pass the error bound (``max_error``), or one part is left. A small part
+near the rest goes before a large one that is as near: minetest_character's torso, a tetrahedron between its
+limbs at that level, is about as near to them as they are to it (1.38 against 1.53-1.98), but has twice
+their area. Removing a part can only move the others' nearest surface farther away, so a cost measured
+earlier is a lower bound of the current one: the parts wait in a queue by their last cost and the one on top
+is measured again before it goes (lazy evaluation, exact). The last removal may overshoot the target (a
 28-face part where 4 faces were missing): parts that fit in the overshoot are put back, the farthest first
 (:func:`kept_back`). Every target takes its removals from the one sequence, so the levels' face counts
 strictly decrease.
@@ -68,49 +74,82 @@ def face_parts(F: np.ndarray) -> tuple[int, np.ndarray]:
     return int(part.max()) + 1, part.astype(np.int64)
 
 
-def removal_distance(X: np.ndarray, part_vertices: np.ndarray, rest_faces: np.ndarray) -> float:
-    """``d_C`` (module docstring): X (P, v, 3) the level's vertices in every example pose, ``part_vertices``
-    C's vertices, ``rest_faces`` the faces left without C (at least one). The reference that
-    :func:`prune_sequence`'s shared hierarchies are tested against."""
+#: Points of a face a removal is measured at, as barycentric coordinates: its corners, edge midpoints and
+#: centroid (a part enclosed by others, a torso between limbs, is near them at its corners only).
+FACE_POINTS = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [0.5, 0.5, 0], [0, 0.5, 0.5], [0.5, 0, 0.5],
+                        [1 / 3, 1 / 3, 1 / 3]])
+
+
+def face_points(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(f * 7, 3): the :data:`FACE_POINTS` of every face of ``F`` over the positions ``V``, face by face."""
+    return np.einsum("kc,fcd->fkd", FACE_POINTS, V[F]).reshape(-1, 3)
+
+
+def point_weights(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(f * 7,): each face's area shared by its seven points (1 each where every face is degenerate)."""
+    area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    if not (area > 0).any():
+        area = np.ones(len(F))
+    return np.repeat(area / len(FACE_POINTS), len(FACE_POINTS))
+
+
+def removal_distance(X: np.ndarray, V: np.ndarray, part_faces: np.ndarray, rest_faces: np.ndarray) -> float:
+    """``d_C`` (module docstring) by brute force of the hierarchy: X (P, v, 3) the level's vertices in every
+    example pose, V its rest vertices (the points' area weights), ``part_faces`` C's faces, ``rest_faces``
+    the faces left without C (at least one). The reference :func:`prune_sequence` is tested against."""
     from rigslim.numerics.point_mesh_distance import build_tree, point_mesh_squared_distances, refit_tree
 
+    w = point_weights(V, part_faces)
     tree = None
     total = 0.0
     for j in range(len(X)):
         tree = build_tree(X[j], rest_faces) if tree is None else refit_tree(tree, X[j], rest_faces)
-        total += float(point_mesh_squared_distances(X[j][part_vertices], X[j], rest_faces, tree=tree).sum())
-    return float(np.sqrt(total / max(len(X) * len(part_vertices), 1)))
+        total += float(w @ point_mesh_squared_distances(face_points(X[j], part_faces), X[j], rest_faces, tree=tree))
+    return float(np.sqrt(total / (len(X) * w.sum())))
 
 
 class _PartDistances:
     """``d_C`` of every part of one level against the parts still alive, from one hierarchy of all its
-    triangles per pose: a part's vertices search it skipping their own part's triangles and the removed
+    triangles per pose: a part's points search it skipping their own part's triangles and the removed
     ones' (:func:`rigslim.numerics.point_mesh_distance.distances_to_other_parts`), so measuring a part costs a
-    query of its vertices, not a hierarchy of the rest (which made 6,000 parts take 270 s)."""
+    query of its points, not a hierarchy of the rest (which made 6,000 parts take 270 s)."""
 
-    def __init__(self, X: np.ndarray, F: np.ndarray, part: np.ndarray, n: int):
+    def __init__(self, X: np.ndarray, V: np.ndarray, F: np.ndarray, part: np.ndarray, n: int):
         from rigslim.numerics.point_mesh_distance import build_tree
 
         self.X, self.F, self.part = X, F, part
-        self.owner = np.full(X.shape[1], -1, np.int64)
-        self.owner[F.ravel()] = np.repeat(part, 3)
-        self.verts = [np.flatnonzero(self.owner == p) for p in range(n)]
+        self.owner = np.repeat(part, len(FACE_POINTS))
+        self.weight = point_weights(V, F)
+        self.points = [np.flatnonzero(self.owner == p) for p in range(n)]
         self.alive = np.ones(n, bool)
         self.trees = [build_tree(X[j], F) for j in range(len(X))]
+        self.at = [face_points(X[j], F) for j in range(len(X))]
 
-    def __call__(self, vertices: np.ndarray) -> np.ndarray:
-        """Per vertex of ``vertices`` the sum over the poses of its squared distance to the other live parts."""
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        """Per point (rows of ``face_points``) the sum over the poses of its squared distance to the other
+        live parts."""
         from rigslim.numerics.point_mesh_distance import distances_to_other_parts
 
-        total = np.zeros(len(vertices))
+        total = np.zeros(len(points))
         for j, tree in enumerate(self.trees):
-            total += distances_to_other_parts(self.X[j][vertices], self.owner[vertices], self.X[j], self.F,
+            total += distances_to_other_parts(self.at[j][points], self.owner[points], self.X[j], self.F,
                                               self.part, self.alive, tree)
         return total
 
+    def start(self, n: int) -> np.ndarray:
+        """(n,) every part's ``d_C`` against all the others, in one query of every point."""
+        d2 = self(np.arange(len(self.owner)))
+        num = np.bincount(self.owner, self.weight * d2, minlength=n)
+        return np.sqrt(num / (len(self.X) * np.where(self.area(n) > 0, self.area(n), 1.0)))
+
+    def area(self, n: int) -> np.ndarray:
+        """(n,) every part's rest area ``A_C`` (the sum of its points' weights)."""
+        return np.bincount(self.owner, self.weight, minlength=n)
+
     def distance(self, p: int) -> float:
-        v = self.verts[p]
-        return float(np.sqrt(self(v).sum() / max(len(self.X) * len(v), 1)))
+        q = self.points[p]
+        w = self.weight[q]
+        return float(np.sqrt(w @ self(q) / (len(self.X) * w.sum())))
 
 
 def prune_sequence(level: SimplifiedLevel, T: np.ndarray, min_faces: int, bound: float | None
@@ -131,7 +170,7 @@ def prune_sequence(level: SimplifiedLevel, T: np.ndarray, min_faces: int, bound:
     Returns
     -------
     steps, stopped
-        The removals (greedy by distance, module docstring) and why they stopped short of ``min_faces``:
+        The removals (greedy by added squared error, module docstring) and why they stopped short of ``min_faces``:
         None (reached), ``"max_error"`` (the next removal passes the bound) or ``"no collapse"`` (one part
         left).
     """
@@ -145,12 +184,9 @@ def prune_sequence(level: SimplifiedLevel, T: np.ndarray, min_faces: int, bound:
         return [], "no collapse"
     X = np.stack([linear_blend(level.mesh.V, level.weights, T[j]) for j in range(len(T))])
     faces_of = [np.flatnonzero(part == p) for p in range(n)]
-    measure = _PartDistances(X, F, part, n)
-    first = measure(np.arange(X.shape[1]))               # every part against all the others at once
-    sizes = np.maximum(np.bincount(measure.owner[measure.owner >= 0], minlength=n), 1)
-    start = np.sqrt(np.bincount(measure.owner[measure.owner >= 0], first[measure.owner >= 0], minlength=n)
-                    / (len(X) * sizes))
-    queue = [(float(start[p]), p) for p in range(n)]
+    measure = _PartDistances(X, np.asarray(level.mesh.V), F, part, n)
+    area = measure.area(n)
+    queue = [(float(area[p] * d * d), p) for p, d in enumerate(measure.start(n))]
     heapq.heapify(queue)
     steps: list[PruneStep] = []
     left = len(F)
@@ -159,8 +195,9 @@ def prune_sequence(level: SimplifiedLevel, T: np.ndarray, min_faces: int, bound:
             return steps, "no collapse"
         _, p = heapq.heappop(queue)
         now = measure.distance(p)
-        if queue and now > queue[0][0]:         # farther than when measured: wait for its turn again
-            heapq.heappush(queue, (now, p))
+        cost = float(area[p] * now * now)
+        if queue and cost > queue[0][0]:        # farther than when measured: wait for its turn again
+            heapq.heappush(queue, (cost, p))
             continue
         if bound is not None and now > bound:
             return steps, "max_error"

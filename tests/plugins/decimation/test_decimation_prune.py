@@ -59,31 +59,57 @@ def test_face_parts_label_each_connected_part():
     assert len({got[0], got[4], got[8]}) == 3
 
 
-def test_removal_distance_is_the_rms_over_poses_and_vertices():
-    """Against a brute force: the mean over poses and the part's vertices of the squared distance to the rest."""
+def test_removal_distance_is_the_area_weighted_rms_over_poses_and_face_points():
+    """Against a brute force: per pose, each face of the part at its corners, edge midpoints and centroid, each
+    point weighted by a seventh of its face's rest area, squared distance to the rest, averaged."""
     V, F, part = parts_mesh([[0, 0, 0], [3, 0.5, 0], [0, 4, 1]], [1.0, 0.2, 0.5])
+    V[4] += [0.1, 0.0, 0.05]                               # faces of different areas
     T = poses(3)
     X = np.stack([V @ T[j, 0, :, :3].T + T[j, 0, :, 3] for j in range(3)])
-    rest = F[part != 1]
-    got = removal_distance(X, np.arange(4, 8), rest)
-    d2 = []
+    rest, mine = F[part != 1], F[part == 1]
+    got = removal_distance(X, V, mine, rest)
+    bary = [(1, 0, 0), (0, 1, 0), (0, 0, 1), (0.5, 0.5, 0), (0, 0.5, 0.5), (0.5, 0, 0.5), (1 / 3, 1 / 3, 1 / 3)]
+    num = den = 0.0
     for j in range(3):
         A, B, C = X[j][rest[:, 0]], X[j][rest[:, 1]], X[j][rest[:, 2]]
-        for v in range(4, 8):
-            d2.append(point_triangle_distances2(np.repeat(X[j][v][None], len(rest), 0), A, B, C).min())
-    assert got == pytest.approx(np.sqrt(np.mean(d2)), rel=1e-12)
+        for f in mine:
+            area = 0.5 * np.linalg.norm(np.cross(V[f[1]] - V[f[0]], V[f[2]] - V[f[0]]))
+            for b in bary:
+                q = b[0] * X[j][f[0]] + b[1] * X[j][f[1]] + b[2] * X[j][f[2]]
+                num += area / 7 * point_triangle_distances2(np.repeat(q[None], len(rest), 0), A, B, C).min()
+                den += area / 7
+    assert got == pytest.approx(np.sqrt(num / den), rel=1e-12)
+
+
+def test_an_enclosed_part_is_measured_over_its_faces_not_its_corners():
+    """A flat plate whose four corners touch four posts: at its corners it lies on them, over its faces it
+    does not, so it is not the first part to go."""
+    plate = np.array([[0.0, 0, 0], [4, 0, 0], [4, 4, 0], [0, 4, 0]])
+    Fp = np.array([[0, 1, 2], [0, 2, 3]], np.int64)
+    Vt, Ft, _ = parts_mesh(plate + [0, 0, 0.3], np.full(4, 0.2))
+    V, F = np.concatenate([plate, Vt]), np.concatenate([Fp, Ft + 4])
+    level, T = rigid_level(V, F), poses(2)
+    X = np.stack([V @ T[j, 0, :, :3].T + T[j, 0, :, 3] for j in range(2)])
+    at_corners = [np.sqrt(np.mean([point_triangle_distances2(np.repeat(X[j][v][None], 16, 0), *(X[j][F[2:, c]]
+                                   for c in range(3))).min() for j in range(2) for v in range(4)]))]
+    assert at_corners[0] < removal_distance(X, V, F[2:6], np.concatenate([F[:2], F[6:]]))   # corners alone: first
+    steps, _ = prune_sequence(level, T, len(F) - 1, None)
+    assert set(steps[0].faces.tolist()) != {0, 1}          # over its faces the plate is far from the posts
 
 
 def eager_sequence(level, T, min_faces):
-    """Every remaining part measured against the current rest at every step; the nearest goes."""
+    """Every remaining part measured against the current rest at every step (its own hierarchy); the one of
+    least added squared error, rest area times squared distance, goes."""
     V, F = level.mesh.V, np.asarray(level.mesh.F)
     X = np.stack([V @ T[j, 0, :, :3].T + T[j, 0, :, 3] for j in range(len(T))])
     n, part = face_parts(F)
+    tri = V[F]
+    area = np.bincount(part, 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1))
     alive = set(range(n))
     order, left = [], len(F)
     while left > min_faces and len(alive) > 1:
-        d = {p: removal_distance(X, np.unique(F[part == p]), F[np.isin(part, list(alive - {p}))]) for p in alive}
-        p = min(sorted(d), key=lambda q: d[q])
+        d = {p: removal_distance(X, V, F[part == p], F[np.isin(part, list(alive - {p}))]) for p in alive}
+        p = min(sorted(d), key=lambda q: area[q] * d[q] ** 2)
         alive.remove(p)
         left -= int((part == p).sum())
         order.append((p, d[p]))
@@ -91,7 +117,7 @@ def eager_sequence(level, T, min_faces):
 
 
 def test_the_lazy_greedy_removes_what_an_eager_one_does():
-    """Random clusters of tetrahedra around a large one: the queue by last distance gives the eager greedy's
+    """Random clusters of tetrahedra around a large one: the queue by last cost gives the eager greedy's
     sequence and distances (removing a part only moves the rest's surface away)."""
     rng = np.random.default_rng(4)
     centres = np.concatenate([[[0, 0, 0]], rng.normal(scale=3.0, size=(14, 3))])
@@ -168,7 +194,8 @@ def decimated(target, **params):
 
 def test_the_step_reaches_a_target_no_collapse_can_by_removing_the_nearest_parts():
     """The ball collapses to a few faces but the 13 studs stay at 4 faces each: the target of 30 faces is met
-    by removing studs (the ones on the ball first, the far one last: it is never needed), each level says so."""
+    by removing studs (the ones on the ball first, the far one last: it is never needed), the ball stays, and
+    the level says so."""
     asset, ctx, said = decimated(30, max_error="none")
     t = ctx.report["targets"][0]
     lv = asset.levels[0]
