@@ -639,3 +639,25 @@ def test_commands_handle_every_skin(tmp_path, valid):
     assert [js["nodes"][j]["skin"] for j in js["nodes"][1]["extensions"]["MSFT_lod"]["ids"]] == [1, 1]
     assert main(["compare", str(src), str(out), "--level", "1", "--frames", "1:31:10", "--json",
                  "--samples", "2000"]) == 0
+
+
+def test_lod_keeps_a_large_part_among_near_ones_when_it_removes_parts(tmp_path):
+    """minetest_character at 25 % with no bound: its seven boxes end as tetrahedra (28 faces), so two parts go.
+    The torso, a tetrahedron between the limbs and as near to them as they are to it, has the most area and
+    stays (measured at its corners and ranked by distance alone, it went first); the head's overlay goes."""
+    from rigslim.plugins.decimation.prune import face_parts
+
+    src = GLTF / "suite" / "minetest_character.glb"
+    out, rep = tmp_path / "m.glb", tmp_path / "m.json"
+    assert main(["lod", str(src), "-o", str(out), "--ratios", "0.25", "--max-error", "none", "--split",
+                 "--report", str(rep)]) == 0
+    t = json.loads(rep.read_text())["targets"][0]
+    assert t["parts_removed"] == 2 and t["faces"] == 20
+    doc = load_gltf(tmp_path / "m-25.glb")
+    prim = doc.json["meshes"][0]["primitives"][0]
+    V = read_accessor(doc, prim["attributes"]["POSITION"])
+    F = read_accessor(doc, prim["indices"]).reshape(-1, 3).astype(np.int64)
+    _, weld = np.unique(np.round(V, 6), axis=0, return_inverse=True)
+    n, part = face_parts(weld.ravel()[F])
+    centres = np.array([V[F[part == p]].reshape(-1, 3).mean(axis=0) for p in range(n)])
+    assert np.linalg.norm(centres - [0.0, 9.45, 0.0], axis=1).min() < 0.5       # the torso
