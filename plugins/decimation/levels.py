@@ -126,11 +126,16 @@ def choose_levels(hier, targets: list[float], target_faces: list[int], distances
             k = levels[-1].collapses                   # the same prefix as a finer level: one level
         faces = hier.faces_after(k)
         error = float(running[k - 1]) if k else 0.0
-        label = target_name(method, t, f)
-        if faces > (1 + REACHED) * f:
-            label += f"-{faces}f"
+        label = level_label(method, t, f, faces)
         out.append(LevelChoice(t, f, k, faces, error, stopped, label, same))
     return out
+
+
+def level_label(method: str, t: float, target_faces: int, faces: int) -> str:
+    """The level's name: its target's (:func:`target_name`), and its real face count where that is more than
+    :data:`REACHED` above the target (``quartic-25pct-394f``)."""
+    label = target_name(method, t, target_faces)
+    return label + f"-{faces}f" if faces > (1 + REACHED) * target_faces else label
 
 
 def target_name(method: str, t: float, faces: int) -> str:

@@ -87,10 +87,16 @@ def face_points(V: np.ndarray, F: np.ndarray) -> np.ndarray:
 
 def point_weights(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     """(f * 7,): each face's area shared by its seven points (1 each where every face is degenerate)."""
-    area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    area = Mesh(V, F).face_areas
     if not (area > 0).any():
         area = np.ones(len(F))
     return np.repeat(area / len(FACE_POINTS), len(FACE_POINTS))
+
+
+def grouped(label: np.ndarray, n: int) -> list[np.ndarray]:
+    """Per group 0..n-1 the rows with that ``label``, in increasing order (one sort, not n scans)."""
+    order = np.argsort(label, kind="stable")
+    return np.split(order, np.cumsum(np.bincount(label, minlength=n))[:-1])
 
 
 def removal_distance(X: np.ndarray, V: np.ndarray, part_faces: np.ndarray, rest_faces: np.ndarray) -> float:
@@ -120,7 +126,8 @@ class _PartDistances:
         self.X, self.F, self.part = X, F, part
         self.owner = np.repeat(part, len(FACE_POINTS))
         self.weight = point_weights(V, F)
-        self.points = [np.flatnonzero(self.owner == p) for p in range(n)]
+        self.points = grouped(self.owner, n)
+        self.area = np.bincount(self.owner, self.weight, minlength=n)     # A_C: the sum of its points' weights
         self.alive = np.ones(n, bool)
         self.trees = [build_tree(X[j], F) for j in range(len(X))]
         self.at = [face_points(X[j], F) for j in range(len(X))]
@@ -136,15 +143,11 @@ class _PartDistances:
                                               self.part, self.alive, tree)
         return total
 
-    def start(self, n: int) -> np.ndarray:
-        """(n,) every part's ``d_C`` against all the others, in one query of every point."""
+    def start(self) -> np.ndarray:
+        """Every part's ``d_C`` against all the others, in one query of every point."""
         d2 = self(np.arange(len(self.owner)))
-        num = np.bincount(self.owner, self.weight * d2, minlength=n)
-        return np.sqrt(num / (len(self.X) * np.where(self.area(n) > 0, self.area(n), 1.0)))
-
-    def area(self, n: int) -> np.ndarray:
-        """(n,) every part's rest area ``A_C`` (the sum of its points' weights)."""
-        return np.bincount(self.owner, self.weight, minlength=n)
+        num = np.bincount(self.owner, self.weight * d2, minlength=len(self.area))
+        return np.sqrt(num / (len(self.X) * np.where(self.area > 0, self.area, 1.0)))
 
     def distance(self, p: int) -> float:
         q = self.points[p]
@@ -183,10 +186,10 @@ def prune_sequence(level: SimplifiedLevel, T: np.ndarray, min_faces: int, bound:
     if n < 2:
         return [], "no collapse"
     X = np.stack([linear_blend(level.mesh.V, level.weights, T[j]) for j in range(len(T))])
-    faces_of = [np.flatnonzero(part == p) for p in range(n)]
+    faces_of = grouped(part, n)
     measure = _PartDistances(X, np.asarray(level.mesh.V), F, part, n)
-    area = measure.area(n)
-    queue = [(float(area[p] * d * d), p) for p, d in enumerate(measure.start(n))]
+    area = measure.area
+    queue = [(float(area[p] * d * d), p) for p, d in enumerate(measure.start())]
     heapq.heapify(queue)
     steps: list[PruneStep] = []
     left = len(F)
@@ -241,14 +244,14 @@ def prune_levels(hier, choices: list, levels: list[SimplifiedLevel], T: np.ndarr
     """The face targets that the hierarchy's last collapse leaves short (``stopped == "no collapse"``) reached
     by removing parts of its final mesh (:func:`prune_sequence`); returns the choices and levels, updated.
 
-    One removal sequence serves them all, finest first: each takes the shortest prefix that meets it, so a
-    coarser target's level is a finer one's less more parts. A target whose prefix gives the face count of
-    the level before it has no level of its own (``same_as``), as in
+    One removal sequence serves them all, finest first: each takes the shortest prefix that meets it, less
+    the parts that fit in its overshoot (:func:`kept_back`). A target that ends with no fewer faces than the
+    level before it has no level of its own (``same_as``), as in
     :func:`rigslim.plugins.decimation.levels.choose_levels`.
     """
     from dataclasses import replace
 
-    from rigslim.plugins.decimation.levels import REACHED, SOURCE, target_name
+    from rigslim.plugins.decimation.levels import SOURCE, level_label
 
     stuck = [i for i, c in enumerate(choices) if c.stopped == "no collapse"]
     if not stuck:
@@ -268,9 +271,7 @@ def prune_levels(hier, choices: list, levels: list[SimplifiedLevel], T: np.ndarr
         reach = next((k for k, s in enumerate(steps) if s.faces_left <= c.target_faces), None)
         chosen = steps if reach is None else kept_back(steps[:reach + 1], c.target_faces - steps[reach].faces_left)
         faces = len(base.mesh.F) - sum(len(s.faces) for s in chosen)
-        label = target_name(method, c.target, c.target_faces)
-        if faces > (1 + REACHED) * c.target_faces:
-            label += f"-{faces}f"
+        label = level_label(method, c.target, c.target_faces, faces)
         farthest = max(s.distance for s in chosen)
         if faces >= last_faces:                  # no fewer faces than the level before: none of its own
             same = last_label if last_label is not None else SOURCE
