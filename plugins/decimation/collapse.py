@@ -47,6 +47,7 @@ from rigslim.plugins.decimation.setup import (
     degenerate_area,
     placement,
     placements,
+    rest_scale,
     zero_cost,
 )
 
@@ -291,9 +292,10 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     st = SimplifyState(V, F, W, T, X)
     setup = collapsible_edges(st.F, st.m, keep_boundary=keep_boundary, locked=locked, seams=seams,
                               border_collapses=border_collapses)
-    loop = _CollapseLoop(st, model, setup, zero=zero_cost(V, st.F, len(T), normalised), normalised=normalised,
-                         batch=batch, min_normal_cos=min_normal_cos, tiny=degenerate_area(V),
-                         source=source_distance and normalised, face=face_distance)
+    s = rest_scale(W, T)
+    loop = _CollapseLoop(st, model, setup, zero=zero_cost(V, st.F, len(T), normalised, s), normalised=normalised,
+                         batch=batch, min_normal_cos=min_normal_cos, tiny=degenerate_area(V, s),
+                         source=source_distance and normalised, face=face_distance, face_scale=s * s)
     loop.run(min_faces, progress, method)
     return _hierarchy(st.V, st.W, F, loop.collapses, loop.errors, loop.nfaces, method, params)
 
@@ -308,9 +310,10 @@ class _CollapseLoop:
 
     def __init__(self, st: SimplifyState, model: EdgeCostModel, setup: EdgeSetup, *, zero: float,
                  normalised: bool, batch: int, min_normal_cos: float, tiny: float, source: bool = False,
-                 face: bool = False):
+                 face: bool = False, face_scale: float = 1.0):
         self.st, self.model, self.normalised, self.batch = st, model, normalised, batch
         self.source, self.face = source, face and source
+        self.face_scale = face_scale          # the face-side error is measured at rest: rest_scale(W, T)^2
         # the original vertices each vertex stands for, a linked list (compiled.LoopMembers)
         self.head = np.full(2 * st.m, -1, np.int64)
         self.head[:st.m] = np.arange(st.m)
@@ -457,7 +460,7 @@ class _CollapseLoop:
             sw += wi
             sd += wi * di
         out = sd / sw if sw > 0 else 0.0
-        return out + self.face_error(a, b, rem, pc) if self.face else out
+        return out + self.face_scale * self.face_error(a, b, rem, pc) if self.face else out
 
     def face_error(self, a: int, b: int, rem: list[int], pc: np.ndarray) -> float:
         """:func:`rigslim.plugins.decimation.compiled.face_error`: the mean squared distance of the new faces'
@@ -631,9 +634,10 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     from rigslim.plugins.decimation import edge_queue as eq
 
     kind, Qv, ip, fp = model.compiled_spec()
-    fp = np.append(fp, [zero_cost(V, np.asarray(F, np.int64), len(T), normalised), float(normalised),
+    s = rest_scale(W, T)
+    fp = np.append(fp, [zero_cost(V, np.asarray(F, np.int64), len(T), normalised, s), float(normalised),
                         float(source_distance and normalised),
-                        float(face_distance and source_distance and normalised)])
+                        s * s if face_distance and source_distance and normalised else 0.0])
     st = SimplifyState(V, F, W, T, X)
     m, Fm = st.m, st.F
     f = len(Fm)
@@ -650,7 +654,7 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     queue = _sorted_queue(edges, n_edges)
     record = cc.LoopRecord(cnt, np.zeros((m, 2), np.int64), np.zeros(m), np.zeros(m, np.int64))
     cost_model = cc.CostModel(kind, ip, fp, st.T)
-    loop_args = (float(min_normal_cos), degenerate_area(V), cost_model, mesh, verts, edges, queue, record,
+    loop_args = (float(min_normal_cos), degenerate_area(V, s), cost_model, mesh, verts, edges, queue, record,
                  cc.new_scratch(len(T)), cc.new_members(m, Fm.copy(), _vertex_faces(Fm, m), st.pos[:m, 0]),
                  cc.new_ahead(len(edges.ea), ahead_width(numba.get_num_threads()) if ahead is None else ahead, len(T),
                               m))

@@ -99,7 +99,9 @@ LoopEdges = namedtuple("LoopEdges", ["ea", "eb", "ecost", "ev", "ew", "estamp", 
 LoopQueue = namedtuple("LoopQueue", ["hc", "hs", "he"])
 #: Counters (:mod:`rigslim.plugins.decimation.edge_queue`) and the recorded collapses, errors and face counts.
 LoopRecord = namedtuple("LoopRecord", ["cnt", "col", "errs", "nfaces"])
-#: The edge cost model (:func:`rigslim.plugins.decimation.edge_costs.edge_cost`) and the example poses.
+#: The edge cost model (:func:`rigslim.plugins.decimation.edge_costs.edge_cost`) and the example poses. ``fp``
+#: ends with the loop's settings: ``fp[2]`` the zero cost, ``fp[3]`` normalised (0/1), ``fp[4]`` the source-side
+#: error (0/1), ``fp[5]`` the face-side error's factor (0: off; else the squared rest scale).
 CostModel = namedtuple("CostModel", ["method", "ip", "fp", "T"])
 #: The original vertices each vertex stands for (the merge tree's leaves), as linked lists: ``head[x]`` the first,
 #: ``nxt[p]`` the one after original p (-1: the last), ``tail[x]`` the last.
@@ -246,7 +248,8 @@ def _nearest2(q0, q1, q2, tri, n, first):
 def source_error(a, b, nrem, F, pos, Qv, mem, pc, rem, stack, face):
     """The source-side error of collapsing (a, b): the mean squared distance, weighted by their planes' areas,
     of the original vertices that a and b stand for from the new faces around the merged vertex; with
-    ``face``, plus the face-side error (:func:`face_error`).
+    ``face`` non-zero, plus ``face`` times the face-side error (:func:`face_error`, measured at rest: ``face``
+    is the squared :func:`rigslim.plugins.decimation.setup.rest_scale`, the posed units of a rest unit).
 
     ``S = sum_p sum_j w_p^j d_pj^2 / sum_p sum_j w_p^j`` over the originals p of a and b (``mem``) and the
     example poses j, ``w_p^j = tr Q_p^j[:3, :3]`` (the area of p's planes in pose j; DeCoro's one rest-frame
@@ -285,8 +288,8 @@ def source_error(a, b, nrem, F, pos, Qv, mem, pc, rem, stack, face):
                 sd += w * best
             p = mem.nxt[p]
     out = sd / sw if sw > 0 else 0.0
-    if face:
-        out += face_error(a, b, nrem, F, pos, mem, pc, rem, stack)
+    if face != 0.0:
+        out += face * face_error(a, b, nrem, F, pos, mem, pc, rem, stack)
     return out
 
 
@@ -427,7 +430,7 @@ def speculate(n, cm, mesh, vx, ed, mem, ah, cnt, tiny, min_normal_cos):
     """
     _measure(n, ah.cand, ah.kind, ah.out, ah.bent, ah.rem, ah.pc, ah.Xw, ah.q, ah.o, ah.stack, ed.ea, ed.eb, ed.ev,
              ed.ew, cm.method, cm.ip, cm.fp, cm.T, vx.V, vx.W, vx.Qv, mesh.boundary, mesh.along, mesh.F, mesh.vf_start,
-             mesh.vf_cnt, mesh.pool, vx.pos, mem, cm.fp[5] != 0.0, tiny, min_normal_cos)
+             mesh.vf_cnt, mesh.pool, vx.pos, mem, cm.fp[5], tiny, min_normal_cos)
     for i in range(n):
         e = ah.cand[i]
         if ah.kind[i] == EVALUATE:
@@ -888,7 +891,7 @@ def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, cm, mesh, vx, ed,
                     h = ah.val[e]
                 else:
                     h = source_error(a, b, nrem, mesh.F, vx.pos, vx.Qv, mem, s.pc, s.rem, mem.stack,
-                                     cm.fp[5] != 0.0)
+                                     cm.fp[5])
                     cnt[C_MEASURED] += 1
                 if h < cm.fp[2]:
                     h = 0.0

@@ -12,7 +12,7 @@ import numpy as np
 
 __all__ = ["BEST", "BLOCKED", "BORDER", "CLEAN", "DEAD", "DECORO", "DIRTY", "EdgeSetup", "FREE", "KEEP_A", "KEEP_B",
            "MAX_EDGE_FACES", "MOHR_GLEICHER", "NONE", "QUARTIC", "SEAM", "SOURCE_SAMPLES", "border_vertices",
-           "collapsible_edges", "degenerate_area", "placement", "placements", "seam_arrays", "zero_cost"]
+           "collapsible_edges", "degenerate_area", "placement", "placements", "rest_scale", "seam_arrays", "zero_cost"]
 
 #: Edge states: queued with its true cost, queued with a lower bound, removed, refused by a guard.
 CLEAN, DIRTY, DEAD, BLOCKED = 0, 1, 2, 3
@@ -183,10 +183,34 @@ def _seam_pairs(Fm: np.ndarray, pairs: np.ndarray, charts: np.ndarray) -> np.nda
     return out
 
 
-def zero_cost(V: np.ndarray, F: np.ndarray, n_poses: int, normalised: bool = False) -> float:
+def rest_scale(W, T: np.ndarray) -> float:
+    """How many posed units one rest unit is: the scale of the skinning transforms.
+
+    ``s = exp( sum_i u_i l_i / sum_i u_i )``, ``l_i = mean_j log |det A_i^j| / 3`` over the example poses j
+    where ``A_i^j`` (the linear part of joint i's transform) is not singular, ``u_i = sum_v |w_vi|`` how much
+    the mesh uses joint i; rounded to 6 significant digits, so that rigid transforms give exactly 1 despite
+    their round-off. A file whose rest positions are in other units than its poses (KHR_mesh_quantization's
+    integers dequantised by the inverse bind matrices; an FBX export in centimetres under a 0.01 armature)
+    has ``s != 1``; the terms of the collapse cost measured in the rest pose (:func:`zero_cost`, the
+    face-side error) are scaled by it, so that a collapse costs the same whatever units the rest is in.
+    """
+    T = np.asarray(T, np.float64)
+    if T.ndim != 4 or not T.shape[0] or not T.shape[1]:
+        return 1.0
+    det = np.abs(np.linalg.det(T[..., :3]))                              # (P, n)
+    ok = det > 0
+    logs = np.where(ok, np.log(np.where(ok, det, 1.0)), 0.0).sum(axis=0) / np.maximum(ok.sum(axis=0), 1) / 3.0
+    used = np.asarray(abs(W).sum(axis=0)).ravel() * ok.any(axis=0)
+    if used.shape != logs.shape or not used.sum() > 0:
+        return 1.0
+    return float(f"{np.exp(float(used @ logs) / float(used.sum())):.6g}")
+
+
+def zero_cost(V: np.ndarray, F: np.ndarray, n_poses: int, normalised: bool = False, scale: float = 1.0) -> float:
     """Collapse costs below this count as 0 (both backends): round-off of the quadric forms.
 
-    ``(1e-7 D)^2 A P``, D the rest bounding-box diagonal, A the mean rest face area, P the poses: the cost
+    ``(1e-7 s D)^2 s^2 A P``, D the rest bounding-box diagonal, A the mean rest face area, s the
+    :func:`rest_scale` (the posed units of a rest unit), P the poses: the cost
     of moving a vertex by 1e-7 D off the planes of its faces in every pose, about a hundred times the
     round-off of ``[p; 1]^T Q [p; 1]`` at coordinates of size D; ``(1e-7 D)^2`` for normalised costs (a
     mean squared distance). Without it, the half-edge collapses of flat regions (exactly zero in exact
@@ -194,15 +218,15 @@ def zero_cost(V: np.ndarray, F: np.ndarray, n_poses: int, normalised: bool = Fal
     """
     if not len(F):
         return 0.0
-    D = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
+    D = scale * float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
     if normalised:
         return (1e-7 * D) ** 2
     P = V[F]
-    A = 0.5 * float(np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1).mean())
+    A = 0.5 * scale ** 2 * float(np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1).mean())
     return (1e-7 * D) ** 2 * A * n_poses
 
 
-def degenerate_area(V: np.ndarray) -> float:
-    """Squared-length threshold below which a face normal counts as degenerate: 1e-14 of the squared diagonal."""
-    scale = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0))) ** 2
-    return 1e-14 * scale
+def degenerate_area(V: np.ndarray, scale: float = 1.0) -> float:
+    """Squared-length threshold below which a face normal counts as degenerate: 1e-14 of the squared diagonal
+    (in posed units: ``scale`` is the :func:`rest_scale`)."""
+    return 1e-14 * (scale * float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))) ** 2
