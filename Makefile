@@ -12,6 +12,8 @@ $(VENV)/.installed: pyproject.toml
 	$(PIP) install --quiet -e '.[all]'
 	@# compile the default reduction's and the LOD chain's numba kernels once into numba's cache (tools/warm-numba.py)
 	$(PY) tools/warm-numba.py
+	@# byte-compile rigslim's own modules too (an editable install; PYTHONDONTWRITEBYTECODE would recompile them every run)
+	$(PY) -m compileall -q framework plugins kernels > /dev/null
 	touch $@
 
 $(VENV)/.installed-test: $(VENV)/.installed
