@@ -183,24 +183,41 @@ def _json_only(path: Path):
         return None
 
 
-def skins_used(js: dict) -> list[int]:
-    """Skins that mesh nodes of the default scene use, in depth-first order of first use."""
+def _scene_order(js: dict) -> list[int]:
+    """The default scene's nodes, depth first (every node when the file has no scene)."""
     nodes = js.get("nodes", [])
     scenes = js.get("scenes", [])
-    if scenes:
-        scene = scenes[js.get("scene", 0)] if isinstance(js.get("scene", 0), int) else scenes[0]
-        order, stack = [], list(reversed(scene.get("nodes", [])))
-        while stack:
-            i = stack.pop()
-            order.append(i)
-            stack.extend(reversed(nodes[i].get("children", [])))
-    else:
-        order = list(range(len(nodes)))
+    if not scenes:
+        return list(range(len(nodes)))
+    scene = scenes[js.get("scene", 0)] if isinstance(js.get("scene", 0), int) else scenes[0]
+    order, stack = [], list(reversed(scene.get("nodes", [])))
+    while stack:
+        i = stack.pop()
+        order.append(i)
+        stack.extend(reversed(nodes[i].get("children", [])))
+    return order
+
+
+def skins_used(js: dict) -> list[int]:
+    """Skins that mesh nodes of the default scene use, in depth-first order of first use."""
     out = []
-    for i in order:
-        n = nodes[i]
+    for i in _scene_order(js):
+        n = js["nodes"][i]
         if "skin" in n and "mesh" in n and n["skin"] not in out:
             out.append(n["skin"])
+    return out
+
+
+def skin_meshes(js: dict, skin: int | None) -> list[str]:
+    """Names of the meshes that nodes of the default scene draw with ``skin`` (``mesh N`` where unnamed), in
+    depth-first order, each once."""
+    out: list[str] = []
+    for i in _scene_order(js):
+        n = js["nodes"][i]
+        if "mesh" in n and n.get("skin") == skin:
+            name = js["meshes"][n["mesh"]].get("name") or f"mesh {n['mesh']}"
+            if name not in out:
+                out.append(name)
     return out
 
 

@@ -22,6 +22,7 @@ from rigslim.commands.gltf_common import (
     input_section,
     is_usd,
     no_motion,
+    skin_meshes,
     unnormalised_note,
     write_step,
 )
@@ -31,6 +32,7 @@ from rigslim.commands.lod_levels import (
     print_levels,
     say_joint_budget_stops,
     sidecar_path,
+    skin_split_rows,
     switch_camera,
     write_params,
     write_sidecar,
@@ -150,33 +152,41 @@ def cmd_lod(args) -> int:
             joints=joints, coverage=coverage, keep_parts=args.keep_parts), args, console, tmp, source)
         pipeline, result, _ = runs[0]
         seconds = sum(r[2] for r in runs)
-        step = next(s for s in result.document["steps"] if s["stage"] == "decimate")
+        step = _decimate_step(result)
         targets = step.get("report", {}).get("targets") or [{"target": r, "same_as": None} for r in ratios]
         kept = [t for t in targets if t["same_as"] is None]
         outputs = [out]
-        if args.split:
-            outputs = split_names(out, [t["target"] for t in kept])
+        if args.split:            # one file per target that any skin reached (a skin short of it shows its coarsest)
+            outputs = split_names(out, kept_targets(runs, ratios))
             split_levels(target, outputs)
         doc, rows = _lod_document(args, src, outputs, runs, result, targets, kept, step, clip, duration, frames,
                                   ratios, max_error, seconds)
         if args.split and not is_usd(out):
             doc["sidecar"] = str(sidecar_path(out))
-            write_sidecar(sidecar_path(out), source=src, outputs=outputs, rows=rows, result=result,
-                          header=_header("lod"))
+            if len(runs) == 1:
+                write_sidecar(sidecar_path(out), source=src, outputs=outputs, rows=rows, result=result,
+                              header=_header("lod"))
+            else:                 # the files show every skin: their rows combine the skins' levels
+                radius = character_radius(runs)
+                merged, combined = skin_split_rows(doc["per_skin"], kept_targets(runs, ratios), radius,
+                                                   switch_camera(result) or {})
+                write_sidecar(sidecar_path(out), source=src, outputs=outputs, rows=merged, result=result,
+                              header=_header("lod"), combined=combined, radius=radius)
         _emit_report(args, doc)
-    faces = ", ".join(f"{r['faces']}" for r in rows)
-    if rows:
-        levels = f"{len(rows)} level{'' if len(rows) == 1 else 's'}"
-        print(f"wrote {', '.join(str(p) for p in outputs)}: {levels} ({faces} faces of {doc['input_faces']}), "
-              f"at most {args.max_bones} bones per vertex, {seconds:.2f} s")
-    else:
-        wrote = doc.get("sidecar") if args.split else out
-        print(f"wrote {wrote}: no level (every target ends at the source's {doc['input_faces']} faces), "
-              f"{seconds:.2f} s")
-    print_levels(rows)
-    for t in targets:
-        _say_where_it_stopped(t, max_error, doc["locked_seam_vertices"])
-    say_joint_budget_stops(rows, max_error)
+    if len(runs) == 1:
+        wrote = ", ".join(str(p) for p in outputs) if rows or not args.split else doc.get("sidecar")
+        print(f"wrote {wrote}: {_levels_line(rows, doc['input_faces'])}"
+              + (f", at most {args.max_bones} bones per vertex" if rows else "") + f", {seconds:.2f} s")
+        _say_levels(rows, targets, max_error, doc["locked_seam_vertices"], "rigslim lod: ")
+    else:                     # one decimation per skin: each skin's levels and stops, named by its meshes
+        wrote = ", ".join(str(p) for p in outputs) if outputs else doc.get("sidecar")
+        print(f"wrote {wrote}: {len(runs)} skins, each simplified on its own, at most {args.max_bones} bones per "
+              f"vertex, {seconds:.2f} s")
+        for entry in doc["per_skin"]:
+            name = f"skin {entry['skin']} ({', '.join(entry['meshes'])})"
+            print(f"{name}: {_levels_line(entry['rows'], entry['input_faces'])}")
+            _say_levels(entry["rows"], entry["targets"], max_error, entry["locked_seam_vertices"],
+                        f"rigslim lod: {name}: ")
     if unnormalised:
         print(unnormalised, file=sys.stderr)
     return 0
@@ -206,12 +216,20 @@ def _lod_document(args, src, outputs, runs, result, targets, kept, step, clip, d
                              "metrics": flat_metrics(result.evaluations[-1]) if result.evaluations else {},
                              "pipeline": runs[0][0], "run": result.document}
     if len(runs) > 1:          # one decimation per skin; the top-level levels are the first skin's
+        from rigslim.io.gltf.document import load_gltf
+
         doc["per_skin"] = []
+        js = load_gltf(src).json
         for p, r, t in runs:
-            st = next(x for x in r.document["steps"] if x["stage"] == "decimate").get("report", {})
-            doc["per_skin"].append({"skin": p["inputs"]["gltf"].get("skin"), "seconds": t, "pipeline": p,
-                                    "input_faces": st.get("input_faces"),
-                                    "levels": [lv["faces"] for lv in st.get("levels", [])]})
+            st = _decimate_step(r).get("report", {})
+            skin = p["inputs"]["gltf"].get("skin")
+            reached = [x for x in st.get("targets", []) if x["same_as"] is None]
+            skin_rows = [{"ratio": x["target"]} | row for x, row in zip(reached, level_rows(r), strict=False)]
+            doc["per_skin"].append({"skin": skin, "meshes": skin_meshes(js, skin), "seconds": t, "pipeline": p,
+                                    "input_faces": st.get("input_faces"), "input_joints": _joints_used(r),
+                                    "targets": st.get("targets", []),
+                                    "locked_seam_vertices": st.get("locked_seam_vertices"),
+                                    "levels": [lv["faces"] for lv in st.get("levels", [])], "rows": skin_rows})
     split = result.asset.split if result.asset is not None else None
     if split is not None and split.clips and isinstance(split.clips.get("test"), list):
         # per clip, the frames (its own numbers, at --fps) the collapses fitted and the levels were measured on
@@ -220,38 +238,95 @@ def _lod_document(args, src, outputs, runs, result, targets, kept, step, clip, d
     return doc, rows
 
 
-def _say_where_it_stopped(t: dict, max_error: str | None, seam_vertices) -> None:
-    """One stderr line for a target the level did not reach: the bound, no collapse left, or a finer level."""
+def _levels_line(rows: list[dict], input_faces) -> str:
+    """``2 levels (348, 174 faces of 696)``, or why there is none."""
+    if not rows:
+        return f"no level (every target ends at the source's {input_faces} faces)"
+    faces = ", ".join(f"{r['faces']}" for r in rows)
+    return f"{len(rows)} level{'' if len(rows) == 1 else 's'} ({faces} faces of {input_faces})"
+
+
+def _say_levels(rows: list[dict], targets: list[dict], max_error: str | None, seam_vertices, prefix: str) -> None:
+    """The level lines (stdout), then where each target stopped and each joint budget (stderr)."""
+    print_levels(rows)
+    for t in targets:
+        _say_where_it_stopped(t, max_error, seam_vertices, prefix)
+    say_joint_budget_stops(rows, max_error)
+
+
+def _decimate_step(result) -> dict:
+    return next(s for s in result.document["steps"] if s["stage"] == "decimate")
+
+
+def _joints_used(result) -> int | None:
+    """How many joints the run's input skin weighs (its asset's weights)."""
+    import numpy as np
+
+    from rigslim.commands.lod_levels import sp_indices
+
+    W = result.asset.weights if result.asset is not None else None
+    return None if W is None else int(len(np.unique(sp_indices(W))))
+
+
+def character_radius(runs) -> float:
+    """Half the diagonal of the bounding box of every skin's mesh in the first test pose (several skins: the
+    whole character's bounding sphere, as the ``--split`` sidecar's coverage needs)."""
+    import numpy as np
+
+    from rigslim.numerics.blend import linear_blend
+
+    boxes = []
+    for _, result, _ in runs:
+        a = result.asset
+        X = linear_blend(a.mesh.V, a.weights, a.test_poses().T[0])
+        boxes += [X.min(axis=0), X.max(axis=0)]
+    B = np.array(boxes)
+    return 0.5 * float(np.linalg.norm(B.max(axis=0) - B.min(axis=0)))
+
+
+def kept_targets(runs, ratios) -> list[float]:
+    """The face targets (in ``ratios`` order) that have a level in at least one skin's run: one ``--split`` file
+    each. A skin whose levels end before a target shows its coarsest level in that file (``level_document``)."""
+    kept: set[float] = set()
+    for _, result, _ in runs:
+        kept |= {t["target"] for t in _decimate_step(result).get("report", {}).get("targets") or []
+                 if t["same_as"] is None}
+    return [r for r in ratios if r in kept]
+
+
+def _say_where_it_stopped(t: dict, max_error: str | None, seam_vertices, prefix: str = "rigslim lod: ") -> None:
+    """One stderr line for a target the level did not reach: the bound, no collapse left, or a finer level
+    (``prefix``: ``rigslim lod: `` and, with several skins, which one)."""
     if "faces" not in t:
         return
     where = f"target {t['target']:g} ({t['target_faces']} faces)"
     if t.get("parts_removed") and t["same_as"] is None:
-        print(f"rigslim lod: level {t['label']}: no collapse was left at {t['faces_collapsed']} faces, so "
+        print(f"{prefix}level {t['label']}: no collapse was left at {t['faces_collapsed']} faces, so "
               f"{t['parts_removed']} parts were removed whole, the smallest and nearest to the rest "
               f"first (the farthest {t['removal_distance']:.3g} m away; --keep-parts keeps them)", file=sys.stderr)
     if t["same_as"] == "source":          # the decimation's levels.SOURCE: ended before the first collapse
         if t["stopped"] is None or t["faces"] <= 1.03 * t["target_faces"]:
-            print(f"rigslim lod: {where}: the source's own {t['faces']} faces meet it, so it has no level",
+            print(f"{prefix}{where}: the source's own {t['faces']} faces meet it, so it has no level",
                   file=sys.stderr)
             return
         why = (f"the first collapse already exceeds --max-error {max_error} (--max-error none goes on)"
                if t["stopped"] == "max_error" else "no collapse was valid")
-        print(f"rigslim lod: {where} not reached: {why}; the source's {t['faces']} faces are no level",
+        print(f"{prefix}{where} not reached: {why}; the source's {t['faces']} faces are no level",
               file=sys.stderr)
     elif t["faces"] <= 1.03 * t["target_faces"]:
         return
     elif t["same_as"] is not None:
-        print(f"rigslim lod: {where} not reached: it ends at the {t['faces']} faces of level {t['same_as']}, "
+        print(f"{prefix}{where} not reached: it ends at the {t['faces']} faces of level {t['same_as']}, "
               f"so it has no level of its own", file=sys.stderr)
     elif t["stopped"] == "max_error" and t.get("parts_removed"):
-        print(f"rigslim lod: level {t['label']} stopped at {t['faces']} faces, {where}: no collapse was left and "
+        print(f"{prefix}level {t['label']} stopped at {t['faces']} faces, {where}: no collapse was left and "
               f"removing its next part whole exceeds --max-error {max_error} ({t['parts_removed']} removed; "
               f"--max-error none goes on)", file=sys.stderr)
     elif t["stopped"] == "max_error":
-        print(f"rigslim lod: level {t['label']} stopped at {t['faces']} faces, {where}: the next collapse exceeds "
+        print(f"{prefix}level {t['label']} stopped at {t['faces']} faces, {where}: the next collapse exceeds "
               f"--max-error {max_error} (--max-error none goes on)", file=sys.stderr)
     elif t.get("parts_removed"):
-        print(f"rigslim lod: level {t['label']} stopped at {t['faces']} faces, {where}: no collapse was left and "
+        print(f"{prefix}level {t['label']} stopped at {t['faces']} faces, {where}: no collapse was left and "
               f"one part is left", file=sys.stderr)
     else:
         held = []
@@ -260,5 +335,5 @@ def _say_where_it_stopped(t: dict, max_error: str | None, seam_vertices) -> None
         if seam_vertices:
             held.append(f"{seam_vertices} locked seam vertices stay")
         why = "; ".join(held) or "every remaining collapse would break a guard (docs/simplification.md)"
-        print(f"rigslim lod: level {t['label']} stopped at {t['faces']} faces, {where}: no valid collapse was left "
+        print(f"{prefix}level {t['label']} stopped at {t['faces']} faces, {where}: no valid collapse was left "
               f"({why})", file=sys.stderr)

@@ -20,7 +20,8 @@ import numpy as np
 from rigslim.errors import InputError
 
 __all__ = ["SIDECAR_SCHEMA", "add_level_arguments", "decimate_params", "level_rows", "parse_max_joints",
-           "print_levels", "say_joint_budget_stops", "sidecar_path", "switch_camera", "write_params", "write_sidecar"]
+           "print_levels", "say_joint_budget_stops", "sidecar_path", "skin_split_rows", "switch_camera", "write_params",
+           "write_sidecar"]
 
 #: Schema name of ``OUT.lod.json``.
 SIDECAR_SCHEMA = "rigslim-lod-sidecar"
@@ -186,22 +187,68 @@ def _relative(path: Path, folder: Path) -> str:
         return str(Path(path).resolve())
 
 
-def write_sidecar(path: Path, *, source: Path, outputs: list[Path], rows: list[dict], result, header: dict) -> dict:
+def skin_split_rows(per_skin: list[dict], targets: list[float], radius: float, camera: dict) -> tuple[list[dict], dict]:
+    """The ``--split`` files' rows when each skin was simplified on its own (``rigslim lod`` on a file with
+    several skins): file i shows, for every skin, its level for ``targets[i]`` or, where its levels end before
+    that target, its coarsest level (none: its full mesh), as ``level_document`` does.
+
+    A file's faces, vertices and influences are its skins' sums; ``joints`` and ``max_bones`` the most of any
+    skin (each skin is drawn with its own joint palette); ``error_max_m`` and ``error_rms_m`` the largest of its
+    skins'; ``skins`` lists what each skin shows. Its coverage is that of the whole character's bounding sphere
+    (``radius``) where the file's error, the largest of any skin's (and of any finer file's), projects to the
+    camera's pixel error (:func:`rigslim.numerics.screen_coverage.coverage_series`). Returns the rows and the
+    level-0 row's ``faces`` and ``joints`` (``per_skin``'s ``input_faces`` and ``input_joints``), with ``coverage``
+    (one value per file and the input's).
+    """
+    from rigslim.numerics.screen_coverage import coverage_series
+
+    rows = []
+    for target in targets:
+        shown = []
+        for entry in per_skin:
+            reached = [r for r in entry["rows"] if r["ratio"] >= target]
+            row = reached[-1] if reached else None
+            shown.append({"skin": entry["skin"], "label": row["label"] if row else "input",
+                          "faces": row["faces"] if row else entry["input_faces"], "row": row})
+        levels = [x["row"] for x in shown if x["row"] is not None]
+        rows.append({"label": " + ".join(dict.fromkeys(x["label"] for x in shown)),
+                     "faces": sum(x["faces"] for x in shown),
+                     "vertices": sum(r["vertices"] for r in levels),
+                     "joints": max((r["joints"] for r in levels), default=0),
+                     "influences": sum(r["influences"] for r in levels),
+                     "max_bones": max((r["max_bones"] for r in levels), default=0),
+                     "error_max_m": max((r.get("error_max_m") or 0.0 for r in levels), default=0.0),
+                     "error_rms_m": max((r.get("error_rms_m") or 0.0 for r in levels), default=0.0),
+                     "skins": [{k: x[k] for k in ("skin", "label", "faces")} for x in shown]})
+    series = coverage_series([r["error_max_m"] if camera.get("error") != "rms" else r["error_rms_m"] for r in rows],
+                             radius, pixel_error=camera["pixel_error"], fov=camera["fov_deg"],
+                             resolution=camera["resolution"], aspect=camera["aspect"])
+    for row, d in zip(rows, series["switch_distance_m"], strict=True):
+        row["switch_distance_m"] = d
+    return rows, {"faces": sum(e["input_faces"] for e in per_skin), "coverage": series["coverage"],
+                  "joints": max((e["input_joints"] for e in per_skin), default=None)}
+
+
+def write_sidecar(path: Path, *, source: Path, outputs: list[Path], rows: list[dict], result, header: dict,
+                  combined: dict | None = None, radius: float | None = None) -> dict:
     """``OUT.lod.json``: each level's file, faces, joints, error and the coverage range it shows in.
 
     Level 0 is the input. Level ``i`` shows while ``min_coverage <= coverage < max_coverage`` (Babylon's
     screen coverage of the bounding sphere, :mod:`rigslim.numerics.screen_coverage`), i.e. from
-    ``switch_distance_m`` on; file paths are relative to the sidecar's folder.
+    ``switch_distance_m`` on; file paths are relative to the sidecar's folder. ``combined`` and ``radius``: the
+    level-0 figures and coverage of :func:`skin_split_rows` and the character's bounding radius, for a file
+    whose skins were simplified apart (``rows`` then come from it too).
     """
     from rigslim.io.atomic import atomic_path
     from rigslim.io.jsonsafe import dumps_strict
 
     cam = switch_camera(result) or {}
-    cov = cam.get("coverage") or []
+    cov = (combined or cam).get("coverage") or []
     src = result.asset
     full_joints = int(len(np.unique(sp_indices(src.weights)))) if src.weights is not None else None
     levels = [{"level": 0, "file": _relative(source, path.parent), "label": "input",
-               "faces": src.mesh.n_faces if src.mesh is not None else None, "joints": full_joints,
+               "faces": combined["faces"] if combined else src.mesh.n_faces if src.mesh is not None else None,
+               "joints": combined["joints"] if combined else full_joints,
                "error_max_m": 0.0, "error_rms_m": 0.0, "max_coverage": 1.0,
                "min_coverage": cov[0] if cov else None, "switch_distance_m": 0.0}]
     for i, (row, file) in enumerate(zip(rows, outputs, strict=False), 1):
@@ -211,10 +258,12 @@ def write_sidecar(path: Path, *, source: Path, outputs: list[Path], rows: list[d
                        "error_rms_m": row.get("error_rms_m"),
                        "max_coverage": cov[i - 1] if len(cov) > i - 1 else None,
                        "min_coverage": cov[i] if len(cov) > i else None,
-                       "switch_distance_m": row.get("switch_distance_m")})
+                       "switch_distance_m": row.get("switch_distance_m")} | ({"skins": row["skins"]} if "skins" in row
+                                                                             else {}))
     doc = header | {"sidecar_schema": SIDECAR_SCHEMA, "sidecar_version": SIDECAR_VERSION, "camera": {
         k: cam.get(k) for k in ("pixel_error", "fov_deg", "resolution", "aspect", "error")},
-        "bounding_radius_m": cam.get("bounding_radius_m"), "test_frames": cam.get("test_frames"),
+        "bounding_radius_m": radius if radius is not None else cam.get("bounding_radius_m"),
+        "test_frames": cam.get("test_frames"),
         "coverage": "pi r^2 / (4 aspect d^2 tan^2(fov / 2)): the bounding sphere's share of the screen area "
                     "(Babylon.js's MSFT_screencoverage); show level i while min_coverage <= coverage < max_coverage",
         "levels": levels}

@@ -9,7 +9,7 @@ import json
 
 import numpy as np
 import pytest
-from support.hostile_gltf import Part, build_gltf, posed_file_positions, random_parts
+from support.hostile_gltf import build_gltf, posed_file_positions, random_parts, smooth_tube
 
 from rigslim.runtime.run import run_pipeline
 
@@ -54,28 +54,6 @@ def test_percentages_do_not_depend_on_the_bind_space_unit(tmp_path):
     assert b["hausdorff_rms_pct"]["mean"] == pytest.approx(a["hausdorff_rms_pct"]["mean"], rel=0.1)
     assert b["hausdorff_max_m"]["max"] == pytest.approx(b["hausdorff_max_pct"]["max"] * D / 100, rel=1e-12)
     assert b["hausdorff_rms_pct"]["mean"] < 100     # not the bind-space 100x
-
-
-def smooth_tube(rings: int = 25, around: int = 12, length: float = 3.0, radius: float = 0.3) -> Part:
-    """A closed round tube along x over joints 0..3 (joint i at x = i), each vertex blended between the two
-    nearest joints: a bending limb whose collapses all cost something."""
-    xs = np.linspace(0.0, length, rings)
-    th = np.linspace(0.0, 2 * np.pi, around, endpoint=False)
-    V = np.array([[x, radius * np.cos(t), radius * np.sin(t)] for x in xs for t in th] + [[0, 0, 0], [length, 0, 0]])
-    F = [[i * around + r, i * around + (r + 1) % around, (i + 1) * around + (r + 1) % around]
-         for i in range(rings - 1) for r in range(around)]
-    F += [[i * around + r, (i + 1) * around + (r + 1) % around, (i + 1) * around + r]
-          for i in range(rings - 1) for r in range(around)]
-    a, b = len(V) - 2, len(V) - 1
-    F += [[a, (r + 1) % around, r] for r in range(around)]
-    F += [[b, (rings - 1) * around + r, (rings - 1) * around + (r + 1) % around] for r in range(around)]
-    x = np.clip(V[:, 0], 0.0, 2.999)
-    J = np.zeros((len(V), 4), np.int64)
-    W = np.zeros((len(V), 4))
-    J[:, 0], J[:, 1] = np.floor(x), np.floor(x) + 1
-    W[:, 1] = x - np.floor(x)
-    W[:, 0] = 1.0 - W[:, 1]
-    return Part(V, np.array(F, np.int64), J, W)
 
 
 def _lod(tmp_path, name, **build):
