@@ -156,8 +156,9 @@ def cmd_lod(args) -> int:
         targets = step.get("report", {}).get("targets") or [{"target": r, "same_as": None} for r in ratios]
         kept = [t for t in targets if t["same_as"] is None]
         outputs = [out]
-        if args.split:            # one file per target that any skin reached (a skin short of it shows its coarsest)
-            outputs = split_names(out, kept_targets(runs, ratios))
+        reached = kept_targets(runs, ratios)    # a file each with --split (a skin short of one shows its coarsest)
+        if args.split:
+            outputs = split_names(out, reached)
             split_levels(target, outputs)
         doc, rows = _lod_document(args, src, outputs, runs, result, targets, kept, step, clip, duration, frames,
                                   ratios, max_error, seconds)
@@ -168,8 +169,7 @@ def cmd_lod(args) -> int:
                               header=_header("lod"))
             else:                 # the files show every skin: their rows combine the skins' levels
                 radius = character_radius(runs)
-                merged, combined = skin_split_rows(doc["per_skin"], kept_targets(runs, ratios), radius,
-                                                   switch_camera(result) or {})
+                merged, combined = skin_split_rows(doc["per_skin"], reached, radius, switch_camera(result) or {})
                 write_sidecar(sidecar_path(out), source=src, outputs=outputs, rows=merged, result=result,
                               header=_header("lod"), combined=combined, radius=radius)
         _emit_report(args, doc)
