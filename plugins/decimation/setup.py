@@ -186,24 +186,30 @@ def _seam_pairs(Fm: np.ndarray, pairs: np.ndarray, charts: np.ndarray) -> np.nda
 def rest_scale(W, T: np.ndarray) -> float:
     """How many posed units one rest unit is: the scale of the skinning transforms.
 
-    ``s = exp( sum_i u_i l_i / sum_i u_i )``, ``l_i = mean_j log |det A_i^j| / 3`` over the example poses j
-    where ``A_i^j`` (the linear part of joint i's transform) is not singular, ``u_i = sum_v |w_vi|`` how much
-    the mesh uses joint i; rounded to 6 significant digits, so that rigid transforms give exactly 1 despite
-    their round-off. A file whose rest positions are in other units than its poses (KHR_mesh_quantization's
-    integers dequantised by the inverse bind matrices; an FBX export in centimetres under a 0.01 armature)
-    has ``s != 1``; the terms of the collapse cost measured in the rest pose (:func:`zero_cost`, the
-    face-side error) are scaled by it, so that a collapse costs the same whatever units the rest is in.
+    ``s = exp(l)``, ``l`` the median of the joints' ``l_i`` weighted by ``u_i = sum_v |w_vi|`` (how much the mesh
+    uses joint i), ``l_i = median_j log |det A_i^j| / 3`` over the example poses j where ``A_i^j`` (the linear
+    part of joint i's transform) is not singular; rounded to 6 significant digits, so that rigid transforms give
+    exactly 1 despite their round-off. Medians, so that a part hidden by scaling its joint to nothing in some
+    poses, or a joint that squashes, does not move the scale. A file whose rest positions are in other units
+    than its poses (KHR_mesh_quantization's integers dequantised by the inverse bind matrices; an FBX export in
+    centimetres under a 0.01 armature) has ``s != 1``; the terms of the collapse cost measured in the rest pose
+    (:func:`zero_cost`, the face-side error) are scaled by it, so that a collapse costs the same whatever units
+    the rest is in.
     """
     T = np.asarray(T, np.float64)
     if T.ndim != 4 or not T.shape[0] or not T.shape[1]:
         return 1.0
     det = np.abs(np.linalg.det(T[..., :3]))                              # (P, n)
-    ok = det > 0
-    logs = np.where(ok, np.log(np.where(ok, det, 1.0)), 0.0).sum(axis=0) / np.maximum(ok.sum(axis=0), 1) / 3.0
-    used = np.asarray(abs(W).sum(axis=0)).ravel() * ok.any(axis=0)
-    if used.shape != logs.shape or not used.sum() > 0:
+    logs = np.log(np.where(det > 0, det, np.nan)) / 3.0
+    ok = ~np.isnan(logs).all(axis=0)
+    used = np.asarray(abs(W).sum(axis=0)).ravel()
+    if used.shape != ok.shape or not (used[ok] > 0).any():
         return 1.0
-    return float(f"{np.exp(float(used @ logs) / float(used.sum())):.6g}")
+    per_joint = np.nanmedian(logs[:, ok], axis=0)
+    order = np.argsort(per_joint, kind="stable")
+    cum = np.cumsum(used[ok][order])
+    median = float(per_joint[order][np.searchsorted(cum, 0.5 * cum[-1])])
+    return float(f"{np.exp(median):.6g}")
 
 
 def zero_cost(V: np.ndarray, F: np.ndarray, n_poses: int, normalised: bool = False, scale: float = 1.0) -> float:

@@ -49,13 +49,25 @@ def test_a_uniform_scale_is_found(s):
 
 
 def test_joints_count_by_their_use_and_singular_ones_not_at_all():
-    """``s = exp(sum_i u_i l_i / sum_i u_i)``: joint 0 (scale 2) carries 3/4 of the weight, joint 1 (scale 1/2)
-    1/4; joint 2, used as much as both, is scaled to nothing (a hidden part) and does not count."""
+    """The weighted median: joint 0 (scale 2) carries 3/4 of the weight, joint 1 (scale 1/2) 1/4, so s = 2, and
+    with the weights the other way s = 1/2; joint 2, used as much as both, is scaled to nothing (a hidden part)
+    and does not count."""
     T = poses(3, 3, np.array([2.0, 0.5, 0.0]))
     W = np.array([[0.75, 0.25, 1.0]] * 4)
-    assert rest_scale(W, T) == pytest.approx(2 ** 0.75 * 0.5 ** 0.25, rel=1e-5)
+    assert rest_scale(W, T) == 2.0
+    assert rest_scale(W[:, [1, 0, 2]], T) == 0.5
     assert rest_scale(sp.csr_matrix(W), T) == rest_scale(W, T)
     assert rest_scale(W, np.zeros((2, 3, 3, 4))) == 1.0               # nothing to measure: no scale
+
+
+def test_a_part_hidden_in_some_poses_does_not_move_the_scale():
+    """A weapon hidden by scaling its joint to 1e-4 in two of five poses, and a joint that squashes to 0.8 in one:
+    the medians keep s = 0.01 (a centimetre rest), where the mean of the logs would not."""
+    T = poses(5, 3, 0.01)
+    T[1:3, 2, :, :3] *= 1e-4
+    T[4, 1, :, :3] *= 0.8
+    W = np.array([[0.2, 0.3, 0.5]] * 6)
+    assert rest_scale(W, T) == pytest.approx(0.01, rel=1e-5)
 
 
 def test_the_thresholds_are_in_posed_units():
