@@ -44,11 +44,9 @@ from rigslim.plugins.decimation.setup import (
     SOURCE_SAMPLES,
     EdgeSetup,
     collapsible_edges,
-    degenerate_area,
     placement,
     placements,
-    rest_scale,
-    zero_cost,
+    posed_thresholds,
 )
 
 log = logging.getLogger(__name__)
@@ -292,10 +290,9 @@ def simplify(V, F, W, T, X, model: EdgeCostModel, *, min_faces: int = 70, keep_b
     st = SimplifyState(V, F, W, T, X)
     setup = collapsible_edges(st.F, st.m, keep_boundary=keep_boundary, locked=locked, seams=seams,
                               border_collapses=border_collapses)
-    s = rest_scale(W, T)
-    loop = _CollapseLoop(st, model, setup, zero=zero_cost(V, st.F, len(T), normalised, s), normalised=normalised,
-                         batch=batch, min_normal_cos=min_normal_cos, tiny=degenerate_area(V, s),
-                         source=source_distance and normalised, face=face_distance, face_scale=s * s)
+    zero, tiny, face_scale = posed_thresholds(V, st.F, W, T, normalised)
+    loop = _CollapseLoop(st, model, setup, zero=zero, normalised=normalised, batch=batch, min_normal_cos=min_normal_cos,
+                         tiny=tiny, source=source_distance and normalised, face=face_distance, face_scale=face_scale)
     loop.run(min_faces, progress, method)
     return _hierarchy(st.V, st.W, F, loop.collapses, loop.errors, loop.nfaces, method, params)
 
@@ -634,10 +631,9 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     from rigslim.plugins.decimation import edge_queue as eq
 
     kind, Qv, ip, fp = model.compiled_spec()
-    s = rest_scale(W, T)
-    fp = np.append(fp, [zero_cost(V, np.asarray(F, np.int64), len(T), normalised, s), float(normalised),
-                        float(source_distance and normalised),
-                        s * s if face_distance and source_distance and normalised else 0.0])
+    zero, tiny, face_scale = posed_thresholds(V, F, W, T, normalised)
+    fp = np.append(fp, [zero, float(normalised), float(source_distance and normalised),
+                        face_scale if face_distance and source_distance and normalised else 0.0])
     st = SimplifyState(V, F, W, T, X)
     m, Fm = st.m, st.F
     f = len(Fm)
@@ -654,7 +650,7 @@ def _simplify_compiled(V, F, W, T, X, model, *, min_faces, keep_boundary, min_no
     queue = _sorted_queue(edges, n_edges)
     record = cc.LoopRecord(cnt, np.zeros((m, 2), np.int64), np.zeros(m), np.zeros(m, np.int64))
     cost_model = cc.CostModel(kind, ip, fp, st.T)
-    loop_args = (float(min_normal_cos), degenerate_area(V, s), cost_model, mesh, verts, edges, queue, record,
+    loop_args = (float(min_normal_cos), tiny, cost_model, mesh, verts, edges, queue, record,
                  cc.new_scratch(len(T)), cc.new_members(m, Fm.copy(), _vertex_faces(Fm, m), st.pos[:m, 0]),
                  cc.new_ahead(len(edges.ea), ahead_width(numba.get_num_threads()) if ahead is None else ahead, len(T),
                               m))

@@ -12,7 +12,8 @@ import numpy as np
 
 __all__ = ["BEST", "BLOCKED", "BORDER", "CLEAN", "DEAD", "DECORO", "DIRTY", "EdgeSetup", "FREE", "KEEP_A", "KEEP_B",
            "MAX_EDGE_FACES", "MOHR_GLEICHER", "NONE", "QUARTIC", "SEAM", "SOURCE_SAMPLES", "border_vertices",
-           "collapsible_edges", "degenerate_area", "placement", "placements", "rest_scale", "seam_arrays", "zero_cost"]
+           "collapsible_edges", "degenerate_area", "placement", "placements", "posed_thresholds", "rest_scale",
+           "seam_arrays", "zero_cost"]
 
 #: Edge states: queued with its true cost, queued with a lower bound, removed, refused by a guard.
 CLEAN, DIRTY, DEAD, BLOCKED = 0, 1, 2, 3
@@ -210,6 +211,13 @@ def rest_scale(W, T: np.ndarray) -> float:
     cum = np.cumsum(used[ok][order])
     median = float(per_joint[order][np.searchsorted(cum, 0.5 * cum[-1])])
     return float(f"{np.exp(median):.6g}")
+
+
+def posed_thresholds(V: np.ndarray, F: np.ndarray, W, T: np.ndarray, normalised: bool) -> tuple[float, float, float]:
+    """What both loops take from the rest pose, in posed units: the :func:`zero_cost`, the
+    :func:`degenerate_area` and the face-side error's factor ``s^2`` (``s`` the :func:`rest_scale`)."""
+    s = rest_scale(W, T)
+    return zero_cost(V, np.asarray(F, np.int64), len(T), normalised, s), degenerate_area(V, s), s * s
 
 
 def zero_cost(V: np.ndarray, F: np.ndarray, n_poses: int, normalised: bool = False, scale: float = 1.0) -> float:
