@@ -168,10 +168,10 @@ def cmd_lod(args) -> int:
                 write_sidecar(sidecar_path(out), source=src, outputs=outputs, rows=rows, result=result,
                               header=_header("lod"))
             else:                 # the files show every skin: their rows combine the skins' levels
-                radius = character_radius(runs)
-                merged, combined = skin_split_rows(doc["per_skin"], reached, radius, switch_camera(result) or {})
+                radius, camera = character_radius(runs), skins_camera(runs, coverage)
+                merged, combined = skin_split_rows(doc["per_skin"], reached, radius, camera)
                 write_sidecar(sidecar_path(out), source=src, outputs=outputs, rows=merged, result=result,
-                              header=_header("lod"), combined=combined, radius=radius)
+                              header=_header("lod"), combined=combined, radius=radius, camera=camera)
         _emit_report(args, doc)
     if len(runs) == 1:
         wrote = ", ".join(str(p) for p in outputs) if rows or not args.split else doc.get("sidecar")
@@ -282,6 +282,19 @@ def character_radius(runs) -> float:
         boxes += [X.min(axis=0), X.max(axis=0)]
     B = np.array(boxes)
     return 0.5 * float(np.linalg.norm(B.max(axis=0) - B.min(axis=0)))
+
+
+def skins_camera(runs, coverage: dict) -> dict:
+    """The switch camera of the first skin's run that measured levels (a skin may have none), else the one
+    ``coverage`` (the writer's parameters) describes."""
+    from rigslim.numerics.screen_coverage import DEFAULT_ASPECT
+
+    for _, result, _ in runs:
+        camera = switch_camera(result)
+        if camera and camera.get("pixel_error") is not None:
+            return camera
+    return {"pixel_error": coverage["pixel_error"], "fov_deg": coverage["fov"], "resolution": coverage["resolution"],
+            "aspect": DEFAULT_ASPECT, "error": coverage.get("switch_error", "max")}
 
 
 def kept_targets(runs, ratios) -> list[float]:

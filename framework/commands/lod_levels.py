@@ -230,19 +230,19 @@ def skin_split_rows(per_skin: list[dict], targets: list[float], radius: float, c
 
 
 def write_sidecar(path: Path, *, source: Path, outputs: list[Path], rows: list[dict], result, header: dict,
-                  combined: dict | None = None, radius: float | None = None) -> dict:
+                  combined: dict | None = None, radius: float | None = None, camera: dict | None = None) -> dict:
     """``OUT.lod.json``: each level's file, faces, joints, error and the coverage range it shows in.
 
     Level 0 is the input. Level ``i`` shows while ``min_coverage <= coverage < max_coverage`` (Babylon's
     screen coverage of the bounding sphere, :mod:`rigslim.numerics.screen_coverage`), i.e. from
     ``switch_distance_m`` on; file paths are relative to the sidecar's folder. ``combined`` and ``radius``: the
-    level-0 figures and coverage of :func:`skin_split_rows` and the character's bounding radius, for a file
-    whose skins were simplified apart (``rows`` then come from it too).
+    level-0 figures and coverage of :func:`skin_split_rows`, the character's bounding radius and the switch
+    camera, for a file whose skins were simplified apart (``rows`` then come from it too).
     """
     from rigslim.io.atomic import atomic_path
     from rigslim.io.jsonsafe import dumps_strict
 
-    cam = switch_camera(result) or {}
+    cam = camera or switch_camera(result) or {}
     cov = (combined or cam).get("coverage") or []
     src = result.asset
     full_joints = int(len(np.unique(sp_indices(src.weights)))) if src.weights is not None else None

@@ -24,10 +24,20 @@ def rigid_box() -> Part:
     return Part(V + [0.0, 2.0, 0.0], F, J, W)
 
 
-def two_skins(path: Path) -> Path:
-    """The box (mesh ``part0``, skin 0) and the tube (``part1``) drawn with a second skin of the same joints: the
-    first skin has fewer levels than the second (the files used to follow the first skin's)."""
-    build_gltf(path, [rigid_box(), smooth_tube()], n_joints=4, separate_meshes=True)
+def octahedron() -> Part:
+    """Eight faces on joint 0: its first collapse already exceeds the default bound, so it has no level."""
+    V = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float) * 0.3 + [0.5, 2, 0]
+    F = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
+    J = np.zeros((6, 4), np.int64)
+    W = np.zeros((6, 4))
+    W[:, 0] = 1.0
+    return Part(V, F, J, W)
+
+
+def two_skins(path: Path, first: Part | None = None) -> Path:
+    """The box (mesh ``part0``, skin 0; or ``first``) and the tube (``part1``) drawn with a second skin of the same
+    joints: the first skin has fewer levels than the second (the files used to follow the first skin's)."""
+    build_gltf(path, [first or rigid_box(), smooth_tube()], n_joints=4, separate_meshes=True)
     doc = load_gltf(path)
     js = json.loads(json.dumps(doc.json))
     js["skins"].append(dict(js["skins"][0], name="box"))
@@ -77,3 +87,20 @@ def test_every_skin_is_reported_and_split(tmp_path, capsys):
     assert d == sorted(d)                                                 # coarser files switch in farther
     cov = [lv["min_coverage"] for lv in side["levels"]]
     assert cov == sorted(cov, reverse=True) and cov[-1] == 0.0
+
+
+def test_a_skin_without_levels_shows_its_source_in_every_file(tmp_path, capsys):
+    """The first skin (an octahedron) has no level within the default bound: the tube's levels still get their
+    files, the octahedron shows its 8 source faces in each, and the sidecar's camera comes from the tube's run
+    (it raised KeyError: 'pixel_error')."""
+    src = two_skins(tmp_path / "two.glb", octahedron())
+    out = tmp_path / "o.glb"
+    assert main(["lod", str(src), "-o", str(out), "--ratios", "0.5,0.25", "--split"]) == 0
+    captured = capsys.readouterr()
+    assert "skin 0 (part0): no level (every target ends at the source's 8 faces)" in captured.out
+    assert "skin 1 (part1): 2 levels (300, 150 faces of 600)" in captured.out
+    assert triangles(tmp_path / "o-50.glb") == [8, 300] and triangles(tmp_path / "o-25.glb") == [8, 150]
+    side = json.loads((tmp_path / "o.lod.json").read_text())
+    assert [lv["faces"] for lv in side["levels"]] == [608, 308, 158]
+    assert side["camera"]["pixel_error"] == 1.0
+    assert [s["label"] for s in side["levels"][2]["skins"]] == ["input", "quartic-25pct"]
