@@ -258,7 +258,8 @@ def _choose_skin(doc: GltfDocument, skin, mesh) -> tuple[int, list[int]]:
     if skin is None:
         if len(users) > 1:
             raise InputError(f"{len(users)} skins are used by mesh nodes", source=doc.path, field="skin",
-                             fix="choose one with 'skin: INDEX' (or a mesh with 'mesh:')")
+                             fix="choose one with 'skin: INDEX' (or a mesh with 'mesh:'), and run the pipeline once "
+                                 "per skin; rigslim reduce and rigslim lod do every skin in one command")
         skin = next(iter(users))
     skin = int(skin)
     if skin not in users:

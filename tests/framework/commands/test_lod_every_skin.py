@@ -104,3 +104,14 @@ def test_a_skin_without_levels_shows_its_source_in_every_file(tmp_path, capsys):
     assert [lv["faces"] for lv in side["levels"]] == [608, 308, 158]
     assert side["camera"]["pixel_error"] == 1.0
     assert [s["label"] for s in side["levels"][2]["skins"]] == ["input", "quartic-25pct"]
+
+
+def test_a_pipeline_names_the_commands_that_do_every_skin(tmp_path, capsys):
+    """A pipeline reads one skin: on a file with two it stops with one line naming the field and both ways on."""
+    src = two_skins(tmp_path / "two.glb")
+    yml = tmp_path / "p.yaml"
+    yml.write_text(f"inputs:\n  gltf: {src}\nsteps:\n  - decimate: quartic\n    targets: [0.5]\n")
+    assert main(["run", str(yml)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "skin: 2 skins are used by mesh nodes" in err[0]
+    assert "'skin: INDEX'" in err[0] and "rigslim lod do every skin in one command" in err[0]
