@@ -229,7 +229,8 @@ def _lod_document(args, src, outputs, runs, result, targets, kept, step, clip, d
                                     "input_faces": st.get("input_faces"), "input_joints": _joints_used(r),
                                     "targets": st.get("targets", []),
                                     "locked_seam_vertices": st.get("locked_seam_vertices"),
-                                    "levels": [lv["faces"] for lv in st.get("levels", [])], "rows": skin_rows})
+                                    "levels": [lv["faces"] for lv in st.get("levels", [])], "rows": skin_rows,
+                                    "metrics": flat_metrics(r.evaluations[-1]) if r.evaluations else {}})
     split = result.asset.split if result.asset is not None else None
     if split is not None and split.clips and isinstance(split.clips.get("test"), list):
         # per clip, the frames (its own numbers, at --fps) the collapses fitted and the levels were measured on

@@ -60,7 +60,7 @@ def test_every_skin_is_reported_and_split(tmp_path, capsys):
     src = two_skins(tmp_path / "two.glb")
     out = tmp_path / "lod" / "c.glb"
     out.parent.mkdir()
-    assert main(["lod", str(src), "-o", str(out), "--ratios", "0.5,0.25,0.1", "--split",
+    assert main(["lod", str(src), "-o", str(out), "--ratios", "0.5,0.25,0.1", "--split", "--measure",
                  "--report", str(tmp_path / "r.json")]) == 0
     captured = capsys.readouterr()
     report = json.loads((tmp_path / "r.json").read_text())
@@ -68,6 +68,8 @@ def test_every_skin_is_reported_and_split(tmp_path, capsys):
     assert (box["skin"], box["meshes"], tube["skin"], tube["meshes"]) == (0, ["part0"], 1, ["part1"])
     assert len(tube["levels"]) == 3 and len(box["levels"]) == 2           # the box ends at its 12-face level
     assert box["levels"][-1] == 12
+    for skin in (box, tube):            # --measure: each skin's own metro figures, per level
+        assert any(k.startswith("hausdorff_rms_pct@") for k in skin["metrics"]), skin["metrics"].keys()
     # stdout names both skins and their levels; stderr says where the box's last target ended, for the box
     assert "2 skins, each simplified on its own" in captured.out
     assert "skin 0 (part0): 2 levels (26, 12 faces of 52)" in captured.out
