@@ -314,7 +314,12 @@ def _say_where_it_stopped(t: dict, max_error: str | None, seam_vertices, prefix:
     if "faces" not in t:
         return
     where = f"target {t['target']:g} ({t['target_faces']} faces)"
-    if t.get("parts_removed") and t["same_as"] is None:
+    if t.get("parts_removed") and t["same_as"] is None and t.get("removed_early"):
+        print(f"{prefix}level {t['label']}: {t['parts_removed']} parts were removed whole at "
+              f"{t['faces_collapsed']} faces, where that costs less error than collapsing on, the smallest and "
+              f"nearest to the rest first (the farthest {t['removal_distance']:.3g} m away; --keep-parts keeps "
+              f"them)", file=sys.stderr)
+    elif t.get("parts_removed") and t["same_as"] is None:
         print(f"{prefix}level {t['label']}: no collapse was left at {t['faces_collapsed']} faces, so "
               f"{t['parts_removed']} parts were removed whole, the smallest and nearest to the rest "
               f"first (the farthest {t['removal_distance']:.3g} m away; --keep-parts keeps them)", file=sys.stderr)

@@ -179,6 +179,7 @@ def target_record(c, bound: float | None, hier=None) -> dict:
            "parts_removed": c.parts_removed, "removal_distance": c.removal_distance}
     if hier is not None and c.parts_removed:
         out["faces_collapsed"] = hier.faces_after(c.collapses)
+        out["removed_early"] = c.collapses < hier.n_collapses
     if hier is not None and c.stopped == "no collapse" and c.same_as is None and not c.parts_removed:
         out["parts"], out["minimal_parts"] = part_sizes(hier.prefix(c.collapses).mesh.F)
     return out
@@ -333,8 +334,10 @@ class ArticulatedDecimator(Decimator):
             choices = choose_levels(hier, list(params.targets), faces, distances, bound, self.name)
             levels = self.levels(asset, params, hier, choices)
             if params.prune_parts:
-                from rigslim.plugins.decimation.prune import prune_levels
+                from rigslim.plugins.decimation.prune import early_removals, prune_levels
 
+                choices, levels = early_removals(hier, choices, levels, T[:len(asset.example_poses().T)], distances,
+                                                 bound, self.name)
                 choices, levels = prune_levels(hier, choices, levels, T[:len(asset.example_poses().T)], bound,
                                                self.name)
         if params.joint_budget is not None:
@@ -407,7 +410,9 @@ class ArticulatedDecimator(Decimator):
             ctx.report["loop"] = stats
         for c in choices:
             if c.parts_removed and c.same_as is None:
-                ctx.log(f"level {c.label}: {c.parts_removed} parts removed whole after the last collapse "
+                when = ("after the last collapse" if c.collapses == hier.n_collapses else
+                        f"after {c.collapses} collapses, for less error than collapsing on")
+                ctx.log(f"level {c.label}: {c.parts_removed} parts removed whole {when} "
                         f"({c.faces} faces, target {c.target_faces}; the farthest "
                         f"{c.removal_distance:.3g} from the rest of the surface)")
             if c.stopped == "max_error" and c.same_as is None and c.parts_removed:
