@@ -1,0 +1,73 @@
+"""Parts removed early (plugins/decimation/prune.py, ``early_removals``): a level takes a shorter collapse prefix
+and removes whole parts when that costs less error than collapsing on, and only then."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rigslim.plugin import StepContext
+from rigslim.plugin.host import get_host
+from rigslim.plugins.decimation.prune import face_parts
+
+#: A cuboid's 12 triangles (outward), corners indexed by their (x, y, z) bits.
+BOX = np.array([[0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0, 5, 4],
+                [2, 6, 7], [2, 7, 3], [0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5]], np.int64)
+
+
+def box(lo, hi):
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    return np.array([[(hi if i & 4 else lo)[0], (hi if i & 2 else lo)[1], (hi if i & 1 else lo)[2]]
+                     for i in range(8)])
+
+
+def plated_boxes(gap: float):
+    """Four 2 x 2 x 2 blocks in a row (a blocky character's boxes: no collapse of one is free), each with a
+    separate plate (a two-triangle quad, an armour layer) ``gap`` in front of its +z face."""
+    V, F = [], []
+    for i in range(4):
+        x = 3.0 * i
+        F.append(BOX + len(V) * 0 + sum(len(v) for v in V))
+        V.append(box([x, 0, 0], [x + 2, 2, 2]))
+        q = np.array([[x + 0.1, 0.1, 2 + gap], [x + 1.9, 0.1, 2 + gap], [x + 1.9, 1.9, 2 + gap],
+                      [x + 0.1, 1.9, 2 + gap]])
+        F.append(np.array([[0, 1, 2], [0, 2, 3]]) + sum(len(v) for v in V))
+        V.append(q)
+    return np.concatenate(V), np.concatenate(F)
+
+
+def decimated(V, F, target, **params):
+    from test_decimation_source_error import rigid_asset
+
+    asset = rigid_asset(V, F)
+    plugin = get_host().get("articulated-decimation", "quartic")
+    said: list[str] = []
+    ctx = StepContext(log=said.append)
+    plugin.apply(asset, plugin.parse_params({"targets": [target], "max_error": "none", **params}), ctx)
+    return asset, ctx.report["targets"][0], said
+
+
+def test_plates_on_the_blocks_go_before_any_block_is_cut():
+    """56 faces to 48: removing the four plates (0.01 in front of their blocks) costs far less than the collapses
+    that would turn blocks into wedges, so the level keeps every block whole and loses only the plates."""
+    V, F = plated_boxes(0.01)
+    asset, t, said = decimated(V, F, 48 / 56)
+    lv = asset.levels[0]
+    assert t["stopped"] is None and t["faces"] == lv.n_faces == 48
+    assert t["parts_removed"] == 4 and t["removed_early"] and t["faces_collapsed"] == 56
+    assert t["removal_distance"] < 0.02 and t["error"] < 0.02
+    n, _ = face_parts(np.asarray(lv.mesh.F))
+    assert n == 4 and np.isclose(lv.mesh.V[:, 2].max(), 2.0)            # four whole blocks, no plate
+    assert any("parts removed whole after 0 collapses, for less error" in line for line in said)
+    # without parts removed the same target is met by cutting blocks, at a far larger error
+    _, kept, _ = decimated(V, F, 48 / 56, prune_parts=False)
+    assert kept["parts_removed"] == 0 and kept["faces"] <= 48 and kept["error"] > 10 * t["error"]
+
+
+def test_plates_that_stand_off_are_collapsed_as_before():
+    """The same plates 3 units in front of the blocks: removing one moves its surface 3 units (its peak), more
+    than the collapses cost, so the level is the collapse prefix it was."""
+    V, F = plated_boxes(3.0)
+    asset, t, _ = decimated(V, F, 48 / 56)
+    _, off, _ = decimated(V, F, 48 / 56, prune_parts=False)
+    assert t["parts_removed"] == 0 and "removed_early" not in t
+    assert (t["faces"], t["error"]) == (off["faces"], off["error"])
