@@ -342,7 +342,7 @@ def early_removals(hier, choices: list, levels: list[SimplifiedLevel], T: np.nda
 
     from rigslim.plugins.decimation.levels import level_label
 
-    open_ = [i for i, c in enumerate(choices) if c.same_as is None and c.collapses > 0 and c.error > 0]
+    open_ = [i for i, c in enumerate(choices) if c.collapses > 0 and c.error > 0]   # a level, or ended at one
     if not open_ or len(hier.F) == 0 or face_parts(np.asarray(hier.F, np.int64))[0] < 2:
         return choices, levels
     running = np.maximum.accumulate(distances) if len(distances) else distances
@@ -355,8 +355,6 @@ def early_removals(hier, choices: list, levels: list[SimplifiedLevel], T: np.nda
     out, kept = list(choices), list(levels)
     last_faces = len(hier.F)
     for i, c in enumerate(choices):
-        if c.same_as is not None:
-            continue
         if i in open_:
             best = _removal_candidates(hier, steps, running, c.target_faces)
             if best is not None and best[0] < c.error:
@@ -373,11 +371,16 @@ def early_removals(hier, choices: list, levels: list[SimplifiedLevel], T: np.nda
                     if (max(error, peak) < c.error and faces < last_faces
                             and faces <= max(c.faces, c.target_faces)):
                         label = level_label(method, c.target, c.target_faces, faces)
-                        at = next(j for j, lv in enumerate(kept) if lv.label == c.label)
-                        kept[at] = pruned_level(base, chosen, label)
+                        if c.same_as is None:          # its level is replaced
+                            kept[next(j for j, lv in enumerate(kept) if lv.label == c.label)] = \
+                                pruned_level(base, chosen, label)
+                        else:                          # it ended at a finer level: now it has its own
+                            kept.append(pruned_level(base, chosen, label))
                         out[i] = replace(c, collapses=k, faces=faces, label=label, error=error, stopped=None,
-                                         parts_removed=len(chosen), removal_distance=farthest)
-                        out = [replace(d, same_as=label) if d.same_as == c.label else d for d in out]
-        last_faces = out[i].faces
+                                         same_as=None, parts_removed=len(chosen), removal_distance=farthest)
+                        if c.same_as is None:
+                            out = [replace(d, same_as=label) if d.same_as == c.label else d for d in out]
+        if out[i].same_as is None:
+            last_faces = out[i].faces
     kept.sort(key=lambda lv: -lv.n_faces)
     return out, kept

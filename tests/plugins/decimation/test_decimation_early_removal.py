@@ -71,3 +71,41 @@ def test_plates_that_stand_off_are_collapsed_as_before():
     _, off, _ = decimated(V, F, 48 / 56, prune_parts=False)
     assert t["parts_removed"] == 0 and "removed_early" not in t
     assert (t["faces"], t["error"]) == (off["faces"], off["error"])
+
+
+
+def plated_tetrahedra(gap: float = 0.01):
+    """A 2 x 2 x 2 block and three tetrahedra (4 faces each: no collapse may shrink one), each with a quad plate
+    ``gap`` under its base: the collapses can only fold the block (at a cost) and end at 24 of the 32 faces."""
+    V, F = [box([0, 0, 0], [2, 2, 2])], [BOX]
+    for i in range(4):
+        x = 3.0 * i
+        if i:
+            F.append(np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]]) + sum(len(v) for v in V))
+            V.append(np.array([[x, 0, 0], [x + 2, 0, 0], [x, 2, 0], [x, 0, 2]], float))
+        F.append(np.array([[0, 2, 1], [0, 3, 2]]) + sum(len(v) for v in V))
+        V.append(np.array([[x + 0.1, 0.1, -gap], [x + 1.5, 0.1, -gap], [x + 0.8, 0.8, -gap], [x + 0.1, 1.5, -gap]]))
+    return np.concatenate(V), np.concatenate(F)
+
+
+def test_a_target_that_ended_at_a_finer_level_gets_its_own_by_early_removal():
+    """Targets 24 and 22 of 32 faces: the collapses fold the block and end at 24, so the second target ended at
+    the first's level (``same_as``) and both were then reached from there by removing parts. Now the first
+    removes the four plates and keeps the block whole, and the second gets a level of its own: one fold of the
+    block, and the plates removed."""
+    from test_decimation_source_error import rigid_asset
+
+    V, F = plated_tetrahedra()
+    asset = rigid_asset(V, F)
+    plugin = get_host().get("articulated-decimation", "quartic")
+    ctx = StepContext()
+    plugin.apply(asset, plugin.parse_params({"targets": [24 / 32, 22 / 32], "max_error": "none"}), ctx)
+    first, second = ctx.report["targets"]
+    assert list(asset.hierarchy.n_faces) == [30, 28, 26, 24]
+    assert [lv.n_faces for lv in asset.levels] == [first["faces"], second["faces"]]
+    assert first["same_as"] is None and second["same_as"] is None
+    assert first["removed_early"] and first["faces_collapsed"] == 32 and first["parts_removed"] == 4
+    assert second["faces"] == 22 and second["removed_early"] and second["faces_collapsed"] == 30
+    assert second["error"] < first["error"] + 1.0 and first["error"] < 0.02
+    whole = asset.levels[0]
+    assert face_parts(np.asarray(whole.mesh.F))[0] == 4 and whole.mesh.V[:, 2].min() == 0.0   # block kept whole
