@@ -48,6 +48,8 @@ PACKAGES = {
     "redeclipse-data": "1.6.0-1",
     "minetest-data": "5.6.1+dfsg+~1.9.0mt8+dfsg-2",
     "0ad-data": "0.0.26-1",
+    "minetest-mod-3d-armor": "0.4.14-2",
+    "minetest-mod-maidroid": "0.1.0-2",
 }
 CUBE2 = "usr/share/games/cube2/packages/models"
 RE = "usr/share/games/redeclipse/data/actors"

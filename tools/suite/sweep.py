@@ -1,4 +1,4 @@
-"""Build the sweep characters: 39 animated characters for robustness sweeps, never committed, never tuned on.
+"""Build the sweep characters: 41 animated characters for robustness sweeps, never committed, never tuned on.
 
 The suite (``build.py``) is what methods and constants are chosen on and the hold-out set
 (``build.py --set holdout``) is what they are checked on; these are for running every command on
@@ -21,6 +21,9 @@ Debian packages and with the same converters as the suite:
   ``clips.py``);
 - four Red Eclipse files (``redeclipse-data``, CC-BY-SA-3.0): the pistol and the smg (MD5, rigid parts; the
   pistol's first clip holds one pose), a swaying palm tree and the player with all 62 clips (IQM).
+- two blocky Minetest characters (``MINETEST_MODS``, built for the sweep of 2026-12-06): 3d_armor's player
+  with its armour layer of separate quads over the body (found the early part removal of the changelog) and
+  the maidroid robot (B3D through ``assimp export``, split by ``clips.py``).
 
 ``OUT/index.json`` lists each file as ``build.py``'s indexes do (faces, joints, clips, provenance).
 
@@ -150,6 +153,10 @@ ZERO_AD_3 = [
 ]
 CUBE2 = ["shotgun", "minigun", "flag"]
 RED_ECLIPSE = ["re_pistol", "re_smg", "re_palm", "re_player_all"]
+MINETEST_MODS = ["mt_armor", "mt_maidroid"]
+#: player_api's frame ranges (Irrlicht counts from 0), which 3d_armor's character and the maidroid share.
+MT_RANGES = {"stand": (0, 79), "sit": (81, 160), "lay": (162, 166), "walk": (168, 187), "mine": (189, 198),
+             "walk_mine": (200, 219)}
 
 
 def build_zero_ad(spec, work: Path, out: Path) -> dict:
@@ -229,6 +236,25 @@ def build_red_eclipse(name: str, work: Path, out: Path) -> dict:
     return B.describe(c, out)
 
 
+def build_minetest_mod(name: str, work: Path, out: Path) -> dict:
+    """Two blocky B3D characters of Debian's Minetest mods (CC-BY-SA / LGPL, see each package's copyright file):
+    3d_armor's player body with its armour and wielded-item layers (``minetest-mod-3d-armor``: 440 faces in
+    three primitives, 124 of them separate two-triangle quads over the body's boxes, the layers a game shows
+    only when armour is worn) and the maidroid robot (``minetest-mod-maidroid``, 84 faces). One timeline
+    each, split at player_api's frame ranges as ``build.py``'s ``b3d_minetest`` does."""
+    package, model = {"mt_armor": ("minetest-mod-3d-armor", "3d_armor/3d_armor/models/3d_armor_character.b3d"),
+                      "mt_maidroid": ("minetest-mod-maidroid", "maidroid/maidroid/models/maidroid.b3d")}[name]
+    src = B.package_root(work, package) / "usr/share/games/minetest/mods" / model
+    tmp = work / f"{name}.assimp.glb"
+    B.run(["assimp", "export", src, tmp, "-fglb2"])
+    B.run([B.PY, B.HERE / "clips.py", tmp, "-o", out, "--fps", "60",
+           *[x for n, (a, b) in MT_RANGES.items() for x in ("--split", f"{n}={a + 1}:{b + 1}", "--retime", f"{n}=2")]])
+    kind = "humanoid (blocky, armour layer of quads)" if name == "mt_armor" else "humanoid (blocky robot)"
+    c = B.Character(name, kind, package, model, "see the package's copyright file", "Minetest mod authors",
+                    "sweep", fit=["stand", "walk"], holdout=["mine"], test=[("walk", 0.3)])
+    return B.describe(c, out)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", type=Path, required=True, help="folder for the .glb files and index.json")
@@ -238,13 +264,14 @@ def main(argv=None) -> int:
     args.work.mkdir(parents=True, exist_ok=True)
     args.out.mkdir(parents=True, exist_ok=True)
     entries = []
-    for spec in [*ZERO_AD, *ZERO_AD_2, *ZERO_AD_3, *CUBE2, *RED_ECLIPSE]:
+    for spec in [*ZERO_AD, *ZERO_AD_2, *ZERO_AD_3, *CUBE2, *RED_ECLIPSE, *MINETEST_MODS]:
         name = spec if isinstance(spec, str) else spec[0]
         if args.only is not None and name not in args.only:
             continue
         out = args.out / f"{name}.glb"
         if isinstance(spec, str):
-            build = build_red_eclipse if spec in RED_ECLIPSE else build_cube2
+            build = (build_red_eclipse if spec in RED_ECLIPSE else build_minetest_mod if spec in MINETEST_MODS
+                     else build_cube2)
             e = build(name, args.work, out)
         else:
             e = build_zero_ad(spec, args.work, out)
