@@ -342,11 +342,13 @@ def early_removals(hier, choices: list, levels: list[SimplifiedLevel], T: np.nda
 
     from rigslim.plugins.decimation.levels import level_label
 
-    open_ = [i for i, c in enumerate(choices) if c.collapses > 0 and c.error > 0]   # a level, or ended at one
+    # a level, one that ended at a finer level, or one the bound stopped short (possibly at the source)
+    open_ = [i for i, c in enumerate(choices)
+             if (c.collapses > 0 and c.error > 0) or (c.stopped == "max_error" and bound is not None)]
     if not open_ or len(hier.F) == 0 or face_parts(np.asarray(hier.F, np.int64))[0] < 2:
         return choices, levels
     running = np.maximum.accumulate(distances) if len(distances) else distances
-    worst = max(choices[i].error for i in open_)
+    worst = max(bound if choices[i].stopped == "max_error" else choices[i].error for i in open_)
     cap = worst if bound is None else min(worst, bound)
     source = hier.prefix(0)
     steps, _ = prune_sequence(source, T, min(choices[i].target_faces for i in open_), cap)
@@ -356,8 +358,11 @@ def early_removals(hier, choices: list, levels: list[SimplifiedLevel], T: np.nda
     last_faces = len(hier.F)
     for i, c in enumerate(choices):
         if i in open_:
+            # the bound stopped it: removals may reach further within the bound; else: for less error
+            short = c.stopped == "max_error" and bound is not None
+            limit = bound if short else c.error
             best = _removal_candidates(hier, steps, running, c.target_faces)
-            if best is not None and best[0] < c.error:
+            if best is not None and (best[0] <= limit if short else best[0] < limit):
                 k = best[1]
                 base = hier.prefix(k)
                 chosen, _ = prune_sequence(base, T, c.target_faces, bound)
@@ -368,8 +373,9 @@ def early_removals(hier, choices: list, levels: list[SimplifiedLevel], T: np.nda
                     farthest = max(s.distance for s in chosen)
                     peak = max(s.peak for s in chosen)
                     error = max(float(running[k - 1]) if k else 0.0, farthest)
-                    if (max(error, peak) < c.error and faces < last_faces
-                            and faces <= max(c.faces, c.target_faces)):
+                    better = max(error, peak) <= limit and faces < c.faces if short else \
+                        max(error, peak) < limit and faces <= max(c.faces, c.target_faces)
+                    if better and faces < last_faces:
                         label = level_label(method, c.target, c.target_faces, faces)
                         if c.same_as is None:          # its level is replaced
                             kept[next(j for j, lv in enumerate(kept) if lv.label == c.label)] = \

@@ -109,3 +109,14 @@ def test_a_target_that_ended_at_a_finer_level_gets_its_own_by_early_removal():
     assert second["error"] < first["error"] + 1.0 and first["error"] < 0.02
     whole = asset.levels[0]
     assert face_parts(np.asarray(whole.mesh.F))[0] == 4 and whole.mesh.V[:, 2].min() == 0.0   # block kept whole
+
+
+def test_a_target_the_bound_stopped_at_the_source_is_reached_by_removing_plates():
+    """With a 1 % bound the first collapse (a block folded) is already too far, so the level used to end at the
+    source's 56 faces and was no level; the plates lie within the bound and their removal is the level."""
+    V, F = plated_boxes(0.01)
+    _, off, _ = decimated(V, F, 48 / 56, max_error="1%", prune_parts=False)
+    assert off["same_as"] == "source" and off["stopped"] == "max_error"
+    asset, t, _ = decimated(V, F, 48 / 56, max_error="1%")
+    assert t["same_as"] is None and t["stopped"] is None and t["faces"] == 48 and t["removed_early"]
+    assert t["removal_distance"] <= t["max_error"] and len(asset.levels) == 1
