@@ -348,7 +348,15 @@ def early_removals(hier, choices: list, levels: list[SimplifiedLevel], T: np.nda
     if not open_ or len(hier.F) == 0 or face_parts(np.asarray(hier.F, np.int64))[0] < 2:
         return choices, levels
     running = np.maximum.accumulate(distances) if len(distances) else distances
-    worst = max(bound if choices[i].stopped == "max_error" else choices[i].error for i in open_)
+
+    def stopped_by_bound(c) -> bool:
+        return c.stopped == "max_error" and bound is not None
+
+    def limit_of(c) -> float:
+        # the bound for a level the bound stopped short, else the level's own collapse error
+        return float(bound) if stopped_by_bound(c) and bound is not None else float(c.error)
+
+    worst = max(limit_of(choices[i]) for i in open_)
     cap = worst if bound is None else min(worst, bound)
     source = hier.prefix(0)
     steps, _ = prune_sequence(source, T, min(choices[i].target_faces for i in open_), cap)
@@ -359,8 +367,8 @@ def early_removals(hier, choices: list, levels: list[SimplifiedLevel], T: np.nda
     for i, c in enumerate(choices):
         if i in open_:
             # the bound stopped it: removals may reach further within the bound; else: for less error
-            short = c.stopped == "max_error" and bound is not None
-            limit = bound if short else c.error
+            short = stopped_by_bound(c)
+            limit = limit_of(c)
             best = _removal_candidates(hier, steps, running, c.target_faces)
             if best is not None and (best[0] <= limit if short else best[0] < limit):
                 k = best[1]
