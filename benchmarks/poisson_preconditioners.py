@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -98,14 +99,6 @@ def pardiso_factor(indptr, indices, values, block: int, n_rhs_shape, single: boo
     return solve
 
 
-def upper_blocks(rows, cols, blocks, m):
-    """Upper block triangle (block CSR, blocks column by column) of blocks on the pattern ``(rows, cols)``."""
-    keep = cols >= rows
-    ptr = np.zeros(m + 1, np.int32)
-    np.cumsum(np.bincount(rows[keep], minlength=m), out=ptr[1:])
-    return ptr, cols[keep].astype(np.int32), np.ascontiguousarray(blocks[keep].transpose(0, 2, 1)).ravel()
-
-
 def range_projected(prob, system, Bn, tau: float, delta: float, iterations: int, gap) -> dict:
     """Route 1 (module docstring): CG from the k-largest weights."""
     m, r, _ = system.N.shape
@@ -139,7 +132,8 @@ def subspace_split(prob, system, Bn, split: int, iterations: int, gap) -> dict:
     cols = system.indices
     rotated = np.einsum("pji,pjk,pkl->pil", Ur[rows], system.blocks, Ur[cols])
     groups = [np.arange(split), np.arange(split, r)]
-    solves = [pardiso_factor(*upper_blocks(rows, cols, np.ascontiguousarray(rotated[:, g][:, :, g]), m),
+    # the group's blocks on the same pattern: NullSpaceSystem.upper_blocks writes their upper triangle
+    solves = [pardiso_factor(*replace(system, blocks=np.ascontiguousarray(rotated[:, g][:, :, g])).upper_blocks(),
                              len(g), m * len(g)) for g in groups]
     A = system.matrix().tocsr()
     setup = time.perf_counter() - t
