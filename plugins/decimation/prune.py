@@ -342,20 +342,18 @@ def early_removals(hier, choices: list, levels: list[SimplifiedLevel], T: np.nda
 
     from rigslim.plugins.decimation.levels import level_label
 
-    # a level, one that ended at a finer level, or one the bound stopped short (possibly at the source)
-    open_ = [i for i, c in enumerate(choices)
-             if (c.collapses > 0 and c.error > 0) or (c.stopped == "max_error" and bound is not None)]
-    if not open_ or len(hier.F) == 0 or face_parts(np.asarray(hier.F, np.int64))[0] < 2:
-        return choices, levels
-    running = np.maximum.accumulate(distances) if len(distances) else distances
-
     def stopped_by_bound(c) -> bool:
         return c.stopped == "max_error" and bound is not None
 
     def limit_of(c) -> float:
         # the bound for a level the bound stopped short, else the level's own collapse error
-        return float(bound) if stopped_by_bound(c) and bound is not None else float(c.error)
+        return float(bound) if bound is not None and c.stopped == "max_error" else float(c.error)
 
+    # a level, one that ended at a finer level, or one the bound stopped short (possibly at the source)
+    open_ = [i for i, c in enumerate(choices) if (c.collapses > 0 and c.error > 0) or stopped_by_bound(c)]
+    if not open_ or len(hier.F) == 0 or face_parts(np.asarray(hier.F, np.int64))[0] < 2:
+        return choices, levels
+    running = np.maximum.accumulate(distances) if len(distances) else distances
     worst = max(limit_of(choices[i]) for i in open_)
     cap = worst if bound is None else min(worst, bound)
     source = hier.prefix(0)
