@@ -170,8 +170,10 @@ def main(argv=None) -> None:
     from rigslim.plugins.solvers.problem import build_problem
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--iterations", type=int, default=60)
+    ap.add_argument("--iterations", type=int, default=60, help="CG iterations per route at most (>= 1)")
     args = ap.parse_args(argv)
+    if args.iterations < 1:
+        ap.error(f"--iterations {args.iterations}: give at least 1")
     asset, _ = armadillo_asset()
     prob = build_problem(asset, "poisson", nonnegative=False)
     t = time.perf_counter()
