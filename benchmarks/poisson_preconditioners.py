@@ -153,7 +153,7 @@ def subspace_split(system, A, Bn, split: int, iterations: int, gap) -> dict:
     return out | {"setup_seconds": setup, "split": split}
 
 
-def single_precision(prob, system) -> dict:
+def single_precision(system) -> dict:
     """Route 3 (module docstring): whether PARDISO factorises the system in single precision."""
     r = system.N.shape[1]
     t = time.perf_counter()
@@ -194,7 +194,7 @@ def main(argv=None) -> None:
                                                                   args.iterations, gap)
     print("subspace split 3 + 4", flush=True)
     routes["subspace split 3 + 4"] = subspace_split(system, A, Bn, 3, args.iterations, gap)
-    single = single_precision(prob, system)
+    single = single_precision(system)
     result = {"machine": machine(), "vertices": asset.mesh.n_vertices, "unknowns": system.unknowns,
               "direct_seconds": direct_s, "direct_energy": E_star, "direct_factorisation": rep.get("factorisation"),
               "singular_values_relative": np.percentile(sv / sv[:, :1], [5, 50, 95], axis=0).tolist(),

@@ -347,7 +347,10 @@ def early_removals(hier, choices: list, levels: list[SimplifiedLevel], T: np.nda
 
     def limit_of(c) -> float:
         # the bound for a level the bound stopped short, else the level's own collapse error
-        return float(bound) if bound is not None and c.stopped == "max_error" else float(c.error)
+        if stopped_by_bound(c):
+            assert bound is not None            # stopped_by_bound says so; for the type checker
+            return float(bound)
+        return float(c.error)
 
     # a level, one that ended at a finer level, or one the bound stopped short (possibly at the source)
     open_ = [i for i, c in enumerate(choices) if (c.collapses > 0 and c.error > 0) or stopped_by_bound(c)]
