@@ -130,10 +130,14 @@ class SuiteCharacter:
         The whole index entry (licence, source package, sha256...).
     """
 
-    def __init__(self, entry: dict):
+    def __init__(self, entry: dict, root: Path | None = None):
         self.entry = entry
         self.name = entry["name"]
-        self.path = SUITE.parent / entry["file"]
+        if root is None:                                   # the bundled indexes: files under examples/data/gltf
+            self.path = SUITE.parent / entry["file"]
+        else:                                              # an index elsewhere (tools/suite/sweep.py's): beside it
+            nested = root / entry["file"]
+            self.path = nested if nested.exists() else root / Path(entry["file"]).name
         for key in ("kind", "faces", "vertices", "joints", "primitives", "clips", "fit_clips", "holdout_clips",
                     "textured", "test_renders", "view"):
             setattr(self, key, entry[key])
@@ -196,3 +200,26 @@ def suite(names=None, *, min_joints: int = 0, multi_clip: bool | None = None,
         chars = [known[n] for n in names]
     return [c for c in chars if c.joints >= min_joints and (multi_clip is None or c.multi_clip == multi_clip)
             and (textured is None or c.textured == textured)]
+
+
+def index_characters(index: Path, names=None) -> list[SuiteCharacter]:
+    """The characters of an index file in ``build.py``'s format that lies outside the repository, such as the
+    ``index.json`` that ``tools/suite/sweep.py --out FOLDER`` writes, each file found beside the index.
+
+    ``names``: only these (unknown names raise ``KeyError`` listing the known ones). A missing or malformed
+    index raises ``ValueError`` naming the file.
+    """
+    index = Path(index)
+    try:
+        entries = json.loads(index.read_text())["characters"]
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise ValueError(f"{index}: not a character index with a 'characters' list ({type(e).__name__}: {e}); "
+                         "build one with tools/suite/sweep.py --out FOLDER") from None
+    chars = [SuiteCharacter(e, root=index.parent) for e in entries]
+    if names is not None:
+        known = {c.name: c for c in chars}
+        missing = [n for n in names if n not in known]
+        if missing:
+            raise KeyError(f"no character {missing} in {index} (known: {', '.join(known)})")
+        chars = [known[n] for n in names]
+    return chars

@@ -1,6 +1,7 @@
 """Contact sheets of every suite character's far levels: ``rigslim lod`` beside gltf-transform and gltfpack.
 
-For each character of the suite (benchmarks.datasets.suite) and each ratio:
+For each character of the suite (benchmarks.datasets.suite; with ``--index``, of another index such as the
+sweep's, ``tools/suite/sweep.py --out FOLDER`` then ``--index FOLDER/index.json``) and each ratio:
 
 1. ``rigslim lod CHAR.glb -o OUT.glb --ratios R1,R2 --split`` (defaults otherwise, as a new user runs it);
 2. the peers (benchmarks/peers.py) at rigslim's face count of that level
@@ -17,6 +18,7 @@ Writes ``OUT/CHAR-R.png``, ``OUT/CHAR-R.json`` and ``OUT/summary.md`` (worst
 Usage::
 
     python benchmarks/lod_sheets.py [--out DIR] [--ratios 0.25,0.1] [--only NAME ...] [--size 220] [--keep DIR]
+        [--index FOLDER/index.json]
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ for _p in (ROOT, ROOT / "tests"):
     if str(_p) not in sys.path:
         sys.path.insert(0, str(_p))
 
-from benchmarks.datasets import suite  # noqa: E402
+from benchmarks.datasets import index_characters, suite  # noqa: E402
 from benchmarks.peers import PeerError, at_faces, available, count_faces  # noqa: E402
 from benchmarks.render_posed import contact_sheet  # noqa: E402
 
@@ -146,20 +148,25 @@ def main(argv=None) -> int:
                     help="raise a ratio so that the level keeps at least this many faces (e.g. 250)")
     ap.add_argument("--keep", type=Path, default=None,
                     help="keep the level files here and reuse those already there (re-render without re-running)")
+    ap.add_argument("--index", type=Path, default=None,
+                    help="characters of this index (e.g. tools/suite/sweep.py's FOLDER/index.json) instead of the suite")
     args = ap.parse_args(argv)
     from support.posed_render import PosedRenderer
+
+    def characters(names=None):
+        return suite(names) if args.index is None else index_characters(args.index, names)
 
     args.out.mkdir(parents=True, exist_ok=True)
     ratios = [float(r) for r in args.ratios.split(",")]
     rows = []
     with tempfile.TemporaryDirectory(prefix="rigslim-sheets-") as tmp, \
             PosedRenderer(size=(args.size, args.size)) as renderer:
-        for c in suite(args.only):
+        for c in characters(args.only):
             work = (args.keep or Path(tmp)) / c.name
             work.mkdir(parents=True, exist_ok=True)
             rows.extend(sheets_for(c, args.out, work, ratios, args.size, renderer, args.floor))
     # the summary covers every sheet in the folder (earlier runs with --only included), in suite order
-    order = {c.name: i for i, c in enumerate(suite())}
+    order = {c.name: i for i, c in enumerate(characters())}
     done = {(r["character"], r["ratio"]): r for r in rows}
     for f in args.out.glob("*.json"):
         doc = json.loads(f.read_text())

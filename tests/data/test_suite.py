@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.datasets import HOLDOUT, SUITE, suite
+from benchmarks.datasets import HOLDOUT, SUITE, index_characters, suite
 
 ROOT = Path(__file__).resolve().parents[2]
 CHARACTERS = suite(group="all")
@@ -36,6 +36,23 @@ def test_the_suite_has_what_the_issues_need():
     held = suite(group="holdout")
     assert len(held) >= 4 and not {c.name for c in held} & {c.name for c in suite()}
     assert len(suite(group="holdout", multi_clip=True)) >= 3
+
+
+def test_an_index_elsewhere_finds_its_files_beside_it(tmp_path):
+    """tools/suite/sweep.py's index lies beside its .glb files (older ones named them ``suite/NAME.glb``)."""
+    first, second = (json.loads((SUITE / "suite.json").read_text())["characters"][i] for i in (0, 1))
+    for e in (first, second):
+        (tmp_path / Path(e["file"]).name).write_bytes((SUITE.parent / e["file"]).read_bytes())
+    index = tmp_path / "index.json"
+    index.write_text(json.dumps({"version": 1, "characters": [first, second | {"file": Path(second["file"]).name}]}))
+    chars = index_characters(index)
+    assert [c.path for c in chars] == [tmp_path / Path(e["file"]).name for e in (first, second)]
+    assert [c.name for c in index_characters(index, [second["name"]])] == [second["name"]]
+    with pytest.raises(KeyError, match="no character"):
+        index_characters(index, ["nobody"])
+    (tmp_path / "bad.json").write_text("{")
+    with pytest.raises(ValueError, match="bad.json: not a character index"):
+        index_characters(tmp_path / "bad.json")
 
 
 def test_files_stay_small():

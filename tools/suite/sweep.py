@@ -275,7 +275,7 @@ def main(argv=None) -> int:
             e = build(name, args.work, out)
         else:
             e = build_zero_ad(spec, args.work, out)
-        entries.append(e)
+        entries.append(e | {"file": out.name})      # beside the index (benchmarks.datasets.index_characters)
         print(f"{name}: {e['faces']} faces, {e['joints']} joints, {len(e['clips'])} clips, textured {e['textured']}")
     (args.out / "index.json").write_text(json.dumps({"version": 1, "about": "rigslim's sweep characters "
                                                      "(tools/suite/sweep.py)", "characters": entries}, indent=1) + "\n")
