@@ -149,7 +149,7 @@ def main(argv=None) -> int:
     ap.add_argument("--keep", type=Path, default=None,
                     help="keep the level files here and reuse those already there (re-render without re-running)")
     ap.add_argument("--index", type=Path, default=None,
-                    help="characters of this index (e.g. tools/suite/sweep.py's FOLDER/index.json) instead of the suite")
+                    help="characters of this index (tools/suite/sweep.py's FOLDER/index.json) instead of the suite")
     args = ap.parse_args(argv)
     from support.posed_render import PosedRenderer
 
