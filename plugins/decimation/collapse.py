@@ -30,6 +30,7 @@ import numpy as np
 
 from rigslim.model.hierarchy import ProgressiveHierarchy
 from rigslim.model.weights import ReducedWeights
+from rigslim.plugins.decimation.quadrics import quadric_floor_reference
 from rigslim.plugins.decimation.setup import (
     BEST,
     BLOCKED,
@@ -328,6 +329,7 @@ class _CollapseLoop:
         self.boundary, self.along, self.charts = setup.boundary, setup.along, setup.charts
         self.Qw = model.compiled_spec()[1] if normalised else None
         self.Qp = model.compiled_spec()[1] if source else None
+        self.Qf = model.compiled_spec()[1]        # the live quadrics (merged as the model merges), for the floor
         self.table = _EdgeTable(st.W.shape[1], max(16, 2 * len(setup.edges)))
         ids = np.array([self.table.add(int(a), int(b)) for a, b in setup.edges], dtype=np.int64)
         self.evaluate(ids)
@@ -505,8 +507,10 @@ class _CollapseLoop:
         self.n_faces -= len(fab)
 
     def _requeue(self, union: set[int], a: int, b: int, c: int, cost_ab: float) -> None:
-        """Edges (x, a) and (x, b) die; (x, c) is queued dirty with the lower bound of their costs, and the
-        edges blocked at x are tried again."""
+        """Edges (x, a) and (x, b) die; (x, c) is queued dirty with a lower bound of its cost, the larger of
+        theirs and of its quadrics' per-pose minima
+        (:func:`rigslim.plugins.decimation.quadrics.quadric_floor_reference`), and the edges blocked at x are
+        tried again."""
         table, normalised = self.table, self.normalised
         wa, wb = (float(self.weight(a)[0]), float(self.weight(b)[0])) if normalised else (1.0, 1.0)
         for x in sorted(union):            # a fixed order: edge slots (tie-breaks) do not depend on set order
@@ -521,8 +525,9 @@ class _CollapseLoop:
             if not self.collapsible(x, c):
                 continue
             en = table.add(x, c)
-            lb = max(old)
-            table.cost[en] = lb / (wa + wb + wx) if normalised and wa + wb + wx > 0 else lb
+            lb = max(*old, quadric_floor_reference(self.Qf[c] + self.Qf[x]))
+            lb = lb / (wa + wb + wx) if normalised and wa + wb + wx > 0 else lb
+            table.cost[en] = 0.0 if lb < self.zero else lb
             table.state[en] = DIRTY
             heapq.heappush(self.heap, (float(table.cost[en]), int(table.stamp[en]), en))
             for eb_ in self.blocked_at.pop(x, ()):

@@ -42,7 +42,7 @@ import numpy as np
 from numba import njit, prange
 
 from rigslim.numerics.point_mesh_distance import point_triangle_distance2
-from rigslim.plugins.decimation.edge_costs import collapse_cost, quadric_weight
+from rigslim.plugins.decimation.edge_costs import collapse_cost, quadric_floor, quadric_weight
 from rigslim.plugins.decimation.edge_queue import (
     C_AHEAD,
     C_COLLAPSES,
@@ -784,12 +784,13 @@ def apply_collapse(e, a, b, nrem, nfab, mesh, vx, ed, cnt, s, mem):
 
 
 @njit(cache=True)
-def requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s, Qv, normalised):
+def requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s, Qv, normalised, zero):
     """Replace the edges (a, x) and (b, x) by (c, x) for every neighbour x, in increasing order of x.
 
-    Each new edge is queued with the lower bound ``max(cost(a, x), cost(b, x), cost(a, b))`` (normalised
-    costs: ``max(E(a, x), E(b, x), E(a, b)) / (w_a + w_b + w_x)``, the unnormalised errors ``E`` over the
-    new edge's weight) and marked
+    Each new edge is queued with the lower bound ``max(cost(a, x), cost(b, x), cost(a, b), floor(c, x))``
+    (normalised costs: ``max(E(a, x), E(b, x), E(a, b), floor) / (w_a + w_b + w_x)``, the unnormalised errors
+    ``E`` over the new edge's weight; ``floor``: the sum of its summed quadrics' per-pose minima,
+    :func:`rigslim.plugins.decimation.edge_costs.quadric_floor`, 0 below the zero cost ``zero``) and marked
     dirty (unless both c and x are fixed and the edge is no seam edge); edges at x that a guard blocked earlier
     are queued again.
     """
@@ -819,10 +820,13 @@ def requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s, Qv, normalised):
                 wy = wa if y == a else wb
                 lb = max(lb, ecost[eo] * (wy + wx) if normalised else ecost[eo])
                 edge_kill(eo, N, ea, eb, estate, free, cnt, hk, hv)
-        if normalised:
-            lb = lb / (wa + wb + wx) if wa + wb + wx > 0 else lb
         if not _collapsible(x, c, boundary, along, F, vf_start, vf_cnt, pool, charts):
             continue
+        lb = max(lb, quadric_floor(Qv, c, x))
+        if normalised:
+            lb = lb / (wa + wb + wx) if wa + wb + wx > 0 else lb
+        if lb < zero:
+            lb = 0.0
         en = edge_add(x, c, N, ea, eb, estamp, free, cnt, hk, hv)
         ed.stime[en] = -1
         ecost[en] = lb
@@ -903,7 +907,7 @@ def collapse_chunk(max_steps, min_faces, min_normal_cos, tiny, cm, mesh, vx, ed,
                     push(qu.hc, qu.hs, qu.he, cnt, ed.ecost[e], ed.estamp[e], e, ed.estamp, ed.estate)
                     continue
             c, cost_ab = apply_collapse(e, a, b, nrem, nfab, mesh, vx, ed, cnt, s, mem)
-            requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s, vx.Qv, cm.fp[3] != 0.0)
+            requeue(a, b, c, cost_ab, nu, mesh, ed, qu, cnt, s, vx.Qv, cm.fp[3] != 0.0, cm.fp[2])
             i = cnt[C_COLLAPSES]
             rec.col[i, 0], rec.col[i, 1] = a, b
             rec.errs[i] = cost_ab

@@ -55,7 +55,7 @@ from rigslim.plugins.decimation.setup import BEST, DECORO, KEEP_A, KEEP_B, MOHR_
 FAST = {"reassoc", "contract", "nsz"}
 
 __all__ = ["DECORO", "FAST", "MOHR_GLEICHER", "QUARTIC", "anchored_cost", "collapse_cost", "edge_cost", "edge_costs",
-           "quadric_weight"]
+           "quadric_floor", "quadric_weight"]
 
 
 @njit(cache=True, fastmath=FAST)
@@ -598,6 +598,58 @@ def quadric_weight(Qv, v):
     for j in range(Qv.shape[1]):
         s += Qv[v, j, 0, 0] + Qv[v, j, 1, 1] + Qv[v, j, 2, 2]
     return s
+
+
+@njit(cache=True)
+def quadric_floor(Qv, a, b):
+    """A lower bound of every collapse cost of the pair (a, b) before normalisation:
+    ``sum_j min_p [p; 1]^T (Q_a^j + Q_b^j) [p; 1]`` over the poses j of ``Qv`` (m, P, 4, 4).
+
+    Every method's error is ``sum_j [x_j; 1]^T Q^j [x_j; 1]`` at some point ``x_j`` per pose (the quartic's
+    posed new vertex, an end point posed, DeCoro's rest point with one quadric), so it is at least the sum of
+    the per-pose minima, whatever the weights, placement or bone limit. With ``Q^j = [[A, b], [b^T, c]]``:
+    ``p* = -A^-1 b`` (cofactors), and since ``[p; 1]^T Q [p; 1] >= Q(p*) - r^T A^-1 r`` for the residual
+    ``r = A p* + b`` of the computed p*, each pose adds ``Q(p*) - |r|^2 tr(A)^2 / (4 det A)``
+    (``lambda_min >= 4 det / tr^2``) less a round-off margin of ``1e-9`` times the terms' magnitude, or 0
+    where A is (nearly) singular or the result negative. So the floor never exceeds the true minimum.
+    """
+    total = 0.0
+    for j in range(Qv.shape[1]):
+        a00 = Qv[a, j, 0, 0] + Qv[b, j, 0, 0]
+        a01 = Qv[a, j, 0, 1] + Qv[b, j, 0, 1]
+        a02 = Qv[a, j, 0, 2] + Qv[b, j, 0, 2]
+        a11 = Qv[a, j, 1, 1] + Qv[b, j, 1, 1]
+        a12 = Qv[a, j, 1, 2] + Qv[b, j, 1, 2]
+        a22 = Qv[a, j, 2, 2] + Qv[b, j, 2, 2]
+        b0 = Qv[a, j, 0, 3] + Qv[b, j, 0, 3]
+        b1 = Qv[a, j, 1, 3] + Qv[b, j, 1, 3]
+        b2 = Qv[a, j, 2, 3] + Qv[b, j, 2, 3]
+        cc = Qv[a, j, 3, 3] + Qv[b, j, 3, 3]
+        c00 = a11 * a22 - a12 * a12
+        c01 = a02 * a12 - a01 * a22
+        c02 = a01 * a12 - a02 * a11
+        c11 = a00 * a22 - a02 * a02
+        c12 = a01 * a02 - a00 * a12
+        c22 = a00 * a11 - a01 * a01
+        det = a00 * c00 + a01 * c01 + a02 * c02
+        tr = a00 + a11 + a22
+        if not (tr > 0.0) or not (det > 1e-10 * (tr / 3.0) ** 3):
+            continue                      # (nearly) singular: no better bound than 0
+        p0 = -(c00 * b0 + c01 * b1 + c02 * b2) / det
+        p1 = -(c01 * b0 + c11 * b1 + c12 * b2) / det
+        p2 = -(c02 * b0 + c12 * b1 + c22 * b2) / det
+        r0 = a00 * p0 + a01 * p1 + a02 * p2 + b0
+        r1 = a01 * p0 + a11 * p1 + a12 * p2 + b1
+        r2 = a02 * p0 + a12 * p1 + a22 * p2 + b2
+        quad = p0 * (a00 * p0 + a01 * p1 + a02 * p2) + p1 * (a01 * p0 + a11 * p1 + a12 * p2) + \
+            p2 * (a02 * p0 + a12 * p1 + a22 * p2)
+        lin = 2.0 * (b0 * p0 + b1 * p1 + b2 * p2)
+        q = quad + lin + cc
+        q -= (r0 * r0 + r1 * r1 + r2 * r2) * tr * tr / (4.0 * det)
+        q -= 1e-9 * (abs(quad) + abs(lin) + abs(cc))
+        if q > 0.0:
+            total += q
+    return total
 
 
 @njit(cache=True, nogil=True)

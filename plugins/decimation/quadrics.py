@@ -221,6 +221,25 @@ def _posed(X: np.ndarray, v: np.ndarray) -> np.ndarray:
     return (X[..., :3] @ v[:, None, :, None])[..., 0] + X[..., 3]
 
 
+def quadric_floor_reference(Q: np.ndarray) -> float:
+    """:func:`rigslim.plugins.decimation.edge_costs.quadric_floor` in numpy, for the summed quadrics Q (P, 4, 4)
+    of one pair: ``sum_j max(0, min_p [p; 1]^T Q^j [p; 1])``, the minimum ``c - b^T A^-1 b`` of each pose's
+    quadric ``[[A, b], [b^T, c]]`` where A is well conditioned (``det A > 1e-10 (tr A / 3)^3``), else 0.
+
+    A lower bound of every collapse cost of the pair (before normalisation): each method's error is a sum
+    over the poses of the quadric at one point per pose. The compiled one keeps a round-off margin of
+    ``1e-9`` of the terms' size below this value; the two agree to that.
+    """
+    A, b, c = Q[:, :3, :3], Q[:, :3, 3], Q[:, 3, 3]
+    tr = np.trace(A, axis1=1, axis2=2)
+    ok = (tr > 0) & (np.linalg.det(A) > 1e-10 * (tr / 3.0) ** 3)
+    if not ok.any():
+        return 0.0
+    p = -np.linalg.solve(A[ok], b[ok][..., None])[..., 0]
+    q = c[ok] + np.einsum("ji,ji->j", b[ok], p)
+    return float(np.maximum(q, 0.0).sum())
+
+
 def quadric_error(Q: np.ndarray, p: np.ndarray) -> np.ndarray:
     """``[p; 1]^T Q [p; 1]`` for batches: Q (..., 4, 4), p (..., 3)."""
     ph = np.concatenate([p, np.ones(p.shape[:-1] + (1,))], axis=-1)
