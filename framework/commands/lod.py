@@ -338,9 +338,10 @@ def _say_where_it_stopped(t: dict, max_error: str | None, seam_vertices, prefix:
         print(f"{prefix}{where} not reached: it ends at the {t['faces']} faces of level {t['same_as']}, "
               f"so it has no level of its own", file=sys.stderr)
     elif t["stopped"] == "max_error" and t.get("parts_removed"):
-        print(f"{prefix}level {t['label']} stopped at {t['faces']} faces, {where}: no collapse was left and "
-              f"removing its next part whole exceeds --max-error {max_error} ({t['parts_removed']} removed; "
-              f"--max-error none goes on)", file=sys.stderr)
+        limits = ("the next collapse and removing its next part whole exceed" if t.get("removed_early") else
+                  "no collapse was left and removing its next part whole exceeds")
+        print(f"{prefix}level {t['label']} stopped at {t['faces']} faces, {where}: {limits} --max-error "
+              f"{max_error} ({t['parts_removed']} removed; --max-error none goes on)", file=sys.stderr)
     elif t["stopped"] == "max_error":
         print(f"{prefix}level {t['label']} stopped at {t['faces']} faces, {where}: the next collapse exceeds "
               f"--max-error {max_error} (--max-error none goes on)", file=sys.stderr)

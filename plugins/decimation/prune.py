@@ -334,13 +334,19 @@ def early_removals(hier, choices: list, levels: list[SimplifiedLevel], T: np.nda
     is pruned for real (:func:`prune_sequence` on the prefix itself, :func:`kept_back`), and the level is
     replaced when its measured error is still below the level's and its faces still decrease.
 
+    A level the bound stopped short that no prefix and removals bring to its target within the bound gets the
+    fewest faces within it instead: its own prefix, then every removal whose distance and farthest point stay
+    within the bound (still ``stopped == "max_error"``). A target that then has no fewer faces than the finer
+    level before it ends at that level (``same_as``), as :func:`rigslim.plugins.decimation.levels.choose_levels`
+    does, instead of at the source or at a level with more faces.
+
     On a blocky character with an armour layer of separate quads (minetest's 3d_armor, 440 faces, 124 quads)
     the hierarchy's first collapses turn boxes into wedges (0.25 to 1.1 units of geometric error at 436 to
     416 faces) while each quad is within 0.001 units of the body under it.
     """
     from dataclasses import replace
 
-    from rigslim.plugins.decimation.levels import level_label
+    from rigslim.plugins.decimation.levels import REACHED, SOURCE, level_label
 
     def stopped_by_bound(c) -> bool:
         return c.stopped == "max_error" and bound is not None
@@ -364,38 +370,74 @@ def early_removals(hier, choices: list, levels: list[SimplifiedLevel], T: np.nda
     if not steps:
         return choices, levels
     out, kept = list(choices), list(levels)
-    last_faces = len(hier.F)
+    last_faces, last_label = len(hier.F), None
+
+    def plan_at(k: int, target_faces: int, limit: float, to_target: bool):
+        """Prefix ``k`` pruned toward ``target_faces``: ``(base, chosen, faces, error, farthest, peak)``, or None.
+        ``to_target``: only removals that reach the target; else as many as the bound ``limit`` allows (each
+        removal's farthest point within it too)."""
+        base = hier.prefix(k)
+        chosen, _ = prune_sequence(base, T, target_faces, bound)
+        reach = next((j for j, s in enumerate(chosen) if s.faces_left <= target_faces), None)
+        if reach is not None:
+            chosen = kept_back(chosen[:reach + 1], target_faces - chosen[reach].faces_left)
+        elif to_target:
+            return None
+        else:
+            chosen = chosen[:next((j for j, s in enumerate(chosen) if s.peak > limit), len(chosen))]
+        if not chosen:
+            return None
+        faces = len(base.mesh.F) - sum(len(s.faces) for s in chosen)
+        farthest = max(s.distance for s in chosen)
+        error = max(float(running[k - 1]) if k else 0.0, farthest)
+        return base, chosen, faces, error, farthest, max(s.peak for s in chosen)
+
     for i, c in enumerate(choices):
         if i in open_:
             # the bound stopped it: removals may reach further within the bound; else: for less error
             short = stopped_by_bound(c)
             limit = limit_of(c)
+            plan = None
             best = _removal_candidates(hier, steps, running, c.target_faces)
             if best is not None and (best[0] <= limit if short else best[0] < limit):
+                plan = plan_at(best[1], c.target_faces, limit, True)
+                if plan is not None and not (max(plan[3], plan[5]) <= limit and plan[2] < c.faces if short else
+                                             max(plan[3], plan[5]) < limit and
+                                             plan[2] <= max(c.faces, c.target_faces)):
+                    plan = None
                 k = best[1]
-                base = hier.prefix(k)
-                chosen, _ = prune_sequence(base, T, c.target_faces, bound)
-                reach = next((j for j, s in enumerate(chosen) if s.faces_left <= c.target_faces), None)
-                if chosen and reach is not None:
-                    chosen = kept_back(chosen[:reach + 1], c.target_faces - chosen[reach].faces_left)
-                    faces = len(base.mesh.F) - sum(len(s.faces) for s in chosen)
-                    farthest = max(s.distance for s in chosen)
-                    peak = max(s.peak for s in chosen)
-                    error = max(float(running[k - 1]) if k else 0.0, farthest)
-                    better = max(error, peak) <= limit and faces < c.faces if short else \
-                        max(error, peak) < limit and faces <= max(c.faces, c.target_faces)
-                    if better and faces < last_faces:
-                        label = level_label(method, c.target, c.target_faces, faces)
-                        if c.same_as is None:          # its level is replaced
-                            kept[next(j for j, lv in enumerate(kept) if lv.label == c.label)] = \
-                                pruned_level(base, chosen, label)
-                        else:                          # it ended at a finer level: now it has its own
-                            kept.append(pruned_level(base, chosen, label))
-                        out[i] = replace(c, collapses=k, faces=faces, label=label, error=error, stopped=None,
-                                         same_as=None, parts_removed=len(chosen), removal_distance=farthest)
-                        if c.same_as is None:
-                            out = [replace(d, same_as=label) if d.same_as == c.label else d for d in out]
+            if plan is None and short:
+                # no way to the target within the bound: the fewest faces within it, after the level's own
+                # collapses (a blocky character whose first collapse passes the bound sheds its layers)
+                k = c.collapses
+                plan = plan_at(k, c.target_faces, limit, False)
+                if plan is not None and not (max(plan[3], plan[5]) <= limit and plan[2] < c.faces):
+                    plan = None
+            if plan is not None and plan[2] < last_faces:
+                base, chosen, faces, error, farthest, _ = plan
+                label = level_label(method, c.target, c.target_faces, faces)
+                if c.same_as is None:          # its level is replaced
+                    kept[next(j for j, lv in enumerate(kept) if lv.label == c.label)] = \
+                        pruned_level(base, chosen, label)
+                else:                          # it ended at a finer level or the source: now it has its own
+                    kept.append(pruned_level(base, chosen, label))
+                reached = faces <= (1 + REACHED) * c.target_faces
+                out[i] = replace(c, collapses=k, faces=faces, label=label, error=error,
+                                 stopped=None if reached else c.stopped, same_as=None, parts_removed=len(chosen),
+                                 removal_distance=farthest)
+                if c.same_as is None:
+                    out = [replace(d, same_as=label, faces=faces, collapses=k, error=error) if d.same_as == c.label
+                           else d for d in out]
+            elif last_label is not None and last_faces <= c.faces and c.same_as in (None, SOURCE):
+                # a finer level that removals took further has no more faces already: this target ends there
+                # (the bound stopped it short of that, or it ended where no collapse was left)
+                prev = next(d for d in out if d.label == last_label and d.same_as is None)
+                if c.same_as is None:
+                    kept = [lv for lv in kept if lv.label != c.label]
+                    out = [replace(d, same_as=last_label, faces=last_faces, collapses=prev.collapses, error=prev.error)
+                           if d.same_as == c.label else d for d in out]
+                out[i] = replace(c, collapses=prev.collapses, faces=last_faces, error=prev.error, same_as=last_label)
         if out[i].same_as is None:
-            last_faces = out[i].faces
+            last_faces, last_label = out[i].faces, out[i].label
     kept.sort(key=lambda lv: -lv.n_faces)
     return out, kept

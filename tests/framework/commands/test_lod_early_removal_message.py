@@ -23,3 +23,18 @@ def test_a_removal_after_the_last_collapse_says_no_collapse_was_left(capsys):
     _say_where_it_stopped(record(False), "1%", None)
     err = capsys.readouterr().err
     assert "no collapse was left at 440 faces, so 110 parts were removed whole" in err
+
+
+def test_a_level_the_bound_stopped_after_early_removals_names_both_limits(capsys):
+    """The bound stopped the level short of its target after removing parts early: the next collapse and the
+    next removal both pass it (not "no collapse was left": collapses were left)."""
+    t = {**record(True), "target": 0.25, "target_faces": 110, "faces": 170, "label": "quartic-25pct-170f",
+         "stopped": "max_error", "parts_removed": 125}
+    _say_where_it_stopped(t, "1%", None)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == ("rigslim lod: level quartic-25pct-170f stopped at 170 faces, target 0.25 (110 faces): the "
+                       "next collapse and removing its next part whole exceed --max-error 1% (125 removed; "
+                       "--max-error none goes on)")
+    t["removed_early"] = False
+    _say_where_it_stopped(t, "1%", None)
+    assert "no collapse was left and removing its next part whole exceeds --max-error 1%" in capsys.readouterr().err

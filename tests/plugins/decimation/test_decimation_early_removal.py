@@ -120,3 +120,34 @@ def test_a_target_the_bound_stopped_at_the_source_is_reached_by_removing_plates(
     asset, t, _ = decimated(V, F, 48 / 56, max_error="1%")
     assert t["same_as"] is None and t["stopped"] is None and t["faces"] == 48 and t["removed_early"]
     assert t["removal_distance"] <= t["max_error"] and len(asset.levels) == 1
+
+
+def test_a_target_the_plates_cannot_reach_within_the_bound_stops_at_the_fewest_faces_within_it():
+    """Target 24 of 56 faces with a 1 % bound: every collapse (a block folded) passes the bound and removing the
+    four plates leaves 48 faces, short of 24. The level used to be none at all ("the source's 56 faces are no
+    level"); the fewest faces within the bound are the plates removed, so that is the level, stopped by the
+    bound, and said so."""
+    V, F = plated_boxes(0.01)
+    asset, t, _ = decimated(V, F, 24 / 56, max_error="1%")
+    assert t["same_as"] is None and t["stopped"] == "max_error" and t["faces"] == 48
+    assert t["parts_removed"] == 4 and t["removed_early"] and t["faces_collapsed"] == 56
+    assert t["error"] <= t["max_error"] and t["removal_distance"] <= t["max_error"]
+    assert [lv.n_faces for lv in asset.levels] == [48]
+    lv = asset.levels[0]
+    assert face_parts(np.asarray(lv.mesh.F))[0] == 4 and np.isclose(lv.mesh.V[:, 2].max(), 2.0)  # blocks whole
+
+
+def test_a_coarser_target_the_bound_stops_ends_at_the_finer_level_the_plates_made():
+    """Targets 48 and 24 of 56 faces, 1 % bound: the first is reached by removing the plates; the second can get
+    no fewer faces within the bound, so it ends at the first's level (``same_as``), not at the source."""
+    V, F = plated_boxes(0.01)
+    from test_decimation_source_error import rigid_asset
+
+    asset = rigid_asset(V, F)
+    plugin = get_host().get("articulated-decimation", "quartic")
+    ctx = StepContext()
+    plugin.apply(asset, plugin.parse_params({"targets": [48 / 56, 24 / 56], "max_error": "1%"}), ctx)
+    first, second = ctx.report["targets"]
+    assert first["same_as"] is None and first["faces"] == 48 and first["stopped"] is None
+    assert second["same_as"] == first["label"] and second["faces"] == 48 and second["stopped"] == "max_error"
+    assert [lv.n_faces for lv in asset.levels] == [48]
