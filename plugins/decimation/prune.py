@@ -371,73 +371,100 @@ def early_removals(hier, choices: list, levels: list[SimplifiedLevel], T: np.nda
         return choices, levels
     out, kept = list(choices), list(levels)
     last_faces, last_label = len(hier.F), None
-
-    def plan_at(k: int, target_faces: int, limit: float, to_target: bool):
-        """Prefix ``k`` pruned toward ``target_faces``: ``(base, chosen, faces, error, farthest, peak)``, or None.
-        ``to_target``: only removals that reach the target; else as many as the bound ``limit`` allows (each
-        removal's farthest point within it too)."""
-        base = hier.prefix(k)
-        chosen, _ = prune_sequence(base, T, target_faces, bound)
-        reach = next((j for j, s in enumerate(chosen) if s.faces_left <= target_faces), None)
-        if reach is not None:
-            chosen = kept_back(chosen[:reach + 1], target_faces - chosen[reach].faces_left)
-        elif to_target:
-            return None
-        else:
-            chosen = chosen[:next((j for j, s in enumerate(chosen) if s.peak > limit), len(chosen))]
-        if not chosen:
-            return None
-        faces = len(base.mesh.F) - sum(len(s.faces) for s in chosen)
-        farthest = max(s.distance for s in chosen)
-        error = max(float(running[k - 1]) if k else 0.0, farthest)
-        return base, chosen, faces, error, farthest, max(s.peak for s in chosen)
-
     for i, c in enumerate(choices):
         if i in open_:
-            # the bound stopped it: removals may reach further within the bound; else: for less error
-            short = stopped_by_bound(c)
-            limit = limit_of(c)
-            plan = None
-            best = _removal_candidates(hier, steps, running, c.target_faces)
-            if best is not None and (best[0] <= limit if short else best[0] < limit):
-                plan = plan_at(best[1], c.target_faces, limit, True)
-                if plan is not None and not (max(plan[3], plan[5]) <= limit and plan[2] < c.faces if short else
-                                             max(plan[3], plan[5]) < limit and
-                                             plan[2] <= max(c.faces, c.target_faces)):
-                    plan = None
-                k = best[1]
-            if plan is None and short:
-                # no way to the target within the bound: the fewest faces within it, after the level's own
-                # collapses (a blocky character whose first collapse passes the bound sheds its layers)
-                k = c.collapses
-                plan = plan_at(k, c.target_faces, limit, False)
-                if plan is not None and not (max(plan[3], plan[5]) <= limit and plan[2] < c.faces):
-                    plan = None
-            if plan is not None and plan[2] < last_faces:
-                base, chosen, faces, error, farthest, _ = plan
-                label = level_label(method, c.target, c.target_faces, faces)
+            plan = _level_plan(hier, T, running, bound, steps, c, stopped_by_bound(c), limit_of(c))
+            if plan is not None and plan.faces < last_faces:
+                label = level_label(method, c.target, c.target_faces, plan.faces)
+                level = pruned_level(plan.base, plan.chosen, label)
                 if c.same_as is None:          # its level is replaced
-                    kept[next(j for j, lv in enumerate(kept) if lv.label == c.label)] = \
-                        pruned_level(base, chosen, label)
+                    kept[next(j for j, lv in enumerate(kept) if lv.label == c.label)] = level
                 else:                          # it ended at a finer level or the source: now it has its own
-                    kept.append(pruned_level(base, chosen, label))
-                reached = faces <= (1 + REACHED) * c.target_faces
-                out[i] = replace(c, collapses=k, faces=faces, label=label, error=error,
-                                 stopped=None if reached else c.stopped, same_as=None, parts_removed=len(chosen),
-                                 removal_distance=farthest)
+                    kept.append(level)
+                reached = plan.faces <= (1 + REACHED) * c.target_faces
+                out[i] = replace(c, collapses=plan.k, faces=plan.faces, label=label, error=plan.error,
+                                 stopped=None if reached else c.stopped, same_as=None,
+                                 parts_removed=len(plan.chosen), removal_distance=plan.farthest)
                 if c.same_as is None:
-                    out = [replace(d, same_as=label, faces=faces, collapses=k, error=error) if d.same_as == c.label
-                           else d for d in out]
+                    out = _redirected(out, c.label, out[i])
             elif last_label is not None and last_faces <= c.faces and c.same_as in (None, SOURCE):
                 # a finer level that removals took further has no more faces already: this target ends there
                 # (the bound stopped it short of that, or it ended where no collapse was left)
                 prev = next(d for d in out if d.label == last_label and d.same_as is None)
                 if c.same_as is None:
                     kept = [lv for lv in kept if lv.label != c.label]
-                    out = [replace(d, same_as=last_label, faces=last_faces, collapses=prev.collapses, error=prev.error)
-                           if d.same_as == c.label else d for d in out]
+                    out = _redirected(out, c.label, prev)
                 out[i] = replace(c, collapses=prev.collapses, faces=last_faces, error=prev.error, same_as=last_label)
         if out[i].same_as is None:
             last_faces, last_label = out[i].faces, out[i].label
     kept.sort(key=lambda lv: -lv.n_faces)
     return out, kept
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """A level made by a collapse prefix and removals: the prefix ``k`` and its level ``base``, the removals
+    ``chosen``, the faces left, ``error = max(collapse error of the prefix, farthest removal)``, the farthest
+    removal's distance and the largest peak of the removed parts."""
+
+    k: int
+    base: SimplifiedLevel
+    chosen: list[PruneStep]
+    faces: int
+    error: float
+    farthest: float
+    peak: float
+
+
+def _removal_plan(hier, T: np.ndarray, running: np.ndarray, bound: float | None, k: int, target_faces: int,
+                  limit: float, to_target: bool) -> _Plan | None:
+    """Prefix ``k`` pruned toward ``target_faces`` (:func:`prune_sequence`, :func:`kept_back`), or None.
+    ``to_target``: only removals that reach the target; else as many as the bound ``limit`` allows (each
+    removal's farthest point within it too)."""
+    base = hier.prefix(k)
+    chosen, _ = prune_sequence(base, T, target_faces, bound)
+    reach = next((j for j, s in enumerate(chosen) if s.faces_left <= target_faces), None)
+    if reach is not None:
+        chosen = kept_back(chosen[:reach + 1], target_faces - chosen[reach].faces_left)
+    elif to_target:
+        return None
+    else:
+        chosen = chosen[:next((j for j, s in enumerate(chosen) if s.peak > limit), len(chosen))]
+    if not chosen:
+        return None
+    farthest = max(s.distance for s in chosen)
+    return _Plan(k, base, chosen, len(base.mesh.F) - sum(len(s.faces) for s in chosen),
+                 max(float(running[k - 1]) if k else 0.0, farthest), farthest, max(s.peak for s in chosen))
+
+
+def _level_plan(hier, T: np.ndarray, running: np.ndarray, bound: float | None, steps: list[PruneStep], c,
+                short: bool, limit: float) -> _Plan | None:
+    """The early-removal level for choice ``c`` (:func:`early_removals`), or None to keep it.
+
+    The best estimate of :func:`_removal_candidates` is pruned for real and kept when its measured error is
+    below ``limit`` (within it, with fewer faces, for a level the bound stopped short: ``short``). Failing
+    that, a short level takes the fewest faces within the bound: its own prefix and every removal within it.
+    """
+    best = _removal_candidates(hier, steps, running, c.target_faces)
+    if best is not None and (best[0] <= limit if short else best[0] < limit):
+        plan = _removal_plan(hier, T, running, bound, best[1], c.target_faces, limit, True)
+        if plan is not None:
+            worst = max(plan.error, plan.peak)
+            if (worst <= limit and plan.faces < c.faces) if short else \
+                    (worst < limit and plan.faces <= max(c.faces, c.target_faces)):
+                return plan
+    if not short:
+        return None
+    # no way to the target within the bound: the fewest faces within it, after the level's own collapses
+    # (a blocky character whose first collapse passes the bound sheds its layers)
+    plan = _removal_plan(hier, T, running, bound, c.collapses, c.target_faces, limit, False)
+    return plan if plan is not None and max(plan.error, plan.peak) <= limit and plan.faces < c.faces else None
+
+
+def _redirected(out: list, old_label: str, level) -> list:
+    """``out`` with the targets that ended at level ``old_label`` ending at ``level`` (its label, prefix, faces
+    and error) instead."""
+    from dataclasses import replace
+
+    return [replace(d, same_as=level.label, faces=level.faces, collapses=level.collapses, error=level.error)
+            if d.same_as == old_label else d for d in out]

@@ -151,3 +151,19 @@ def test_a_coarser_target_the_bound_stops_ends_at_the_finer_level_the_plates_mad
     assert first["same_as"] is None and first["faces"] == 48 and first["stopped"] is None
     assert second["same_as"] == first["label"] and second["faces"] == 48 and second["stopped"] == "max_error"
     assert [lv.n_faces for lv in asset.levels] == [48]
+
+
+def test_targets_that_ended_at_a_replaced_level_take_its_faces():
+    """A level replaced by removals (218 -> 214 faces on the sweep's boar) takes the coarser targets that ended
+    at it along: their ``same_as``, faces, prefix and error are the new level's (they said "ends at the 218
+    faces of level quartic-50pct-214f")."""
+    from rigslim.plugins.decimation.levels import LevelChoice
+    from rigslim.plugins.decimation.prune import _redirected
+
+    old = LevelChoice(0.5, 181, 180, 218, 0.02, "max_error", "quartic-50pct-218f")
+    new = LevelChoice(0.5, 181, 178, 214, 0.021, "max_error", "quartic-50pct-214f", parts_removed=1)
+    coarser = LevelChoice(0.25, 90, 180, 218, 0.02, "max_error", "quartic-25pct-218f", same_as=old.label)
+    other = LevelChoice(0.1, 36, 0, 362, 0.0, "max_error", "quartic-10pct", same_as="source")
+    out = _redirected([new, coarser, other], old.label, new)
+    assert out[0] is new and out[2] is other
+    assert (out[1].same_as, out[1].faces, out[1].collapses, out[1].error) == (new.label, 214, 178, 0.021)
