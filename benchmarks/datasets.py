@@ -191,13 +191,8 @@ def suite(names=None, *, min_joints: int = 0, multi_clip: bool | None = None,
         raise ValueError(f"group {group!r}: use suite, holdout or all")
     files = {"suite": [SUITE / "suite.json"], "holdout": [HOLDOUT / "holdout.json"]}
     files["all"] = files["suite"] + files["holdout"]
-    chars = [SuiteCharacter(e) for f in files[group] for e in json.loads(f.read_text())["characters"]]
-    if names is not None:
-        known = {c.name: c for c in chars}
-        missing = [n for n in names if n not in known]
-        if missing:
-            raise KeyError(f"no suite character {missing} (known: {', '.join(known)})")
-        chars = [known[n] for n in names]
+    chars = _named([SuiteCharacter(e) for f in files[group] for e in json.loads(f.read_text())["characters"]],
+                   names, "no suite character {missing}")
     return [c for c in chars if c.joints >= min_joints and (multi_clip is None or c.multi_clip == multi_clip)
             and (textured is None or c.textured == textured)]
 
@@ -215,11 +210,17 @@ def index_characters(index: Path, names=None) -> list[SuiteCharacter]:
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise ValueError(f"{index}: not a character index with a 'characters' list ({type(e).__name__}: {e}); "
                          "build one with tools/suite/sweep.py --out FOLDER") from None
-    chars = [SuiteCharacter(e, root=index.parent) for e in entries]
-    if names is not None:
-        known = {c.name: c for c in chars}
-        missing = [n for n in names if n not in known]
-        if missing:
-            raise KeyError(f"no character {missing} in {index} (known: {', '.join(known)})")
-        chars = [known[n] for n in names]
-    return chars
+    return _named([SuiteCharacter(e, root=index.parent) for e in entries], names,
+                  f"no character {{missing}} in {index}")
+
+
+def _named(chars: list[SuiteCharacter], names, unknown: str) -> list[SuiteCharacter]:
+    """``chars``, or only those called ``names`` in that order; unknown names raise ``KeyError`` with
+    ``unknown`` (its ``{missing}`` filled) and the known names."""
+    if names is None:
+        return chars
+    known = {c.name: c for c in chars}
+    missing = [n for n in names if n not in known]
+    if missing:
+        raise KeyError(unknown.replace("{missing}", str(missing)) + f" (known: {', '.join(known)})")
+    return [known[n] for n in names]
