@@ -327,9 +327,9 @@ class _CollapseLoop:
         self.F0 = self.Fm.copy()                                   # the source faces, for the face-side error
         self.vf0 = [sorted(f) for f in self.vf[:st.m]]
         self.boundary, self.along, self.charts = setup.boundary, setup.along, setup.charts
-        self.Qw = model.compiled_spec()[1] if normalised else None
-        self.Qp = model.compiled_spec()[1] if source else None
         self.Qf = model.compiled_spec()[1]        # the live quadrics (merged as the model merges), for the floor
+        self.Qw = self.Qf if normalised else None
+        self.Qp = self.Qf if source else None
         self.table = _EdgeTable(st.W.shape[1], max(16, 2 * len(setup.edges)))
         ids = np.array([self.table.add(int(a), int(b)) for a, b in setup.edges], dtype=np.int64)
         self.evaluate(ids)
