@@ -167,7 +167,7 @@ def chain_animation(n_joints: int, frames: int = 9, seconds: float = 1.0, amplit
 def build_gltf(path, parts: list[Part], n_joints: int | None = None, *, weights: str = "f32", joints: str = "u8",
                joints_normalized: bool = False, positions: str = "f32", separate_meshes: bool = False,
                sparse_weights: bool = False, weight_stride: int | None = None, meshopt: bool = False,
-               draco: bool = False, required: tuple[str, ...] = (), metadata: bool = False,
+               draco: bool = False, draco_bits: int = 30, required: tuple[str, ...] = (), metadata: bool = False,
                duplicate_joint: bool = False, ibm: np.ndarray | None = None, frames: int = 9,
                scale: float = 1.0, root_scale: float = 1.0) -> Path:
     """Write a skinned ``.glb``: ``parts`` on a chain of ``n_joints`` joints along x (joint i at x = i), with a
@@ -186,6 +186,8 @@ def build_gltf(path, parts: list[Part], n_joints: int | None = None, *, weights:
     meshopt : store the vertex attributes and indices in EXT_meshopt_compression bufferViews over an empty
         fallback buffer (extension required)
     draco : compress every primitive with KHR_draco_mesh_compression (extension required)
+    draco_bits : Draco's position quantisation bits (30: lossless to float32 round-off; gltf-transform's
+        default is 14, whose decoded positions miss the bounds declared from the originals)
     required : more names for ``extensionsRequired`` (and ``extensionsUsed``)
     metadata : add an EXT_structural_metadata property table whose values live in a bufferView
     duplicate_joint : list the last joint twice in the skin
@@ -322,7 +324,7 @@ def build_gltf(path, parts: list[Part], n_joints: int | None = None, *, weights:
         used.add("EXT_meshopt_compression")
         req.add("EXT_meshopt_compression")
     if draco:
-        data = _draco(js, data, parts)
+        data = _draco(js, data, parts, draco_bits)
         used.add("KHR_draco_mesh_compression")
         req.add("KHR_draco_mesh_compression")
     if used:
@@ -381,9 +383,10 @@ def _meshopt(js: dict, data: bytes) -> bytes:
     return bytes(out)
 
 
-def _draco(js: dict, data: bytes, parts: list[Part]) -> bytes:
-    """Compress each primitive's POSITION, JOINTS_0 and WEIGHTS_0 with Draco (lossless quantisation bits off:
-    positions kept to 30 bits) into a bufferView the primitive's KHR_draco_mesh_compression names."""
+def _draco(js: dict, data: bytes, parts: list[Part], bits: int = 30) -> bytes:
+    """Compress each primitive's POSITION, JOINTS_0 and WEIGHTS_0 with Draco (positions quantised to ``bits``;
+    30 keeps them to float32 round-off) into a bufferView the primitive's KHR_draco_mesh_compression names. The
+    accessors keep the bounds of the original positions, as exporters write them."""
     import DracoPy
 
     out = bytearray(data)
@@ -393,7 +396,7 @@ def _draco(js: dict, data: bytes, parts: list[Part]) -> bytes:
         J = np.asarray(part.J[:, :4], np.float32)
         W = np.asarray(part.W[:, :4], np.float32)
         enc = DracoPy.encode(np.asarray(part.V, np.float32), np.asarray(part.F, np.uint32),
-                             quantization_bits=30, compression_level=1, preserve_order=True,
+                             quantization_bits=bits, compression_level=1, preserve_order=True,
                              generic_attributes={0: J, 1: W})
         out += b"\0" * ((-len(out)) % 4)
         js["bufferViews"].append({"buffer": 0, "byteOffset": len(out), "byteLength": len(enc)})

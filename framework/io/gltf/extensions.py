@@ -154,6 +154,7 @@ def _decode_draco(doc) -> None:
             for name, arr in arrays.items():
                 acc = js["accessors"][prim["attributes"][name]]
                 pending.append((acc, _cast(arr, acc, doc, f"{where}.attributes.{name}")))
+                _rebound(acc, pending[-1][1])
             if "indices" in prim:
                 acc = js["accessors"][prim["indices"]]
                 pending.append((acc, _cast(faces, acc, doc, f"{where} (indices)")))
@@ -170,6 +171,24 @@ def _decode_draco(doc) -> None:
     doc.buffers[index] = bytes(blob)
     js["buffers"][index]["byteLength"] = len(blob)
     _forget(doc, "KHR_draco_mesh_compression")
+
+
+def _rebound(acc: dict, raw: bytes) -> None:
+    """The accessor's ``min`` / ``max`` made those of its decoded values. A lossy Draco stream (quantised
+    positions: gltf-transform's default is 14 bits) decodes to values a little off the bounds the exporter
+    declared from the original data; written out uncompressed, those bounds would fail the validator
+    (``ACCESSOR_MAX_MISMATCH``). Per glTF 2.0 the bounds are of the stored values, normalised or not."""
+    if "min" not in acc and "max" not in acc:
+        return
+    width = _WIDTH.get(acc.get("type", "SCALAR"), 1)
+    arr = np.frombuffer(raw, np.dtype(_DTYPES[acc["componentType"]]).newbyteorder("<")).reshape(-1, width)
+    if not len(arr):
+        return
+    cast = float if arr.dtype.kind == "f" else int
+    if "min" in acc:
+        acc["min"] = [cast(x) for x in arr.min(axis=0)]
+    if "max" in acc:
+        acc["max"] = [cast(x) for x in arr.max(axis=0)]
 
 
 def _cast(arr: np.ndarray, acc: dict, doc, where: str) -> bytes:
