@@ -270,6 +270,15 @@ def _load_gltf_file(path: Path, allow_external_uris: bool | None) -> GltfDocumen
     return out
 
 
+def accessor_bounds(array: np.ndarray, component: int) -> tuple[list, list]:
+    """The ``min`` and ``max`` an accessor of ``component`` type declares for the stored values ``array``
+    ((count, width) or (count,); glTF 2.0: the stored values, normalised accessors included), per component:
+    floats for FLOAT (5126), integers otherwise."""
+    a = np.asarray(array).reshape(len(array), -1)
+    cast = float if component == 5126 else int
+    return [cast(x) for x in a.min(axis=0)], [cast(x) for x in a.max(axis=0)]
+
+
 def read_accessor(doc: GltfDocument, index: int, *, normalize: bool = True) -> np.ndarray:
     """Decode one accessor into a numpy array.
 

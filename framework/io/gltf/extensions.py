@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from rigslim.errors import InputError
+from rigslim.io.gltf.document import accessor_bounds
 
 #: Extensions whose data rigslim decodes at load time (and removes from the document).
 DECODED = ("EXT_meshopt_compression", "KHR_meshopt_compression", "KHR_draco_mesh_compression")
@@ -178,17 +179,11 @@ def _rebound(acc: dict, raw: bytes) -> None:
     positions: gltf-transform's default is 14 bits) decodes to values a little off the bounds the exporter
     declared from the original data; written out uncompressed, those bounds would fail the validator
     (``ACCESSOR_MAX_MISMATCH``). Per glTF 2.0 the bounds are of the stored values, normalised or not."""
-    if "min" not in acc and "max" not in acc:
-        return
-    width = _WIDTH.get(acc.get("type", "SCALAR"), 1)
-    arr = np.frombuffer(raw, np.dtype(_DTYPES[acc["componentType"]]).newbyteorder("<")).reshape(-1, width)
-    if not len(arr):
-        return
-    cast = float if arr.dtype.kind == "f" else int
-    if "min" in acc:
-        acc["min"] = [cast(x) for x in arr.min(axis=0)]
-    if "max" in acc:
-        acc["max"] = [cast(x) for x in arr.max(axis=0)]
+    if ("min" in acc or "max" in acc) and acc["count"]:
+        width = _WIDTH.get(acc.get("type", "SCALAR"), 1)
+        arr = np.frombuffer(raw, np.dtype(_DTYPES[acc["componentType"]]).newbyteorder("<")).reshape(-1, width)
+        lo, hi = accessor_bounds(arr, acc["componentType"])
+        acc.update({k: v for k, v in (("min", lo), ("max", hi)) if k in acc})
 
 
 def _cast(arr: np.ndarray, acc: dict, doc, where: str) -> bytes:

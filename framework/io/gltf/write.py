@@ -31,7 +31,7 @@ from rigslim.io.transforms import matrix_quaternion
 if TYPE_CHECKING:
     from rigslim.model.weights import ReducedWeights
 
-from rigslim.io.gltf.document import CHUNK_BIN, CHUNK_JSON, GLB_MAGIC, URI_SCHEME
+from rigslim.io.gltf.document import CHUNK_BIN, CHUNK_JSON, GLB_MAGIC, URI_SCHEME, accessor_bounds
 from rigslim.io.gltf.level_skins import level_skin, source_inverse_binds, used_joints
 from rigslim.io.gltf.lod import (
     hierarchy_attributes,
@@ -226,10 +226,7 @@ class _Blob:
         if normalized:
             acc["normalized"] = True
         if minmax:
-            a = array.reshape(len(array), -1)
-            cast = float if component == 5126 else int
-            acc["min"] = [cast(x) for x in a.min(axis=0)]
-            acc["max"] = [cast(x) for x in a.max(axis=0)]
+            acc["min"], acc["max"] = accessor_bounds(array, component)
         js.setdefault("accessors", []).append(acc)
         return len(js["accessors"]) - 1
 
