@@ -74,7 +74,7 @@ class DecimationParams(Params):
     on the suite it met 26 of 30 levels against 22 without (docs/simplification.md)."""
     face_distance: bool = False
     """With ``source_distance``: also add the face-side error, the mean squared distance of the new faces'
-    rest-pose centroids from the source faces of the originals their corners stand for
+    rest-pose centroids and new edges' midpoints from the source faces of the originals their corners stand for
     (:func:`rigslim.plugins.decimation.compiled.face_error`), so that no new face spreads within its plane
     over empty space (a grip's opening covered). On for ``quartic`` (docs/simplification.md, "The face-side
     error")."""

@@ -463,19 +463,24 @@ class _CollapseLoop:
 
     def face_error(self, a: int, b: int, rem: list[int], pc: np.ndarray) -> float:
         """:func:`rigslim.plugins.decimation.compiled.face_error`: the mean squared distance of the new faces'
-        rest-pose centroids from the source faces of the originals their corners stand for."""
+        rest-pose centroids, and of the midpoints of their new edges (from the merged vertex to the corner after
+        it), from the source faces of the originals their corners stand for."""
         C = self.Fm[rem]
         corners = self.st.pos[C][:, :, 0]                          # (L, 3, 3) rest positions
-        corners[(C == a) | (C == b)] = pc[0]
+        at_c = (C == a) | (C == b)
+        corners[at_c] = pc[0]
         g = (corners[:, 0] + corners[:, 1] + corners[:, 2]) / 3.0
-        found = []
+        after = (np.argmax(at_c, axis=1) + 1) % 3                  # the corner after c in each face
+        h = 0.5 * (pc[0] + corners[np.arange(len(C)), after])
+        found: list[float] = []
         for i, row in enumerate(C.tolist()):
             owners = [a, b] + [x for x in row if x != a and x != b]
             faces = sorted({f for x in owners for p in self.members(x) for f in self.vf0[p]})
             if not faces:
                 continue
             T = self.st.pos[self.F0[faces]][:, :, 0]               # (k, 3, 3)
-            found.append(float(point_triangle_distances2(g[i][None], T[:, 0], T[:, 1], T[:, 2]).min()))
+            d = point_triangle_distances2(np.stack([g[i], h[i]])[:, None], T[:, 0], T[:, 1], T[:, 2]).min(axis=1)
+            found.extend(float(x) for x in d)
         total = 0.0
         for d in sorted(found):                                    # the compiled loop's order: smallest first
             total += d

@@ -341,18 +341,21 @@ def _nearest_source(g0, g1, g2, root, mem, tri, best, stack):
 def face_error(a, b, nrem, F, pos, mem, pc, rem, stack):
     """The face-side error of collapsing (a, b): the mean squared distance of the new faces from the source.
 
-    ``R = (1 / |rem|) sum_f d(g_f, S_f)^2`` over the new faces f around the merged vertex (``rem[:nrem]``, with
-    a and b at ``pc[0]``), ``g_f`` the centroid of f in the rest pose and ``S_f`` the source faces of the
-    original vertices that f's three corners stand for (``mem``: a's and b's, and the two others'). The
-    quadrics measure the new vertex against unbounded planes and ``S`` the source against the new faces;
-    neither sees a new face that spreads within its plane over empty space (a grip's opening covered), ``R``
-    does. The rest pose only: the example poses would multiply its cost by their number. A source face is
-    skipped when it cannot be nearer than the nearest so far: a triangle lies within ``reach`` of its first
-    corner A, so its distance is at least ``|g - A| - reach``, and a whole subtree of the merge tree when g is
-    farther than ``best`` from its ball (:func:`_nearest_source`): the minimum is the same as without the tests.
+    ``R = (1 / 2|rem|) sum_f (d(g_f, S_f)^2 + d(h_f, S_f)^2)`` over the new faces f around the merged vertex
+    c (``rem[:nrem]``, with a and b at ``pc[0]``), ``g_f`` the centroid of f in the rest pose, ``h_f`` the
+    midpoint of f's new edge from c to the corner that follows c in f (each edge of c's fan is that edge of
+    one face), and ``S_f`` the source faces of the original vertices that f's three corners stand for
+    (``mem``: a's and b's, and the two others'). The quadrics measure the new vertex against unbounded planes
+    and ``S`` the source against the new faces; neither sees a new face that spreads within its plane over
+    empty space (a grip's opening covered), ``R`` does: at its centre, and along the new edges, where a face
+    whose centre stays on the source still cuts across a notch or a gap. The rest pose only: the example
+    poses would multiply its cost by their number. A source face is skipped when it cannot be nearer than the
+    nearest so far: a triangle lies within ``reach`` of its first corner A, so its distance is at least
+    ``|g - A| - reach``, and a whole subtree of the merge tree when g is farther than ``best`` from its ball
+    (:func:`_nearest_source`): the minimum is the same as without the tests.
     """
     tri = mem.tri0
-    found = np.empty(nrem)
+    found = np.empty(2 * nrem)
     count = 0
     for i in range(nrem):
         f = rem[i]
@@ -360,17 +363,24 @@ def face_error(a, b, nrem, F, pos, mem, pc, rem, stack):
         X = pc[0] if (x == a or x == b) else pos[x, 0]
         Y = pc[0] if (y == a or y == b) else pos[y, 0]
         Z = pc[0] if (z == a or z == b) else pos[z, 0]
+        N = Y if (x == a or x == b) else (Z if (y == a or y == b) else X)     # the corner after c
         g0 = (X[0] + Y[0] + Z[0]) / 3.0
         g1 = (X[1] + Y[1] + Z[1]) / 3.0
         g2 = (X[2] + Y[2] + Z[2]) / 3.0
+        h0 = 0.5 * (pc[0, 0] + N[0])
+        h1 = 0.5 * (pc[0, 1] + N[1])
+        h2 = 0.5 * (pc[0, 2] + N[2])
         best = np.inf
+        edge = np.inf
         for root in (a, b, -1 if (x == a or x == b) else x, -1 if (y == a or y == b) else y,
                      -1 if (z == a or z == b) else z):
             if root >= 0:
                 best = _nearest_source(g0, g1, g2, root, mem, tri, best, stack)
+                edge = _nearest_source(h0, h1, h2, root, mem, tri, edge, stack)
         if best < np.inf:
             found[count] = best
-            count += 1
+            found[count + 1] = edge
+            count += 2
     if count == 0:
         return 0.0
     found = np.sort(found[:count])          # summed smallest first: the same sum in any order of the faces

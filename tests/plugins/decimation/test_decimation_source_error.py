@@ -130,11 +130,11 @@ def test_point_triangle_distances_match_a_brute_force_and_the_compiled_kernel():
     np.testing.assert_array_equal(compiled, got)
 
 
-def test_the_face_side_error_is_the_new_faces_distance_from_the_source():
-    """A unit square of two triangles; (1, 2) collapses to (1, 0.5, h): the one new face (0, c, 3) has its
-    centroid (1/3, 1/2, h/3) above the square, so R = (h/3)^2. Placed back in the plane, R = 0."""
+def _unit_square_face_error(pc):
+    """The compiled and the numpy face-side error of collapsing (1, 2) of a unit square of two triangles
+    (0, 1, 2), (0, 2, 3) to ``pc``: the one new face is (0, c, 3)."""
     from rigslim.plugins.decimation import compiled as cc
-    from rigslim.plugins.decimation.collapse import _vertex_faces
+    from rigslim.plugins.decimation.collapse import _CollapseLoop, _vertex_faces
 
     V = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
     F = np.array([[0, 1, 2], [0, 2, 3]], np.int64)
@@ -147,10 +147,32 @@ def test_the_face_side_error_is_the_new_faces_distance_from_the_source():
     vx = cc.LoopVertices(pos[:, 0].copy(), np.ones((2 * m, 1)), np.zeros((2 * m, 1, 4, 4)), pos)
     s = cc.new_scratch(1)
     s.rem[0] = 1
-    for h, want in ((0.3, (0.3 / 3) ** 2), (0.0, 0.0)):
-        s.pc[:] = [1.0, 0.5, h]
-        got = cc.face_error(1, 2, 1, mesh.F, vx.pos, mem, s.pc, s.rem, mem.stack)
-        assert got == pytest.approx(want, rel=1e-12, abs=1e-15)
+    s.pc[:] = pc
+    compiled = cc.face_error(1, 2, 1, mesh.F, vx.pos, mem, s.pc, s.rem, mem.stack)
+    ref = _CollapseLoop.__new__(_CollapseLoop)          # only what face_error reads
+    ref.Fm, ref.F0 = F, F
+    ref.st = type("St", (), {"pos": pos})()
+    ref.vf0 = [{0, 1}, {0}, {0, 1}, {1}]
+    ref.members = lambda x: [x]
+    return compiled, ref.face_error(1, 2, [1], np.tile(np.asarray(pc, float), (2, 1)))
+
+
+def test_the_face_side_error_is_the_new_faces_distance_from_the_source():
+    """(1, 2) collapses to (1, 0.5, h): the new face (0, c, 3) has its centroid (1/3, 1/2, h/3) and its new
+    edge's midpoint, from c to the corner after it (3), (1/2, 3/4, h/2) above the square, so
+    R = ((h/3)^2 + (h/2)^2) / 2. Placed back in the plane, R = 0."""
+    for h, want in ((0.3, ((0.3 / 3) ** 2 + (0.3 / 2) ** 2) / 2), (0.0, 0.0)):
+        for got in _unit_square_face_error([1.0, 0.5, h]):
+            assert got == pytest.approx(want, rel=1e-12, abs=1e-15)
+
+
+def test_the_face_side_error_sees_a_new_edge_that_leaves_the_source():
+    """In the plane, c at (2.5, 0.2): the new face (0, c, 3) has its centroid (0.833, 0.4) on the square, but
+    its new edge's midpoint (1.25, 0.6) lies 0.25 beyond the square's side x = 1. A centroid alone measured
+    0; with the midpoint R = (0 + 0.25^2) / 2."""
+    compiled, ref = _unit_square_face_error([2.5, 0.2, 0.0])
+    assert compiled == pytest.approx(0.25 ** 2 / 2, rel=1e-12)
+    assert ref == compiled
 
 
 def merged_members(V, F, order):
