@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.datasets import index_characters, machine, suite, write_results  # noqa: E402
-from benchmarks.gltf_lod import RIGSLIM, compare, held_out_frames  # noqa: E402
+from benchmarks.gltf_lod import RIGSLIM, compare, held_out_frames, run  # noqa: E402
 
 RATIOS = (0.5, 0.25, 0.1)
 #: Clips measured per character at most (evenly spread over its clips: re_player_all has 62).
@@ -54,12 +54,6 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
-def _run(cmd: list[str]) -> None:
-    p = subprocess.run(cmd, capture_output=True, text=True)
-    if p.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed: {p.stderr.strip()[-600:]}")
-
-
 def levels_for(path: Path, tmp: Path, base: Path, samples: int) -> dict:
     """``{"head": [...], "base": [...]}``: each checkout's levels of one character, measured."""
     runs = {"head": RIGSLIM, "base": [sys.executable, "-c", _BASE_CLI, str(base)]}
@@ -67,7 +61,7 @@ def levels_for(path: Path, tmp: Path, base: Path, samples: int) -> dict:
     out = {}
     for name, cli in runs.items():
         dst, report = tmp / f"{path.stem}-{name}.glb", tmp / f"{path.stem}-{name}.json"
-        _run(cli + ["lod", str(path), "-o", str(dst), "--ratios", ",".join(map(str, RATIOS)), "--max-error", "none",
+        run(cli + ["lod", str(path), "-o", str(dst), "--ratios", ",".join(map(str, RATIOS)), "--max-error", "none",
                     "--report", str(report)])
         rep = json.loads(report.read_text())
         if test is None:
