@@ -287,10 +287,7 @@ def point_mesh_squared_distances(P: np.ndarray, V: np.ndarray, F: np.ndarray,
     P = np.ascontiguousarray(P, np.float64).reshape(-1, 3)
     tree = build_tree(V, F) if tree is None else tree
     out = np.empty(len(P))
-    if nearest is None or len(nearest) != len(P) or nearest.dtype != np.int64:
-        nearest = np.full(len(P), -1, np.int64)
-    else:                            # a guess beyond these triangles (another mesh's) is no guess
-        nearest[nearest >= len(F)] = -1
+    nearest = _guesses(nearest, len(P), len(F))
     none = np.zeros(0, np.int64)
     _query(P, V, F, tree.lo, tree.hi, tree.kid, tree.first, tree.count, tree.perm, out, nearest, none, none,
            np.zeros(0, np.bool_))
@@ -298,19 +295,31 @@ def point_mesh_squared_distances(P: np.ndarray, V: np.ndarray, F: np.ndarray,
 
 
 def distances_to_other_parts(P: np.ndarray, owner: np.ndarray, V: np.ndarray, F: np.ndarray, part: np.ndarray,
-                             alive: np.ndarray, tree: TriangleTree | None = None) -> np.ndarray:
+                             alive: np.ndarray, tree: TriangleTree | None = None,
+                             nearest: np.ndarray | None = None) -> np.ndarray:
     """(n,) squared distances of the points ``P`` to the triangles of the other parts that are alive: point p's
     is ``min d(p, t)^2`` over the triangles t with ``part[t] != owner[p]`` and ``alive[part[t]]`` (inf when
     there is none). One hierarchy of every triangle serves every part (``tree``, as for
     :func:`point_mesh_squared_distances`); the excluded triangles are skipped where the search reaches them,
-    so the minimum is the one of a search of the allowed triangles."""
+    so the minimum is the one of a search of the allowed triangles. ``nearest``: (n,) int64 first guesses
+    (-1: none; an excluded triangle is none), overwritten with the triangles found, as for
+    :func:`point_mesh_squared_distances`."""
     V = np.ascontiguousarray(V, np.float64)
     F = np.ascontiguousarray(F, np.int64)
     P = np.ascontiguousarray(P, np.float64).reshape(-1, 3)
     tree = build_tree(V, F) if tree is None else tree
     out = np.empty(len(P))
-    nearest = np.full(len(P), -1, np.int64)
+    nearest = _guesses(nearest, len(P), len(F))
     _query(P, V, F, tree.lo, tree.hi, tree.kid, tree.first, tree.count, tree.perm, out, nearest,
            np.ascontiguousarray(part, np.int64), np.ascontiguousarray(owner, np.int64),
            np.ascontiguousarray(alive, np.bool_))
     return out
+
+
+def _guesses(nearest: np.ndarray | None, n: int, n_faces: int) -> np.ndarray:
+    """``nearest`` as first guesses of n points' nearest triangles among ``n_faces`` (a new array of -1 when
+    it is None or not (n,) int64; a guess beyond the triangles, another mesh's, is no guess)."""
+    if nearest is None or len(nearest) != n or nearest.dtype != np.int64:
+        return np.full(n, -1, np.int64)
+    nearest[nearest >= n_faces] = -1
+    return nearest

@@ -109,6 +109,14 @@ def test_distances_to_other_parts_match_a_brute_force_over_the_allowed_triangles
     for p, o, g in zip(P, owner, got, strict=True):
         allowed = F[(part != o) & alive[part]]
         assert g == pytest.approx(_brute([p], V, allowed)[0], rel=1e-12, abs=1e-15)
+    guess = np.full(len(P), -1, np.int64)
+    np.testing.assert_array_equal(distances_to_other_parts(P, owner, V, F, part, alive, tree, guess), got)
+    assert (part[guess] != owner).all() and alive[part[guess]].all()      # each point's nearest allowed triangle
+    np.testing.assert_array_equal(distances_to_other_parts(P, owner, V, F, part, alive, tree, guess), got)
+    alive2 = alive.copy()
+    alive2[part[guess[0]]] = False                                         # a guess on a removed part is none
+    np.testing.assert_array_equal(distances_to_other_parts(P, owner, V, F, part, alive2, tree, guess.copy()),
+                                  distances_to_other_parts(P, owner, V, F, part, alive2, tree))
     only = np.array([True, False, False, False, False])
     alone = distances_to_other_parts(P[:3], np.zeros(3, np.int64), V, F, part, only, tree)
     assert np.isinf(alone).all()

@@ -133,6 +133,31 @@ def test_the_lazy_greedy_removes_what_an_eager_one_does():
     assert [s.faces_left for s in steps] == list(range(len(F) - 4, len(F) - 4 * len(steps) - 1, -4))
 
 
+def test_a_large_part_measured_against_the_rest_gives_the_brute_force_distances():
+    """The studded ball's ball has most of the faces: it is measured against a hierarchy of the other live parts
+    (``LARGE_SHARE``), the studs against the shared one. Removing every part but one (the ball stays), the
+    sequence and its distances are the eager brute force's; every part's first distance, the ball's among them,
+    is the brute force's, and the ball's again once a stud is gone."""
+    from rigslim.plugins.decimation.prune import LARGE_MIN_FACES, _PartDistances
+
+    V, F, n_ball = studded_ball(6)
+    level, T = rigid_level(V, F), poses(3)
+    n, part = face_parts(F)
+    X = np.stack([V @ T[j, 0, :, :3].T + T[j, 0, :, 3] for j in range(len(T))])
+    measure = _PartDistances(X, V, F, part, n)
+    assert n_ball >= LARGE_MIN_FACES and measure.large.sum() == 1 and measure.large[part[0]]   # the ball alone
+    brute = [removal_distance(X, V, F[part == p], F[part != p]) for p in range(n)]
+    np.testing.assert_allclose(measure.start(), brute, rtol=1e-12)
+    measure.alive[part[-1]] = False                                    # the far stud gone: the ball measured again
+    assert measure.distance(part[0]) == pytest.approx(
+        removal_distance(X, V, F[part == part[0]], F[(part != part[0]) & (part != part[-1])]), rel=1e-12)
+    steps, why = prune_sequence(level, T, 1, None)
+    want, labels = eager_sequence(level, T, 1)
+    assert why == "no collapse" and len(steps) == n - 1 and part[0] not in {part[s.faces[0]] for s in steps}
+    assert [int(labels[s.faces[0]]) for s in steps] == [p for p, _ in want]
+    np.testing.assert_allclose([s.distance for s in steps], [d for _, d in want], rtol=1e-12)
+
+
 def test_the_bound_and_the_last_part_stop_the_removals():
     V, F, _ = parts_mesh([[0, 0, 0], [3, 0, 0], [0, 30, 0]], [1.0, 0.3, 0.3])
     level, T = rigid_level(V, F), poses(2)
