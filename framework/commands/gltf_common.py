@@ -305,8 +305,9 @@ def _as_option_error(e: RigslimError, command: str, pipeline: dict, label: str) 
     e.args = (e.one_line(),)
 
 
-def _run(pipeline: dict, args, console) -> tuple[object, float]:
-    """Run the pipeline document in memory; stage ``--save-pipeline`` (committed with the outputs).
+def _run(pipeline: dict, args, console, saved=None) -> tuple[object, float]:
+    """Run the pipeline document in memory; stage ``--save-pipeline`` (committed with the outputs): the
+    document, or ``saved(document)`` where the command does part of the writing itself (``lod --split``).
 
     Errors the run reports against the document name the command-line option (:func:`option_for_field`).
     """
@@ -316,7 +317,8 @@ def _run(pipeline: dict, args, console) -> tuple[object, float]:
     command = pipeline["name"].split("-", 1)[0]
     if getattr(args, "save_pipeline", None):
         with atomic_path(args.save_pipeline) as tmp:
-            Path(tmp).write_text(yaml.safe_dump(pipeline, sort_keys=False))
+            Path(tmp).write_text(yaml.safe_dump(saved(copy.deepcopy(pipeline)) if saved else pipeline,
+                                                sort_keys=False))
     label = f"rigslim {command}"
     t0 = time.perf_counter()
     try:
@@ -327,19 +329,20 @@ def _run(pipeline: dict, args, console) -> tuple[object, float]:
     return result, time.perf_counter() - t0
 
 
-def _chain(src: Path, out: Path, make, args, console, tmp: Path, doc=None):
+def _chain(src: Path, out: Path, make, args, console, tmp: Path, doc=None, saved=None):
     """Run ``make(input, output, skin)`` pipelines once per skin, each reading the previous one's output.
 
     One skin: one run, ``skin`` None (the reader's default). ``tmp``: a
     :func:`~rigslim.io.atomic.scratch_folder` for the intermediate files; ``doc``: the input's loaded
-    document. Returns ``[(pipeline, result, seconds), ...]``.
+    document; ``saved``: what ``--save-pipeline`` writes of a run's document (:func:`_run`). Returns
+    ``[(pipeline, result, seconds), ...]``.
     """
     from rigslim.io.gltf.document import load_gltf
 
     skins = [] if is_usd(src) else skins_used((doc or load_gltf(src)).json)    # USD: the reader picks the skeleton
     if len(skins) <= 1:
         pipeline = make(src, out, None)
-        return [(pipeline, *_run(pipeline, args, console))]
+        return [(pipeline, *_run(pipeline, args, console, saved))]
     if is_usd(out):
         raise InputError(f"{src.name} has {len(skins)} skins; a USD output holds one skeleton's meshes",
                          source=src, field="-o", fix="write glTF, or convert one skin at a time with a pipeline "
@@ -348,7 +351,7 @@ def _chain(src: Path, out: Path, make, args, console, tmp: Path, doc=None):
     for i, s in enumerate(skins):
         dst = out if i == len(skins) - 1 else tmp / f"skin{s}{out.suffix}"
         pipeline = make(inp, dst, s)
-        runs.append((pipeline, *_run(pipeline, args, console)))
+        runs.append((pipeline, *_run(pipeline, args, console, saved)))
         inp = dst
     return runs
 

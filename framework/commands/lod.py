@@ -38,6 +38,7 @@ from rigslim.commands.lod_levels import (
     write_sidecar,
 )
 from rigslim.errors import InputError
+from rigslim.io.gltf.sidecar import split_names
 from rigslim.runtime.metrics_document import flat_metrics
 
 
@@ -50,11 +51,6 @@ def parse_ratios(text: str) -> list[float]:
         raise InputError(f"--ratios '{text}' is not a decreasing list of fractions in (0, 1)", field="--ratios",
                          fix="write e.g. --ratios 0.5,0.25")
     return ratios
-
-
-def split_names(out: Path, ratios) -> list[Path]:
-    """``OUT-50.glb``, ``OUT-25.glb``: one file per level, named after the percentage of faces."""
-    return [out.with_name(f"{out.stem}-{r * 100:g}{out.suffix}") for r in ratios]
 
 
 #: ``--max-error`` default: 1 % of the first test pose's world diagonal (gltfpack's ``-se`` default is 1 %).
@@ -149,7 +145,8 @@ def cmd_lod(args) -> int:
         runs = _chain(src, target, lambda i, o, s: lod_pipeline(
             i, o, ratios=ratios, max_bones=args.max_bones, clip=args.clip, fps=args.fps, frames=frames,
             quantize=args.quantize, method=args.method, measure=args.measure, skin=s, max_error=max_error,
-            joints=joints, coverage=coverage, keep_parts=args.keep_parts), args, console, tmp, source)
+            joints=joints, coverage=coverage, keep_parts=args.keep_parts), args, console, tmp, source,
+            saved=_split_in_writer(out) if args.split else None)
         pipeline, result, _ = runs[0]
         seconds = sum(r[2] for r in runs)
         step = _decimate_step(result)
@@ -190,6 +187,16 @@ def cmd_lod(args) -> int:
     if unnormalised:
         print(unnormalised, file=sys.stderr)
     return 0
+
+
+def _split_in_writer(out: Path):
+    """``--split --save-pipeline``: the saved pipeline's write step names ``-o`` and splits there itself
+    (the glTF writer's ``split: true``), where the command splits a scratch file."""
+    def saved(pipeline: dict) -> dict:
+        write = pipeline["steps"][-1]
+        write["write"], write["split"] = str(out.absolute()), True
+        return pipeline
+    return saved
 
 
 def _lod_document(args, src, outputs, runs, result, targets, kept, step, clip, duration, frames, ratios,
@@ -263,7 +270,7 @@ def _joints_used(result) -> int | None:
     """How many joints the run's input skin weighs (its asset's weights)."""
     import numpy as np
 
-    from rigslim.commands.lod_levels import sp_indices
+    from rigslim.io.gltf.sidecar import sp_indices
 
     W = result.asset.weights if result.asset is not None else None
     return None if W is None else int(len(np.unique(sp_indices(W))))

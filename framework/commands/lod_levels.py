@@ -11,22 +11,16 @@
 
 from __future__ import annotations
 
-import os
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from rigslim.errors import InputError
+from rigslim.io.gltf import sidecar
+from rigslim.io.gltf.sidecar import SIDECAR_SCHEMA, sidecar_path
 
 __all__ = ["SIDECAR_SCHEMA", "add_level_arguments", "decimate_params", "level_rows", "parse_max_joints",
            "print_levels", "say_joint_budget_stops", "sidecar_path", "skin_split_rows", "switch_camera", "write_params",
            "write_sidecar"]
-
-#: Schema name of ``OUT.lod.json``.
-SIDECAR_SCHEMA = "rigslim-lod-sidecar"
-SIDECAR_VERSION = 1
-
 
 def add_level_arguments(p) -> None:
     """The per-level options of ``rigslim lod``."""
@@ -98,37 +92,11 @@ def write_params(args) -> dict:
             "switch_error": getattr(args, "switch_error", "max")}
 
 
-def _steps(result, stage: str) -> list[dict]:
-    return [s for s in result.document["steps"] if s["stage"] == stage]
-
-
 def level_rows(result) -> list[dict]:
     """Per level of a ``rigslim lod`` run: faces, vertices, joints (and the skin of each level mesh),
-    influences (vertices x influences, the most per vertex), the joint budget, error and coverage."""
-    decimate = (_steps(result, "decimate") or [{}])[-1].get("report", {})
-    write = (_steps(result, "write") or [{}])[-1].get("report", {})
-    budget = {r["label"]: r for r in (decimate.get("joint_budget") or {}).get("levels", [])}
-    switch = {r["label"]: r for r in (write.get("switch") or {}).get("levels", [])}
-    prims = {r["label"]: r for r in write.get("level_primitives", [])}
-    rows = []
-    for lv in result.asset.levels:
-        counts = lv.weights.influence_counts()
-        used = np.unique(lv.weights.indices[lv.weights.values != 0])
-        row = {"label": lv.label, "faces": lv.n_faces, "vertices": lv.n_vertices, "joints": int(len(used)),
-               "influences": int(counts.sum()), "max_bones": int(counts.max(initial=0)),
-               "joint_matrices_per_draw": list((prims.get(lv.label) or {}).get("skin_joints", {}).values()) or None}
-        if (prims.get(lv.label) or {}).get("joints") is not None:     # as written (a weight may round to 0)
-            row["joints"] = int(prims[lv.label]["joints"])
-        if lv.label in budget:
-            b = budget[lv.label]
-            row["joint_budget"] = {k: b.get(k) for k in ("budget", "joints_before", "dropped", "met", "strategy",
-                                                         "example_rms", "error", "max_error", "stopped",
-                                                         "next_error")}
-        if lv.label in switch:
-            s = switch[lv.label]
-            row |= {k: s[k] for k in ("error_max_m", "error_rms_m", "screen_coverage", "switch_distance_m")}
-        rows.append(row)
-    return rows
+    influences (vertices x influences, the most per vertex), the joint budget, error and coverage
+    (:func:`rigslim.io.gltf.sidecar.level_rows`)."""
+    return sidecar.level_rows(result.asset, result.document["steps"])
 
 
 def print_levels(rows: list[dict]) -> None:
@@ -168,23 +136,7 @@ def say_joint_budget_stops(rows: list[dict], max_error: str | None) -> None:
 
 def switch_camera(result) -> dict | None:
     """The write step's coverage camera and ``MSFT_screencoverage`` (None when unmeasured)."""
-    sw = ((_steps(result, "write") or [{}])[-1].get("report") or {}).get("switch")
-    if not sw:
-        return None
-    return {k: sw.get(k) for k in ("pixel_error", "fov_deg", "resolution", "aspect", "error", "bounding_radius_m",
-                                   "test_frames", "coverage")}
-
-
-def sidecar_path(out: Path) -> Path:
-    """``OUT.lod.json`` beside ``OUT.glb``."""
-    return out.with_name(f"{out.stem}.lod.json")
-
-
-def _relative(path: Path, folder: Path) -> str:
-    try:
-        return os.path.relpath(Path(path).resolve(), Path(folder).resolve())
-    except ValueError:            # another drive
-        return str(Path(path).resolve())
+    return sidecar.switch_camera(result.document["steps"])
 
 
 def skin_split_rows(per_skin: list[dict], targets: list[float], radius: float, camera: dict) -> tuple[list[dict], dict]:
@@ -231,50 +183,7 @@ def skin_split_rows(per_skin: list[dict], targets: list[float], radius: float, c
 
 def write_sidecar(path: Path, *, source: Path, outputs: list[Path], rows: list[dict], result, header: dict,
                   combined: dict | None = None, radius: float | None = None, camera: dict | None = None) -> dict:
-    """``OUT.lod.json``: each level's file, faces, joints, error and the coverage range it shows in.
-
-    Level 0 is the input. Level ``i`` shows while ``min_coverage <= coverage < max_coverage`` (Babylon's
-    screen coverage of the bounding sphere, :mod:`rigslim.numerics.screen_coverage`), i.e. from
-    ``switch_distance_m`` on; file paths are relative to the sidecar's folder. ``combined`` and ``radius``: the
-    level-0 figures and coverage of :func:`skin_split_rows`, the character's bounding radius and the switch
-    camera, for a file whose skins were simplified apart (``rows`` then come from it too).
-    """
-    from rigslim.io.atomic import atomic_path
-    from rigslim.io.jsonsafe import dumps_strict
-
-    cam = camera or switch_camera(result) or {}
-    cov = (combined or cam).get("coverage") or []
-    src = result.asset
-    full_joints = int(len(np.unique(sp_indices(src.weights)))) if src.weights is not None else None
-    levels = [{"level": 0, "file": _relative(source, path.parent), "label": "input",
-               "faces": combined["faces"] if combined else src.mesh.n_faces if src.mesh is not None else None,
-               "joints": combined["joints"] if combined else full_joints,
-               "error_max_m": 0.0, "error_rms_m": 0.0, "max_coverage": 1.0,
-               "min_coverage": cov[0] if cov else None, "switch_distance_m": 0.0}]
-    for i, (row, file) in enumerate(zip(rows, outputs, strict=False), 1):
-        levels.append({"level": i, "file": _relative(file, path.parent), "label": row["label"], "faces": row["faces"],
-                       "vertices": row["vertices"], "joints": row["joints"], "influences": row["influences"],
-                       "max_bones": row["max_bones"], "error_max_m": row.get("error_max_m"),
-                       "error_rms_m": row.get("error_rms_m"),
-                       "max_coverage": cov[i - 1] if len(cov) > i - 1 else None,
-                       "min_coverage": cov[i] if len(cov) > i else None,
-                       "switch_distance_m": row.get("switch_distance_m")} | ({"skins": row["skins"]} if "skins" in row
-                                                                             else {}))
-    doc = header | {"sidecar_schema": SIDECAR_SCHEMA, "sidecar_version": SIDECAR_VERSION, "camera": {
-        k: cam.get(k) for k in ("pixel_error", "fov_deg", "resolution", "aspect", "error")},
-        "bounding_radius_m": radius if radius is not None else cam.get("bounding_radius_m"),
-        "test_frames": cam.get("test_frames"),
-        "coverage": "pi r^2 / (4 aspect d^2 tan^2(fov / 2)): the bounding sphere's share of the screen area "
-                    "(Babylon.js's MSFT_screencoverage); show level i while min_coverage <= coverage < max_coverage",
-        "levels": levels}
-    with atomic_path(path) as tmp:
-        Path(tmp).write_text(dumps_strict(doc, indent=2) + "\n")
-    return doc
-
-
-def sp_indices(W) -> np.ndarray:
-    """Column indices of a sparse matrix's stored non-zeros."""
-    import scipy.sparse as sp
-
-    A = sp.csr_matrix(W)
-    return A.indices[A.data != 0]
+    """``OUT.lod.json`` of a ``rigslim lod --split`` run (:func:`rigslim.io.gltf.sidecar.write_sidecar`;
+    ``camera``: the switch camera, by default the run's write step's)."""
+    return sidecar.write_sidecar(path, source=source, outputs=outputs, rows=rows, asset=result.asset, header=header,
+                                 camera=camera or switch_camera(result), combined=combined, radius=radius)

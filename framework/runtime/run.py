@@ -120,6 +120,21 @@ def referenced_files(doc) -> list[Path]:
     return out
 
 
+def _split_files(step: Step, steps: list[Step], out: Path) -> dict[str, Path]:
+    """The files a ``split: true`` write step will write, as far as the pipeline says before it runs: one per
+    face target of the decimate step before it (:func:`rigslim.io.gltf.sidecar.split_names`; the writer
+    checks the levels it names otherwise itself) and the sidecar."""
+    from rigslim.io.gltf.sidecar import sidecar_path, split_names
+
+    decimate = [s for s in steps if s.key == "decimate" and s.index < step.index]
+    targets = (decimate[-1].params.get("targets") if decimate else None) or []
+    targets = [t for t in targets if isinstance(t, int | float) and not isinstance(t, bool) and t > 0] \
+        if isinstance(targets, list) else []
+    label = f"steps[{step.index}].{step.key}"
+    files = {f"{label} (split, target {t:g})": p for t, p in zip(targets, split_names(out, targets), strict=True)}
+    return files | {f"{label} (split sidecar)": sidecar_path(out)}
+
+
 def _refuse_inputs_as_outputs(path: Path, base: Path, steps: list[Step], metrics_path, asset: Asset,
                               read_file: bool) -> None:
     """One line, before any step runs, if a ``write:``/``report:`` step or the metrics names a file the run
@@ -129,14 +144,18 @@ def _refuse_inputs_as_outputs(path: Path, base: Path, steps: list[Step], metrics
     document = getattr(asset.extras.get("gltf"), "document", None)
     if document is not None:
         inputs += referenced_files(document)
+    asset.extras["read_files"] = [Path(p) for p in inputs if p is not None]   # a writer's later outputs: split
     outputs = {}
     for step in steps:
         if step.key in ("write", "report"):
             out = Path(str(step.output))
             out = out if out.is_absolute() else base / out
-            outputs[f"steps[{step.index}].{step.key}"] = out
-            if out.suffix.lower() == ".gltf" and not step.params.get("embed"):   # the glTF writer's OUT.bin
-                outputs[f"steps[{step.index}].{step.key} (its buffer)"] = out.with_suffix(".bin")
+            files = _split_files(step, steps, out) if step.params.get("split") is True else \
+                {f"steps[{step.index}].{step.key}": out}
+            for label, file in files.items():
+                outputs[label] = file
+                if file.suffix.lower() == ".gltf" and not step.params.get("embed"):   # the glTF writer's OUT.bin
+                    outputs[f"{label} (its buffer)"] = file.with_suffix(".bin")
     if metrics_path is not None:
         outputs["--metrics"] = metrics_path
     try:

@@ -99,6 +99,11 @@ class GltfWriterParams(Params):
     """... and this many surface samples per side and frame."""
     level_skins: bool = True
     """Each level mesh gets a skin of only the joints its vertices use (false: the source skin)."""
+    split: bool = False
+    """With ``lod``: each level a file of its own beside the output, named after its face target
+    (``OUT-50.glb``, ``OUT-25.glb``; a face count: ``OUT-500f.glb``; another level: ``OUT-LABEL.glb``), and
+    ``OUT.lod.json`` saying when each shows (:mod:`rigslim.io.gltf.sidecar`); ``OUT`` itself is not written.
+    What ``rigslim lod --split`` writes."""
 
 
 class GltfWriter(Writer[GltfWriterParams]):
@@ -107,6 +112,13 @@ class GltfWriter(Writer[GltfWriterParams]):
     suffixes = (".glb", ".gltf")
 
     def write(self, path: Path, asset: Asset, params: GltfWriterParams, ctx: StepContext) -> None:
+        if params.split:
+            _write_split(self, path, asset, params, ctx)
+        else:
+            self.write_file(path, asset, params, ctx)
+
+    def write_file(self, path: Path, asset: Asset, params: GltfWriterParams, ctx: StepContext) -> None:
+        """The one output file (``split`` aside)."""
         from rigslim.io.gltf.write import export_skinned, fixed_width_weights, write_gltf
 
         levels = (asset.levels or None) if params.levels else None
@@ -176,3 +188,41 @@ class GltfWriter(Writer[GltfWriterParams]):
 
 READERS = [GltfReader]
 WRITERS = [GltfWriter]
+
+
+def _write_split(writer: GltfWriter, path: Path, asset: Asset, params: GltfWriterParams, ctx: StepContext) -> None:
+    """``split: true``: the ``MSFT_lod`` file into a scratch folder, then each level cut out of it into a file of
+    its own (:func:`rigslim.io.gltf.write.split_levels`) and the sidecar, both staged with the run's outputs.
+    Without levels (no decimate step, or none reached its target) only the sidecar is written."""
+    from pathlib import Path
+
+    import rigslim
+    from rigslim.errors import StepError
+    from rigslim.io.atomic import refuse_input_as_output, scratch_folder
+    from rigslim.io.gltf.sidecar import level_rows, sidecar_path, split_outputs, switch_camera, write_sidecar
+    from rigslim.io.gltf.write import split_levels
+
+    if not (params.lod and params.levels):
+        raise StepError("split: true cuts the MSFT_lod levels into files of their own", field="split",
+                        fix="set lod: true (and leave levels on), or leave split out")
+    labels = [lv.label for lv in asset.levels or []]
+    steps = list((ctx.document or {}).get("steps") or [])
+    outputs = split_outputs(path, labels, steps)
+    sidecar = sidecar_path(path)
+    named = {f"split ({p.name})": p for p in [*outputs, sidecar]}
+    if path.suffix.lower() == ".gltf" and not params.embed:
+        named |= {f"split ({p.name} buffer)": p.with_suffix(".bin") for p in outputs}
+    refuse_input_as_output(named, asset.extras.get("read_files") or [], distinct=False)
+    with scratch_folder("rigslim-split-") as tmp:
+        whole = tmp / f"lod{path.suffix}"
+        writer.write_file(whole, asset, params, ctx)
+        if outputs:
+            split_levels(whole, outputs)
+    steps.append({"stage": "write", "report": ctx.report})
+    inputs = [Path(p) for p in ((ctx.document or {}).get("inputs") or {}).values() if isinstance(p, str)]
+    source = Path((asset.provenance.get("gltf") or {}).get("path") or (inputs[0] if inputs else path))
+    write_sidecar(sidecar, source=source, outputs=outputs, rows=level_rows(asset, steps), asset=asset,
+                  header={"rigslim_version": rigslim.__version__, "written_by": "write: gltf, split: true"},
+                  camera=switch_camera(steps))
+    ctx.report["split"] = {"files": [str(p) for p in outputs], "sidecar": str(sidecar)}
+    ctx.log(f"{len(outputs)} level files and {sidecar.name}")

@@ -145,3 +145,40 @@ def test_refuse_input_as_output_compares_real_paths_and_inodes(tmp_path):
         refuse_input_as_output({"-o": tmp_path / "x.glb", "--report": tmp_path / "x.glb"}, [a])
     refuse_input_as_output({"-o": tmp_path / "x.glb", "--report": tmp_path / "x.glb"}, [a], distinct=False)
     refuse_input_as_output({"--report": "/dev/null", "--save-pipeline": "/dev/null"}, [a])   # written through
+
+
+
+def _split_pipeline(work: Path, src: str, targets: str) -> Path:
+    p = work / "p.yaml"
+    p.write_text(f"inputs:\n  gltf: {src}\nposes: {{examples: '0:40:4', test: '1:40:4'}}\n"
+                 f"steps:\n  - decimate: quartic\n    {targets}\n"
+                 f"  - write: c.glb\n    lod: true\n    split: true\n    clamp_negative: true\n")
+    return p
+
+
+@pytest.mark.parametrize("form", ["same", "symlink", "hardlink"])
+def test_pipeline_split_level_naming_the_input_is_refused(form, work, capsys):
+    """``write: c.glb`` with ``split: true`` after ``targets: [0.5]`` writes c-50.glb: refused before the
+    decimation runs when that is the input (or a link to it)."""
+    src = "c-50.glb" if form == "same" else "in.glb"
+    if form == "same":
+        os.replace(work / "in.glb", work / src)
+    elif form == "symlink":
+        (work / "c-50.glb").symlink_to("in.glb")
+    else:
+        os.link(work / "in.glb", work / "c-50.glb")
+    p = _split_pipeline(work, src, "targets: [0.5]")
+    _refused(["run", str(p), "-q"], [work / src, p], capsys, f"{p}: steps[2].write (split, target 0.5)")
+    assert not (work / "c.lod.json").exists()
+
+
+def test_pipeline_split_level_named_by_its_label_is_checked_by_the_writer(work, capsys):
+    """A level made for an error target is named after its label (c-quartic-err0.5.glb), which the pipeline
+    does not predict: the writer refuses it before it writes any file."""
+    os.replace(work / "in.glb", work / "c-quartic-err0.5.glb")
+    p = _split_pipeline(work, "c-quartic-err0.5.glb", "error_targets: [0.5]")
+    before = _sha(work / "c-quartic-err0.5.glb")
+    assert main(["run", str(p), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "steps[2] (write): split (c-quart" in err[0] and "(same file)" in err[0], err
+    assert _sha(work / "c-quartic-err0.5.glb") == before and not (work / "c.lod.json").exists()

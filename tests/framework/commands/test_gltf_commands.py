@@ -129,6 +129,28 @@ def test_lod_split_writes_one_pruned_file_per_level(tmp_path, valid):
     assert sizes[0] > sizes[1]
 
 
+def test_lod_split_saved_pipeline_writes_the_same_files(tmp_path):
+    """``lod --split --save-pipeline p.yaml``: the saved pipeline names -o with ``split: true`` (not the
+    command's scratch file), and ``rigslim run p.yaml`` writes the same level files, byte for byte, and the
+    same sidecar levels."""
+    import yaml
+
+    src, out, saved = GLTF / "huesitos.glb", tmp_path / "h.glb", tmp_path / "p.yaml"
+    assert main(["lod", str(src), "-o", str(out), "--ratios", "0.5,0.25", "--max-error", "none", "--split",
+                 "--save-pipeline", str(saved)]) == 0
+    write = yaml.safe_load(saved.read_text())["steps"][-1]
+    assert write["write"] == str(out) and write["split"] is True and write["lod"] is True
+    files = ["h-50.glb", "h-25.glb"]
+    by_command = {f: (tmp_path / f).read_bytes() for f in files}
+    side = json.loads((tmp_path / "h.lod.json").read_text())
+    for f in [*files, "h.lod.json"]:
+        (tmp_path / f).unlink()
+    assert main(["run", str(saved), "-q"]) == 0
+    assert {f: (tmp_path / f).read_bytes() for f in files} == by_command and not out.exists()
+    again = json.loads((tmp_path / "h.lod.json").read_text())
+    assert again["levels"] == side["levels"] and again["camera"] == side["camera"]
+
+
 def test_tube_levels_keep_seams_materials_and_morph_targets(tmp_path):
     """Per primitive: level UVs come from the source's range, seam vertices keep both UVs, morphs carried."""
     src = GLTF / "tube_two_materials.glb"

@@ -137,3 +137,55 @@ steps:
         assert np.diff(back.weights.indptr).max() <= 2
     report = result.document["steps"][-1]["report"]
     assert report["mode"] == "rewrite" and report["levels"] == 2
+
+
+def test_split_writes_each_level_and_the_sidecar(write_pipeline, valid):
+    """``split: true``: OUT-60.glb and OUT-30.glb (one level each, no MSFT_lod) and OUT.lod.json; OUT itself is
+    not written. Without levels only the sidecar; ``split`` without ``lod`` is one line."""
+    import json
+
+    from rigslim.io.gltf.document import load_gltf
+
+    text = """
+inputs:
+  gltf: data/gltf/huesitos.glb
+  fps: 10
+poses: {examples: "0:16:3", test: "1:16:3"}
+steps:
+  - decimate: quartic
+    targets: [0.6, 0.3]
+  - write: out/lod.glb
+    lod: true
+    split: true
+    clamp_negative: true
+"""
+    result = run_pipeline(write_pipeline(text))
+    folder = Path(result.document["pipeline"]).parent / "out"
+    assert sorted(p.name for p in folder.iterdir()) == ["lod-30.glb", "lod-60.glb", "lod.lod.json"]
+    levels = result.asset.levels
+    for name, level in zip(("lod-60.glb", "lod-30.glb"), levels, strict=True):
+        valid(folder / name)
+        assert "MSFT_lod" not in json.dumps(load_gltf(folder / name).json)
+        assert read_gltf_skin(folder / name).mesh.n_faces == level.n_faces
+    side = json.loads((folder / "lod.lod.json").read_text())
+    assert side["sidecar_schema"] == "rigslim-lod-sidecar"
+    assert [lv["file"] for lv in side["levels"][1:]] == ["lod-60.glb", "lod-30.glb"]
+    source = Path(result.document["pipeline"]).parent / "data" / "gltf" / "huesitos.glb"
+    assert (folder / side["levels"][0]["file"]).resolve() == source.resolve()
+    assert [lv["faces"] for lv in side["levels"][1:]] == [lv.n_faces for lv in levels]
+    cov = [lv["min_coverage"] for lv in side["levels"]]       # the coarsest shows down to coverage 0
+    assert all(c is not None and c > 0 for c in cov[:-1]) and cov[:-1] == sorted(cov[:-1], reverse=True), cov
+    assert cov[-1] == 0.0 and side["levels"][2]["max_coverage"] == cov[1]
+    report = result.document["steps"][-1]["report"]
+    assert report["split"]["files"] == [str(folder / "lod-60.glb"), str(folder / "lod-30.glb")]
+
+    for p in folder.iterdir():
+        p.unlink()
+    undecimated = text.replace("  - decimate: quartic\n    targets: [0.6, 0.3]\n", "")
+    run_pipeline(write_pipeline(undecimated, "undecimated.yaml"))
+    side = json.loads((folder / "lod.lod.json").read_text())
+    assert [p.name for p in folder.iterdir()] == ["lod.lod.json"] and len(side["levels"]) == 1
+
+    with pytest.raises(RigslimError, match="split: true cuts the MSFT_lod levels") as err:
+        run_pipeline(write_pipeline(text.replace("lod: true", "lod: false"), "nolod.yaml"))
+    assert "\n" not in str(err.value) and "lod: true" in err.value.fix
