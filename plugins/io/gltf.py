@@ -203,8 +203,8 @@ def _write_split(writer: GltfWriter, path: Path, asset: Asset, params: GltfWrite
     from rigslim.io.gltf.write import split_levels
 
     if not (params.lod and params.levels):
-        raise StepError("split: true cuts the MSFT_lod levels into files of their own", field="split",
-                        fix="set lod: true (and leave levels on), or leave split out")
+        raise StepError("true needs lod: true and levels: true (it cuts the MSFT_lod levels into files of their "
+                        "own)", field="split", fix="set lod: true (and leave levels on), or leave split out")
     labels = [lv.label for lv in asset.levels or []]
     steps = list((ctx.document or {}).get("steps") or [])
     outputs = split_outputs(path, labels, steps)

@@ -186,6 +186,6 @@ steps:
     side = json.loads((folder / "lod.lod.json").read_text())
     assert [p.name for p in folder.iterdir()] == ["lod.lod.json"] and len(side["levels"]) == 1
 
-    with pytest.raises(RigslimError, match="split: true cuts the MSFT_lod levels") as err:
+    with pytest.raises(RigslimError, match="split: true needs lod: true and levels: true") as err:
         run_pipeline(write_pipeline(text.replace("lod: true", "lod: false"), "nolod.yaml"))
     assert "\n" not in str(err.value) and "lod: true" in err.value.fix
