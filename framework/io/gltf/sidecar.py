@@ -57,9 +57,8 @@ def split_outputs(out: Path, labels: list[str], steps: list[dict]) -> list[Path]
     (:func:`split_names`), or, for a level made otherwise (an error or adaptive target), after its label."""
     out = Path(out)
     targets = kept_level_targets(steps)
-    names = [split_names(out, [targets[x]])[0] if x in targets else out.with_name(f"{out.stem}-{x}{out.suffix}")
-             for x in labels]
-    return names
+    return [split_names(out, [targets[x]])[0] if x in targets else out.with_name(f"{out.stem}-{x}{out.suffix}")
+            for x in labels]
 
 
 def level_rows(asset, steps: list[dict]) -> list[dict]:
