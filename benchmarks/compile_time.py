@@ -11,7 +11,9 @@ b. the same call in a second process on that cache (the kernels are loaded, not 
 c. the first ``rigslim lod examples/data/gltf/huesitos.glb --ratios 0.5,0.25`` on an empty cache;
 d. the same command in a second process on that cache;
 e. ``rigslim lod`` after ``tools/warm-numba.py`` alone on an empty cache (what ``make install`` leaves);
-   the warm-up's own seconds are its row.
+   the warm-up's own seconds are its row;
+f. then the README's first command on that cache, ``rigslim run examples/elephant-k4.yaml`` (best-fit,
+   geometric, the evaluation's position and normal metrics).
 
 The child processes record numba's ``numba:compile`` events: per compiled function (a dispatcher: one
 row per Python function, however many type specialisations), the number of specialisations and the
@@ -48,6 +50,7 @@ OUT = ROOT / "docs" / "results" / "compile_time"
 GLB = ROOT / "examples" / "data" / "gltf" / "huesitos.glb"
 WARM = ROOT / "tools" / "warm-numba.py"
 LOD_ARGS = ["lod", str(GLB.relative_to(ROOT)), "--ratios", "0.5,0.25"]
+DEMO_ARGS = ["run", "examples/elephant-k4.yaml", "-q"]
 TOP = 12  # kernels listed per scenario in the markdown table
 
 
@@ -115,9 +118,11 @@ def child(what: str, workdir: str) -> None:
 
         t_import = time.perf_counter() - t0
         t1 = time.perf_counter()
-        code = main([*LOD_ARGS, "-o", str(Path(workdir) / "lod.glb")])
+        argv = [*DEMO_ARGS, "--metrics", str(Path(workdir) / "demo.json")] if what == "demo" else \
+            [*LOD_ARGS, "-o", str(Path(workdir) / "lod.glb")]
+        code = main(argv)
         if code not in (0, None):
-            raise SystemExit(f"rigslim lod exited with {code}")
+            raise SystemExit(f"rigslim {argv[0]} exited with {code}")
     seconds = time.perf_counter() - t1
     import rigslim
 
@@ -198,6 +203,7 @@ def measure(only: str | None, baseline: str | None = None) -> dict:
             cache.mkdir()
             scenarios["e_warm_numba"] = run_warm(cache)
             scenarios["e_lod_after_warm_numba"] = run_child("lod", cache, tmp)
+            scenarios["f_demo_after_warm_numba"] = run_child("demo", cache, tmp)
     return scenarios
 
 
@@ -210,6 +216,7 @@ LABELS = {
     "d_lod_cached": "d. the same command, second process (cached)",
     "e_warm_numba": "e. `tools/warm-numba.py` (`make install`'s warm-up), fresh cache",
     "e_lod_after_warm_numba": "e. then the first `rigslim lod` (after `make install` alone)",
+    "f_demo_after_warm_numba": "f. then the first `rigslim run examples/elephant-k4.yaml` (the README's demo)",
 }
 
 
@@ -257,7 +264,7 @@ def markdown(doc: dict) -> str:
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--child", choices=["reduce", "lod"], help=argparse.SUPPRESS)
+    ap.add_argument("--child", choices=["reduce", "lod", "demo"], help=argparse.SUPPRESS)
     ap.add_argument("--workdir", help=argparse.SUPPRESS)
     ap.add_argument("--only", choices=["reduce", "lod", "install"],
                     help="run one group of rows and print them; docs/results is not written")

@@ -1,9 +1,12 @@
-"""Compile rigslim's numba kernels once, into numba's on-disk cache: the default reduction's and ``rigslim lod``'s.
+"""Compile rigslim's numba kernels once, into numba's on-disk cache: the default reduction's, the vertex normals'
+and ``rigslim lod``'s.
 
 ``make install`` (and so ``make demo`` and ``make test``) runs this right after installing rigslim, so that
 the first ``rigslim reduce`` / ``rigslim.reduce_weights`` and the first ``rigslim lod`` a user runs load the
 kernels instead of compiling them. The reduction's kernels are those of the default method on several clips:
-best-fit selection by error, the non-negative geometric fit, the guard against k-largest; ``lod``'s are the
+best-fit selection by error, the non-negative geometric fit, the guard against k-largest; the area-weighted
+vertex normals that every evaluation's normal metrics use (about 4 s of compiling in the first ``make demo``
+when they were left out); ``lod``'s are the
 decimation loop's (edge costs, the collapse queue), warmed by an LOD chain of the bundled
 ``examples/data/gltf/huesitos.glb`` written to a temporary folder. ``benchmarks/compile_time.py`` measures
 each on a fresh cache and after this warm-up (docs/results/compile_time.md). A pip-installed rigslim compiles
@@ -59,6 +62,24 @@ def warm_reduce() -> float:
     return time.perf_counter() - t0
 
 
+def warm_normals() -> float:
+    """Area-weighted vertex normals (every evaluation's normal metrics, the glTF writer's normals) for the
+    argument kinds they get: a mesh's read-only faces or a writable copy, read-only rest positions or posed
+    ones; its seconds."""
+    from rigslim.numerics.blend import per_vertex_normals
+
+    V, F, _ = tube()
+    t0 = time.perf_counter()
+    for faces_writable in (False, True):
+        faces = F.astype(np.int64)
+        faces.setflags(write=faces_writable)
+        for positions_writable in (False, True):
+            positions = V.copy()
+            positions.setflags(write=positions_writable)
+            per_vertex_normals(positions, faces)
+    return time.perf_counter() - t0
+
+
 def warm_lod() -> float:
     """``rigslim lod huesitos.glb --ratios 0.5,0.25`` into a temporary folder (its report silenced); its seconds."""
     import contextlib
@@ -79,9 +100,10 @@ def warm_lod() -> float:
 
 def main() -> None:
     reduce_s = warm_reduce()
+    normals_s = warm_normals()
     lod_s = warm_lod()
     print(f"warm-numba: kernels compiled and cached: the default reduction ({reduce_s:.1f} s), "
-          f"rigslim lod ({lod_s:.1f} s)")
+          f"vertex normals ({normals_s:.1f} s), rigslim lod ({lod_s:.1f} s)")
 
 
 if __name__ == "__main__":
