@@ -104,9 +104,8 @@ def test_bad_gltf_inputs_are_one_line_errors(write_pipeline, inputs, match):
     assert not (path.parent / "out" / "x.glb").exists()
 
 
-def test_simplify_a_gltf_into_lod_levels(write_pipeline, valid):
-    """decimate + write: the original and two levels in one .glb, linked with MSFT_lod, valid."""
-    path = write_pipeline("""
+#: huesitos at 10 fps with example and test frames, then a decimation to 60 % and 30 % (the write step follows).
+HUESITOS_DECIMATED = """
 inputs:
   gltf: data/gltf/huesitos.glb
   fps: 10
@@ -114,7 +113,12 @@ poses: {examples: "0:16:3", test: "1:16:3"}
 steps:
   - decimate: quartic
     targets: [0.6, 0.3]
-    max_bones: 2
+"""
+
+
+def test_simplify_a_gltf_into_lod_levels(write_pipeline, valid):
+    """decimate + write: the original and two levels in one .glb, linked with MSFT_lod, valid."""
+    path = write_pipeline(HUESITOS_DECIMATED + """    max_bones: 2
   - write: out/lod.glb
     quantize: ushort
     lod: true
@@ -146,15 +150,7 @@ def test_split_writes_each_level_and_the_sidecar(write_pipeline, valid):
 
     from rigslim.io.gltf.document import load_gltf
 
-    text = """
-inputs:
-  gltf: data/gltf/huesitos.glb
-  fps: 10
-poses: {examples: "0:16:3", test: "1:16:3"}
-steps:
-  - decimate: quartic
-    targets: [0.6, 0.3]
-  - write: out/lod.glb
+    text = HUESITOS_DECIMATED + """  - write: out/lod.glb
     lod: true
     split: true
     clamp_negative: true
